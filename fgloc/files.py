@@ -1,0 +1,376 @@
+"""Read and write survey.json and result.json (``shared/spec/survey-format.md``, version 1).
+
+Reading validates everything a solver relies on and raises :class:`FileFormatError`
+with one line naming the file, the field and the offending value. Unknown extra
+fields are ignored. Writes are atomic: a temporary file in the same directory is
+written, flushed, fsynced and renamed over the target.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from fgloc.geometry import is_rotation
+from fgloc.model import (
+    CameraPose,
+    FglocError,
+    FlaggedObservation,
+    Gauge,
+    NodeEstimate,
+    NodeMode,
+    Observation,
+    Result,
+    SolveStats,
+    Survey,
+    Truth,
+)
+
+SURVEY_FORMAT = "fgloc-survey"
+RESULT_FORMAT = "fgloc-result"
+FORMAT_VERSION = 1
+
+
+class FileFormatError(FglocError):
+    """A survey or result file that does not follow the interchange contract."""
+
+
+def _show(value: Any) -> str:
+    text = json.dumps(value) if not isinstance(value, float) else repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+class _Reader:
+    """Typed field access that reports ``file: field: problem`` on failure."""
+
+    def __init__(self, path: str) -> None:
+        self.path = path
+
+    def fail(self, field_name: str, problem: str) -> FileFormatError:
+        return FileFormatError(f"{self.path}: {field_name}: {problem}")
+
+    def get(self, obj: dict, key: str, where: str, required: bool = True) -> Any:
+        name = f"{where}.{key}" if where else key
+        if key not in obj:
+            if required:
+                raise self.fail(name, "missing required field")
+            return None
+        return obj[key]
+
+    def obj(self, value: Any, name: str) -> dict:
+        if not isinstance(value, dict):
+            raise self.fail(name, f"expected an object, got {_show(value)}")
+        return value
+
+    def array(self, value: Any, name: str) -> list:
+        if not isinstance(value, list):
+            raise self.fail(name, f"expected an array, got {_show(value)}")
+        return value
+
+    def ident(self, value: Any, name: str) -> str:
+        if not isinstance(value, str) or not value:
+            raise self.fail(name, f"expected a non-empty string id, got {_show(value)}")
+        return value
+
+    def number(self, value: Any, name: str, positive: bool = False) -> float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise self.fail(name, f"expected a number, got {_show(value)}")
+        x = float(value)
+        if not math.isfinite(x):
+            raise self.fail(name, f"expected a finite number, got {_show(value)}")
+        if positive and x <= 0.0:
+            raise self.fail(name, f"must be > 0, got {_show(value)}")
+        return x
+
+    def vector(self, value: Any, name: str, length: int) -> np.ndarray:
+        items = self.array(value, name)
+        if len(items) != length:
+            raise self.fail(name, f"expected {length} numbers, got {_show(value)}")
+        return np.array([self.number(v, f"{name}[{i}]") for i, v in enumerate(items)])
+
+    def matrix(self, value: Any, name: str, size: int) -> np.ndarray:
+        rows = self.array(value, name)
+        if len(rows) != size:
+            raise self.fail(name, f"expected a {size}x{size} matrix, got {_show(value)}")
+        return np.array([self.vector(r, f"{name}[{i}]", size) for i, r in enumerate(rows)])
+
+    def unique_ids(self, values: list[str], name: str) -> None:
+        seen: set[str] = set()
+        for i, v in enumerate(values):
+            if v in seen:
+                raise self.fail(f"{name}[{i}]", f"duplicate id {_show(v)}")
+            seen.add(v)
+
+
+def _load_json(path: str | os.PathLike[str]) -> tuple[_Reader, dict]:
+    reader = _Reader(str(path))
+    try:
+        text = Path(path).read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise FileFormatError(f"{path}: file not found") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise FileFormatError(f"{path}: cannot read: {exc}") from None
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise FileFormatError(f"{path}: not valid JSON: {exc}") from None
+    return reader, reader.obj(data, "(top level)")
+
+
+def _check_header(r: _Reader, data: dict, expected_format: str) -> None:
+    fmt = r.get(data, "format", "")
+    if fmt != expected_format:
+        raise r.fail("format", f"expected {_show(expected_format)}, got {_show(fmt)}")
+    version = r.get(data, "version", "")
+    if isinstance(version, bool) or version != FORMAT_VERSION:
+        raise r.fail("version", f"unsupported version {_show(version)} (this reader knows {FORMAT_VERSION})")
+
+
+def _mode(r: _Reader, data: dict) -> NodeMode:
+    value = r.get(data, "nodes", "")
+    try:
+        return NodeMode(value)
+    except ValueError:
+        raise r.fail("nodes", f'expected "planar" or "3d", got {_show(value)}') from None
+
+
+def _camera_pose(r: _Reader, value: Any, name: str) -> CameraPose:
+    obj = r.obj(value, name)
+    position = r.vector(r.get(obj, "position", name), f"{name}.position", 3)
+    rotation = r.matrix(r.get(obj, "rotation", name), f"{name}.rotation", 3)
+    if not is_rotation(rotation, tol=1e-5):
+        raise r.fail(f"{name}.rotation", "not a proper rotation matrix (R^T R = I, det = +1)")
+    return CameraPose(position=position, rotation=rotation)
+
+
+def read_survey(path: str | os.PathLike[str]) -> Survey:
+    """Read and validate a survey.json file."""
+    r, data = _load_json(path)
+    _check_header(r, data, SURVEY_FORMAT)
+    mode = _mode(r, data)
+    sigma = r.number(r.get(data, "sigma", ""), "sigma", positive=True)
+
+    cameras = r.array(r.get(data, "cameras", ""), "cameras")
+    camera_ids = [
+        r.ident(r.get(r.obj(c, f"cameras[{i}]"), "id", f"cameras[{i}]"), f"cameras[{i}].id")
+        for i, c in enumerate(cameras)
+    ]
+    r.unique_ids(camera_ids, "cameras")
+    node_ids = [r.ident(n, f"node_ids[{i}]") for i, n in enumerate(r.array(r.get(data, "node_ids", ""), "node_ids"))]
+    r.unique_ids(node_ids, "node_ids")
+
+    gauge_obj = r.obj(r.get(data, "gauge", ""), "gauge")
+    origin = r.ident(r.get(gauge_obj, "origin", "gauge"), "gauge.origin")
+    baseline = r.ident(r.get(gauge_obj, "baseline", "gauge"), "gauge.baseline")
+    known_cameras = set(camera_ids)
+    for name, cam in (("gauge.origin", origin), ("gauge.baseline", baseline)):
+        if cam not in known_cameras:
+            raise r.fail(name, f"camera {_show(cam)} is not in cameras")
+    if origin == baseline:
+        raise r.fail("gauge.baseline", f"must differ from gauge.origin, both are {_show(origin)}")
+
+    known_nodes = set(node_ids)
+    observations: list[Observation] = []
+    for i, item in enumerate(r.array(r.get(data, "observations", ""), "observations")):
+        where = f"observations[{i}]"
+        o = r.obj(item, where)
+        cam = r.ident(r.get(o, "camera", where), f"{where}.camera")
+        if cam not in known_cameras:
+            raise r.fail(f"{where}.camera", f"unknown camera {_show(cam)}")
+        node = r.ident(r.get(o, "node", where), f"{where}.node")
+        if node not in known_nodes:
+            raise r.fail(f"{where}.node", f"unknown node {_show(node)}")
+        pan = r.number(r.get(o, "pan", where), f"{where}.pan")
+        tilt = r.number(r.get(o, "tilt", where), f"{where}.tilt")
+        if abs(tilt) > math.pi / 2 + 1e-9:
+            raise r.fail(f"{where}.tilt", f"must lie in [-pi/2, pi/2], got {_show(tilt)}")
+        obs_sigma = r.get(o, "sigma", where, required=False)
+        observations.append(
+            Observation(
+                camera=cam,
+                node=node,
+                pan=pan,
+                tilt=tilt,
+                sigma=None if obs_sigma is None else r.number(obs_sigma, f"{where}.sigma", positive=True),
+            )
+        )
+
+    truth = None
+    truth_value = r.get(data, "truth", "", required=False)
+    if truth_value is not None:
+        t = r.obj(truth_value, "truth")
+        cams_obj = r.obj(r.get(t, "cameras", "truth", required=False) or {}, "truth.cameras")
+        nodes_obj = r.obj(r.get(t, "nodes", "truth", required=False) or {}, "truth.nodes")
+        truth = Truth(
+            cameras={k: _camera_pose(r, v, f"truth.cameras.{k}") for k, v in cams_obj.items()},
+            nodes={k: r.vector(v, f"truth.nodes.{k}", 3) for k, v in nodes_obj.items()},
+        )
+    return Survey(
+        mode=mode,
+        gauge=Gauge(origin=origin, baseline=baseline),
+        sigma=sigma,
+        camera_ids=camera_ids,
+        node_ids=node_ids,
+        observations=observations,
+        truth=truth,
+    )
+
+
+def _pose_json(pose: CameraPose) -> dict:
+    return {"position": [float(v) for v in pose.position], "rotation": np.asarray(pose.rotation, float).tolist()}
+
+
+def survey_to_json(survey: Survey) -> dict:
+    """The survey as a JSON-ready dict per the spec."""
+    data: dict[str, Any] = {
+        "format": SURVEY_FORMAT,
+        "version": FORMAT_VERSION,
+        "nodes": survey.mode.value,
+        "gauge": {"origin": survey.gauge.origin, "baseline": survey.gauge.baseline},
+        "sigma": survey.sigma,
+        "cameras": [{"id": c} for c in survey.camera_ids],
+        "node_ids": list(survey.node_ids),
+        "observations": [
+            {"camera": o.camera, "node": o.node, "pan": o.pan, "tilt": o.tilt}
+            | ({} if o.sigma is None else {"sigma": o.sigma})
+            for o in survey.observations
+        ],
+    }
+    if survey.truth is not None:
+        data["truth"] = {
+            "cameras": {k: _pose_json(v) for k, v in survey.truth.cameras.items()},
+            "nodes": {k: [float(x) for x in v] for k, v in survey.truth.nodes.items()},
+        }
+    return data
+
+
+def result_to_json(result: Result) -> dict:
+    """The result as a JSON-ready dict per the spec, plus fgloc's extra fields."""
+    data: dict[str, Any] = {
+        "format": RESULT_FORMAT,
+        "version": FORMAT_VERSION,
+        "nodes": {
+            k: {"position": [float(x) for x in v.position], "covariance": np.asarray(v.covariance, float).tolist()}
+            for k, v in result.nodes.items()
+        },
+        "cameras": {k: _pose_json(v) for k, v in result.cameras.items()},
+        "unlocalized": dict(result.unlocalized),
+        # Extra fields (allowed by the spec: readers ignore unknown fields).
+        "mode": result.mode.value,
+        "flagged_observations": [
+            {"camera": f.camera, "node": f.node, "index": f.index, "whitened_residual": f.whitened_residual}
+            for f in result.flagged
+        ],
+    }
+    if result.stats is not None:
+        s = result.stats
+        data["solver"] = {
+            "method": s.method,
+            "iterations": s.iterations,
+            "initial_error": s.initial_error,
+            "final_error": s.final_error,
+            "converged": s.converged,
+            "stage_seconds": s.stage_seconds,
+            "error_history": s.error_history,
+        }
+    return data
+
+
+def write_json_atomic(data: dict, path: str | os.PathLike[str]) -> None:
+    """Write JSON so that ``path`` holds either the old or the complete new content."""
+    target = Path(path)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            json.dump(data, f, indent=1, allow_nan=False)
+            f.write("\n")
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, target)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    dir_fd = os.open(target.parent, os.O_RDONLY)
+    try:
+        os.fsync(dir_fd)
+    finally:
+        os.close(dir_fd)
+
+
+def write_survey(survey: Survey, path: str | os.PathLike[str]) -> None:
+    """Atomically write a survey.json file."""
+    write_json_atomic(survey_to_json(survey), path)
+
+
+def write_result(result: Result, path: str | os.PathLike[str]) -> None:
+    """Atomically write a result.json file."""
+    write_json_atomic(result_to_json(result), path)
+
+
+def read_result(path: str | os.PathLike[str]) -> Result:
+    """Read and validate a result.json file (fgloc's extra fields are optional)."""
+    r, data = _load_json(path)
+    _check_header(r, data, RESULT_FORMAT)
+    nodes_obj = r.obj(r.get(data, "nodes", ""), "nodes")
+    nodes: dict[str, NodeEstimate] = {}
+    dims: set[int] = set()
+    for k, v in nodes_obj.items():
+        where = f"nodes.{k}"
+        o = r.obj(v, where)
+        position = r.vector(r.get(o, "position", where), f"{where}.position", 3)
+        cov_rows = r.array(r.get(o, "covariance", where), f"{where}.covariance")
+        if len(cov_rows) not in (2, 3):
+            raise r.fail(f"{where}.covariance", f"expected a 2x2 or 3x3 matrix, got {_show(cov_rows)}")
+        cov = r.matrix(cov_rows, f"{where}.covariance", len(cov_rows))
+        dims.add(len(cov_rows))
+        nodes[k] = NodeEstimate(position=position, covariance=cov)
+    if len(dims) > 1:
+        raise r.fail("nodes", "covariances mix 2x2 and 3x3 matrices")
+    mode_value = data.get("mode")
+    if mode_value in ("planar", "3d"):
+        mode = NodeMode(mode_value)
+    else:
+        mode = NodeMode.THREE_D if dims == {3} else NodeMode.PLANAR
+    cams_obj = r.obj(r.get(data, "cameras", ""), "cameras")
+    cameras = {k: _camera_pose(r, v, f"cameras.{k}") for k, v in cams_obj.items()}
+    unloc_obj = r.obj(r.get(data, "unlocalized", "", required=False) or {}, "unlocalized")
+    unlocalized = {}
+    for k, v in unloc_obj.items():
+        if not isinstance(v, str):
+            raise r.fail(f"unlocalized.{k}", f"expected a reason string, got {_show(v)}")
+        unlocalized[k] = v
+    flagged = []
+    for i, f in enumerate(r.array(data.get("flagged_observations", []), "flagged_observations")):
+        where = f"flagged_observations[{i}]"
+        fo = r.obj(f, where)
+        flagged.append(
+            FlaggedObservation(
+                camera=r.ident(r.get(fo, "camera", where), f"{where}.camera"),
+                node=r.ident(r.get(fo, "node", where), f"{where}.node"),
+                index=int(r.number(r.get(fo, "index", where), f"{where}.index")),
+                whitened_residual=r.number(r.get(fo, "whitened_residual", where), f"{where}.whitened_residual"),
+            )
+        )
+    stats = None
+    solver = data.get("solver")
+    if isinstance(solver, dict):
+        try:
+            stats = SolveStats(
+                method=str(solver["method"]),
+                iterations=int(solver["iterations"]),
+                initial_error=float(solver["initial_error"]),
+                final_error=float(solver["final_error"]),
+                converged=bool(solver["converged"]),
+                stage_seconds={str(k): float(v) for k, v in solver.get("stage_seconds", {}).items()},
+                error_history=[float(e) for e in solver.get("error_history", [])],
+            )
+        except (KeyError, TypeError, ValueError):
+            stats = None  # informational only; never reject a result for it
+    return Result(mode=mode, nodes=nodes, cameras=cameras, unlocalized=unlocalized, flagged=flagged, stats=stats)
