@@ -1,0 +1,120 @@
+"""All pan-tilt readings of a survey as ``CustomFactor``s evaluated in one numpy pass.
+
+Each reading is still its own GTSAM factor (one bearing, one camera, one node,
+its own noise model, robust or not), with the error and Jacobians of
+:func:`factors.pan_tilt_factor.pan_tilt_error`. What changes is where the
+arithmetic happens: :meth:`PanTiltFactorSet.prepare` computes the errors and
+Jacobians of every reading for one ``gtsam.Values`` in a vectorized pass, and
+each factor's callback only copies its row out. GTSAM hands the callbacks the
+very ``Values`` object that was passed to ``linearize`` / ``error`` (no copy),
+so the callback recognizes a prepared linearization point by identity.
+
+A callback that sees any other ``Values`` (for example inside GTSAM's own C++
+optimizer, which passes copies) falls back to the per-reading reference
+computation: slower, same numbers.
+"""
+
+from __future__ import annotations
+
+import gtsam
+import numpy as np
+
+from factors.pan_tilt_factor import pan_tilt_error
+from fgloc.geometry import FloatArray, bearing_pan_tilt, pan_tilt_jacobian, pan_tilt_residual, skew
+
+
+def batch_pan_tilt_error(
+    rotations: FloatArray, positions: FloatArray, points: FloatArray, pan: FloatArray, tilt: FloatArray
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Vectorized :func:`pan_tilt_error`: rotations (M,3,3), positions (M,3), points (M,3).
+
+    Returns errors (M, 2), pose Jacobians (M, 2, 6) and point Jacobians (M, 2, 3).
+    """
+    q = np.einsum("mji,mj->mi", rotations, points - positions)
+    pred_pan, pred_tilt = bearing_pan_tilt(q)
+    e = pan_tilt_residual(pan, tilt, pred_pan, pred_tilt)
+    d = -pan_tilt_jacobian(q)
+    h_pose = np.concatenate([d @ skew(q), -d], axis=2)
+    h_point = np.einsum("mij,mkj->mik", d, rotations)  # d @ R^T
+    return e, h_pose, h_point
+
+
+class PanTiltFactorSet:
+    """Pan-tilt factors for many readings, with a shared vectorized evaluation cache.
+
+    Args:
+        camera_keys, node_keys: (M,) GTSAM keys of each reading's camera base
+            (``Pose3``) and node (``Point2`` on z = 0 if ``planar``, else ``Point3``).
+        pan, tilt: (M,) measured angles in radians.
+        noise_models: (M,) 2-D noise models (sigma in radians; may be robust).
+    """
+
+    def __init__(
+        self,
+        camera_keys: np.ndarray,
+        node_keys: np.ndarray,
+        pan: FloatArray,
+        tilt: FloatArray,
+        noise_models: list[gtsam.noiseModel.Base],
+        planar: bool,
+    ) -> None:
+        self.camera_keys = np.asarray(camera_keys, dtype=np.int64)
+        self.node_keys = np.asarray(node_keys, dtype=np.int64)
+        self.pan = np.asarray(pan, dtype=float)
+        self.tilt = np.asarray(tilt, dtype=float)
+        self.planar = planar
+        self._unique_cameras, self._cam_index = np.unique(self.camera_keys, return_inverse=True)
+        self._unique_nodes, self._node_index = np.unique(self.node_keys, return_inverse=True)
+        self._values: gtsam.Values | None = None
+        self._errors = np.empty((0, 2))
+        self._h_pose = np.empty((0, 2, 6))
+        self._h_point = np.empty((0, 2, 3))
+        self.factors = [self._make_factor(i, noise_models[i]) for i in range(len(self.pan))]
+
+    def __len__(self) -> int:
+        return len(self.pan)
+
+    def _make_factor(self, i: int, noise: gtsam.noiseModel.Base) -> gtsam.CustomFactor:
+        cache = self
+        pan, tilt, planar = float(self.pan[i]), float(self.tilt[i]), self.planar
+
+        def error(this: gtsam.CustomFactor, values: gtsam.Values, H: list[np.ndarray] | None) -> np.ndarray:
+            if values is cache._values:
+                if H is not None:
+                    H[0] = cache._h_pose[i]
+                    H[1] = cache._h_point[i]
+                return cache._errors[i]
+            keys = this.keys()
+            m = values.atPose3(keys[0]).matrix()
+            if planar:
+                xy = values.atPoint2(keys[1])
+                point = np.array([xy[0], xy[1], 0.0])
+            else:
+                point = np.asarray(values.atPoint3(keys[1]), dtype=float)
+            e, h_pose, h_point = pan_tilt_error(m[:3, :3], m[:3, 3], point, pan, tilt)
+            if H is not None:
+                H[0] = h_pose
+                H[1] = np.ascontiguousarray(h_point[:, :2]) if planar else h_point
+            return e
+
+        return gtsam.CustomFactor(noise, [int(self.camera_keys[i]), int(self.node_keys[i])], error)
+
+    def prepare(self, values: gtsam.Values) -> None:
+        """Evaluate every reading at ``values`` (do not modify ``values`` in place afterwards)."""
+        if values is self._values or len(self.pan) == 0:
+            return
+        poses = [values.atPose3(int(k)).matrix() for k in self._unique_cameras]
+        rot = np.array([m[:3, :3] for m in poses])
+        pos = np.array([m[:3, 3] for m in poses])
+        if self.planar:
+            xy = np.array([values.atPoint2(int(k)) for k in self._unique_nodes])
+            points = np.column_stack([xy, np.zeros(len(xy))])
+        else:
+            points = np.array([values.atPoint3(int(k)) for k in self._unique_nodes])
+        e, h_pose, h_point = batch_pan_tilt_error(
+            rot[self._cam_index], pos[self._cam_index], points[self._node_index], self.pan, self.tilt
+        )
+        self._errors = e
+        self._h_pose = h_pose
+        self._h_point = np.ascontiguousarray(h_point[:, :, :2]) if self.planar else h_point
+        self._values = values

@@ -1,0 +1,29 @@
+"""``fgloc score``: per-node error and covariance consistency against truth."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+from fgloc.files import read_result, read_survey
+from fgloc.model import FglocError
+from fgloc.scoring import format_score_table, score
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("score", help="score a result against a simulated survey's truth")
+    p.add_argument("survey", help="survey.json with truth")
+    p.add_argument("result", help="result.json to score")
+    p.add_argument("--baseline-m", type=float, default=100.0, help="baseline length in metres (default 100)")
+    p.add_argument("--json", action="store_true", help="print machine-readable JSON")
+    p.set_defaults(run=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    survey = read_survey(args.survey)
+    if survey.truth is None:
+        raise FglocError(f"{args.survey}: truth: missing (only simulated surveys can be scored)")
+    result = read_result(args.result)
+    s = score(survey, result, args.baseline_m)
+    print(json.dumps(s.as_dict(), indent=1) if args.json else format_score_table(s, args.baseline_m))
+    return 0

@@ -1,0 +1,43 @@
+"""``fgloc solve``: solve a survey.json into a result.json."""
+
+from __future__ import annotations
+
+import argparse
+
+from fgloc.files import read_survey, write_result
+from fgloc.joint_solver import solve_survey
+from fgloc.model import Result
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("solve", help="solve a survey (joint factor-graph solve by default)")
+    p.add_argument("survey", help="survey.json to read")
+    p.add_argument("-o", "--output", required=True, help="result.json to write (atomically)")
+    p.set_defaults(run=run)
+
+
+def describe(result: Result) -> str:
+    """One-paragraph summary of a solve for people."""
+    s = result.stats
+    lines = [f"localized {len(result.nodes)} nodes, {len(result.cameras)} cameras"
+             + (f"; {len(result.unlocalized)} unlocalized" if result.unlocalized else "")]
+    if s is not None:
+        lines.append(
+            f"{s.method}: {s.iterations} iterations, error {s.initial_error:.6g} -> {s.final_error:.6g}"
+            f" ({'converged' if s.converged else 'NOT converged'})"
+        )
+        total = sum(s.stage_seconds.values())
+        stages = ", ".join(f"{k} {1000 * v:.1f} ms" for k, v in s.stage_seconds.items())
+        lines.append(f"time {1000 * total:.1f} ms ({stages})")
+    if result.flagged:
+        lines.append(f"{len(result.flagged)} observations flagged as implausible (see result file)")
+    return "\n".join(lines)
+
+
+def run(args: argparse.Namespace) -> int:
+    survey = read_survey(args.survey)
+    result = solve_survey(survey)
+    write_result(result, args.output)
+    print(describe(result))
+    print(f"wrote {args.output}")
+    return 0

@@ -1,0 +1,194 @@
+"""Closed-form initial estimate from the bearings alone (no truth, no pose guess).
+
+Planar surveys (the paper's "epipolar geometry in pan-tilt space"):
+
+1. Average repeated readings of a (camera, node) pair into one unit bearing.
+2. Start from the gauge pair if it shares >= 4 nodes, else from the pair of
+   cameras sharing the most nodes. Estimate the bearing homography
+   ``b2 ∝ H b1`` (DLT), decompose it, and keep the decomposition with the most
+   nodes in front of both cameras. That fixes camera 1's height as the unit,
+   the ground plane as z = 0 and both bases.
+3. Place the pair's shared nodes where their rays meet the ground plane.
+4. Add every other camera from >= 4 placed nodes it sees (a homography from
+   the ground plane to its bearing sphere), then place the nodes it sees.
+5. Move everything into the spec's gauge (origin camera above (0, 0),
+   baseline camera above (1, 0)) by a similarity of the plane.
+
+Each node is placed by the inverse-variance weighted mean of the ground points
+of its rays (a ray's ground error grows as range / sin(grazing angle)). A node
+seen by no placed camera is reported as unlocalized.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from fgloc.geometry import FloatArray, pan_tilt_bearing
+from fgloc.homography import (
+    DegenerateGeometryError,
+    camera_from_plane_homography,
+    chirality_score,
+    decompose_bearing_homography,
+    estimate_bearing_homography,
+    plane_to_bearing_homography,
+)
+from fgloc.model import CameraPose, FglocError, NodeMode, Survey
+
+MIN_SHARED_PLANAR = 4
+
+
+@dataclass
+class InitialEstimate:
+    """Camera bases and node positions (world, gauge frame) to start the joint solve."""
+
+    cameras: dict[str, CameraPose]
+    nodes: dict[str, FloatArray]
+    unlocalized: dict[str, str] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class BearingSet:
+    """One averaged unit bearing per observed (camera, node) pair, as a dense table."""
+
+    bearings: FloatArray  # (n_cameras, n_nodes, 3), NaN where not observed
+    seen: np.ndarray  # (n_cameras, n_nodes) bool
+
+    @classmethod
+    def from_survey(cls, survey: Survey) -> "BearingSet":
+        t = survey.observation_table
+        n_cam, n_nodes = len(survey.camera_ids), len(survey.node_ids)
+        acc = np.zeros((n_cam, n_nodes, 3))
+        np.add.at(acc, (t.camera_index, t.node_index), pan_tilt_bearing(t.pan, t.tilt))
+        norm = np.linalg.norm(acc, axis=-1)
+        seen = norm > 0
+        with np.errstate(invalid="ignore", divide="ignore"):
+            bearings = np.where(seen[..., None], acc / norm[..., None], np.nan)
+        return cls(bearings=bearings, seen=seen)
+
+
+def _ground_hits(cameras: dict[int, CameraPose], bs: BearingSet, node: int) -> tuple[FloatArray, FloatArray]:
+    """Ground points (K, 2) where placed cameras' rays to ``node`` meet z = 0, and their weights."""
+    points, weights = [], []
+    for i, cam in cameras.items():
+        if not bs.seen[i, node]:
+            continue
+        d = cam.rotation @ bs.bearings[i, node]
+        if d[2] >= -1e-9 or cam.position[2] <= 0:
+            continue  # ray does not reach the ground in front of the camera
+        s = -cam.position[2] / d[2]
+        points.append((cam.position + s * d)[:2])
+        sin_grazing = -d[2]
+        weights.append((sin_grazing / s) ** 2)
+    return np.array(points).reshape(-1, 2), np.array(weights)
+
+
+def _place_nodes(cameras: dict[int, CameraPose], bs: BearingSet, nodes: dict[int, FloatArray]) -> None:
+    for j in range(bs.seen.shape[1]):
+        if j in nodes:
+            continue
+        pts, w = _ground_hits(cameras, bs, j)
+        if len(pts):
+            xy = (w[:, None] * pts).sum(0) / w.sum()
+            nodes[j] = np.array([xy[0], xy[1], 0.0])
+
+
+def _pair_frame(bs: BearingSet, a: int, b: int) -> dict[int, CameraPose]:
+    """Cameras a and b in a frame with the plane at z = 0 and camera a above the origin."""
+    shared = bs.seen[a] & bs.seen[b]
+    b1, b2 = bs.bearings[a, shared], bs.bearings[b, shared]
+    H = estimate_bearing_homography(b1, b2)
+    candidates = decompose_bearing_homography(H)
+    scores = [chirality_score(c, b1, b2) for c in candidates]
+    best = candidates[int(np.argmax(scores))]
+    n = best.normal / np.linalg.norm(best.normal)  # points from camera a down to the plane
+    height = 1.0 / np.linalg.norm(best.normal)
+    up = -n
+    w = -best.rotation.T @ best.translation  # camera b's centre in camera a's base frame
+    horiz = w - (w @ up) * up
+    if np.linalg.norm(horiz) < 1e-9 * max(np.linalg.norm(w), 1e-300):
+        raise DegenerateGeometryError("the two cameras stand on the same vertical: no ground baseline")
+    x_axis = horiz / np.linalg.norm(horiz)
+    y_axis = np.cross(up, x_axis)
+    R_a = np.vstack([x_axis, y_axis, up])  # camera-a base -> world
+    c_a = np.array([0.0, 0.0, height])
+    c_b = R_a @ w + c_a
+    R_b = R_a @ best.rotation.T
+    return {a: CameraPose(c_a, R_a), b: CameraPose(c_b, R_b)}
+
+
+def _to_planar_gauge(
+    cameras: dict[int, CameraPose], nodes: dict[int, FloatArray], origin: int, baseline: int
+) -> tuple[dict[int, CameraPose], dict[int, FloatArray]]:
+    """Similarity of the plane taking the gauge cameras' ground points to (0, 0) and (1, 0)."""
+    g0 = cameras[origin].position[:2]
+    d = cameras[baseline].position[:2] - g0
+    length = float(np.linalg.norm(d))
+    if length < 1e-12:
+        raise DegenerateGeometryError("the gauge cameras stand on the same vertical: no ground baseline")
+    ang = np.arctan2(d[1], d[0])
+    c, s = np.cos(-ang), np.sin(-ang)
+    rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    shift = np.array([g0[0], g0[1], 0.0])
+
+    def move(p: FloatArray) -> FloatArray:
+        return rot @ (p - shift) / length
+
+    new_cams = {i: CameraPose(move(cam.position), rot @ cam.rotation) for i, cam in cameras.items()}
+    new_nodes = {j: move(p) for j, p in nodes.items()}
+    return new_cams, new_nodes
+
+
+def covisibility(bs: BearingSet) -> np.ndarray:
+    """(n_cameras, n_cameras) number of nodes each pair of cameras both sees."""
+    s = bs.seen.astype(np.int64)
+    return s @ s.T
+
+
+def initialize_planar(survey: Survey) -> InitialEstimate:
+    """Closed-form start for a planar survey (see the module docstring)."""
+    if survey.mode is not NodeMode.PLANAR:
+        raise FglocError("initialize_planar needs a planar survey")
+    bs = BearingSet.from_survey(survey)
+    ids = survey.camera_ids
+    origin, baseline = ids.index(survey.gauge.origin), ids.index(survey.gauge.baseline)
+    shared = covisibility(bs)
+    if shared[origin, baseline] >= MIN_SHARED_PLANAR:
+        a, b = origin, baseline
+    else:
+        off = shared - np.diag(np.diag(shared))
+        a, b = np.unravel_index(int(np.argmax(off)), off.shape)
+        if off[a, b] < MIN_SHARED_PLANAR:
+            raise DegenerateGeometryError(
+                f"no two cameras share {MIN_SHARED_PLANAR} nodes (best: {ids[a]} and {ids[b]} share {off[a, b]})"
+            )
+    cameras = _pair_frame(bs, int(a), int(b))
+    nodes: dict[int, FloatArray] = {}
+    only_pair = {k: cameras[k] for k in (a, b)}
+    _place_nodes(only_pair, bs, nodes)
+    while len(cameras) < len(ids):
+        placed = np.zeros(bs.seen.shape[1], dtype=bool)
+        placed[list(nodes)] = True
+        counts = [(int(np.sum(bs.seen[i] & placed)), i) for i in range(len(ids)) if i not in cameras]
+        n_best, k = max(counts)
+        if n_best < MIN_SHARED_PLANAR:
+            missing = sorted(ids[i] for _, i in counts)
+            raise DegenerateGeometryError(
+                f"camera(s) {', '.join(missing)} share fewer than {MIN_SHARED_PLANAR} nodes with the placed cameras"
+            )
+        vis = bs.seen[k] & placed
+        xy = np.array([nodes[j][:2] for j in np.flatnonzero(vis)])
+        cameras[k] = camera_from_plane_homography(plane_to_bearing_homography(xy, bs.bearings[k, vis]))
+        _place_nodes(cameras, bs, nodes)
+    cameras, nodes = _to_planar_gauge(cameras, nodes, origin, baseline)
+    unlocalized = {
+        survey.node_ids[j]: ("seen by no camera" if not bs.seen[:, j].any() else "no ray reaches the ground plane")
+        for j in range(len(survey.node_ids))
+        if j not in nodes
+    }
+    return InitialEstimate(
+        cameras={ids[i]: cam for i, cam in cameras.items()},
+        nodes={survey.node_ids[j]: p for j, p in nodes.items()},
+        unlocalized=unlocalized,
+    )
