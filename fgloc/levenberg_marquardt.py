@@ -9,7 +9,11 @@ Python-owned ``Values`` itself and the loop is linear in n.
 Damping is diagonal (Marquardt): ``lambda * diag(J^T J)`` per variable, which is
 invariant to the strong whitening of 0.1-degree bearings (information ~3e5 would
 otherwise swamp an isotropic ``lambda I``). Lambda follows Nielsen's gain-ratio
-rule. The linear systems are solved by GTSAM's multifrontal Cholesky in the
+rule and starts small (1e-7): relative to ``diag(J^T J)`` a near-Gauss-Newton
+first step is right for this problem from the closed-form start, and a
+start at 1e-4 cost 8-11 iterations instead of 4-5 on the 100-node survey
+(the ratio rule only shrinks lambda by 3x per step). A rejected step raises
+it. The linear systems are solved by GTSAM's multifrontal Cholesky in the
 given elimination ordering.
 """
 
@@ -32,7 +36,7 @@ class LMParams:
     max_iterations: int = 100
     relative_error_tol: float = 1e-10
     absolute_error_tol: float = 1e-12
-    initial_lambda: float = 1e-4
+    initial_lambda: float = 1e-7
     max_lambda: float = 1e12
     min_diagonal: float = 1e-9
 
@@ -89,7 +93,6 @@ def levenberg_marquardt(
     if on_iteration is not None:
         on_iteration(0, values, error)
     key_dims = sorted((int(k), int(d)) for k, d in values.dims().items())
-    unit = {d: gtsam.noiseModel.Unit.Create(d) for _, d in key_dims}
     rhs = {d: np.zeros(d) for _, d in key_dims}
     lam, nu = params.initial_lambda, 2.0
     for iteration in range(1, params.max_iterations + 1):
@@ -99,12 +102,18 @@ def levenberg_marquardt(
         prep(values)
         linear = graph.linearize(values)
         diag = hessian_diagonal(linear, key_dims)
-        floor = params.min_diagonal * max(float(max(np.max(d) for d in diag.values())), 1.0)
+        floor = params.min_diagonal * max(max(float(np.max(d)) for d in diag.values()), 1.0)
         accepted = False
+        # The damping blocks sqrt(diag) are built once per linearization; each inner
+        # try only changes the noise model: sigma = 1/sqrt(lambda) whitens them to
+        # sqrt(lambda * diag).
+        damping_blocks = [(key, dim, np.diag(np.sqrt(np.maximum(diag[key], floor)))) for key, dim in key_dims]
         while lam <= params.max_lambda:
             damped = linear.clone()
-            for key, dim in key_dims:
-                damped.add(key, np.diag(np.sqrt(lam * np.maximum(diag[key], floor))), rhs[dim], unit[dim])
+            sigma = 1.0 / float(np.sqrt(lam))
+            noise = {d: gtsam.noiseModel.Isotropic.Sigma(d, sigma) for d in rhs}
+            for key, dim, block in damping_blocks:
+                damped.add(key, block, rhs[dim], noise[dim])
             delta = damped.optimize(ordering) if ordering is not None else damped.optimize()
             predicted = error - linear.error(delta)
             candidate = values.retract(delta)
