@@ -199,7 +199,7 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     p.add_argument("--json", metavar="FILE", help="also write the raw results as JSON")
     p.add_argument("--methods", default="fgloc,cpp_bearing,scipy,subset_newton", help="comma-separated methods")
     p.add_argument("--cases", help="comma-separated NODESxCAMERAS, e.g. 100x2,1000x8 (default: all six)")
-    p.add_argument("--scipy-max-nodes", type=int, default=1000, help="skip scipy above this many nodes")
+    p.add_argument("--scipy-max-nodes", type=int, help="skip scipy above this many nodes (default 1000; 60 with --quick)")
     p.add_argument("--worker", help=argparse.SUPPRESS)
     return p
 
@@ -231,7 +231,8 @@ def run(args: argparse.Namespace) -> int:
     if bad:
         raise FglocError(f"--methods: unknown method {bad[0]!r} (known: {', '.join(METHODS)})")
     cases = parse_cases(args.cases) if args.cases else (QUICK_CASES if args.quick else FULL_CASES)
-    report = run_suite(cases, methods, args.quick, args.scipy_max_nodes)
+    scipy_max = args.scipy_max_nodes if args.scipy_max_nodes is not None else (60 if args.quick else 1000)
+    report = run_suite(cases, methods, args.quick, scipy_max)
     print(report["markdown"])
     if args.json:
         write_json_atomic(_json_safe(report), args.json)
