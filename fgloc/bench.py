@@ -30,7 +30,7 @@ import numpy as np  # noqa: E402
 
 STAGES = ("build", "initialize", "optimize", "marginals")
 FULL_CASES = [(100, 2), (100, 8), (1000, 2), (1000, 8), (10000, 2), (10000, 8)]
-QUICK_CASES = [(60, 2), (80, 4)]
+QUICK_CASES = [(40, 2), (80, 2), (60, 4)]
 
 
 @dataclass
@@ -199,7 +199,7 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     p.add_argument("--json", metavar="FILE", help="also write the raw results as JSON")
     p.add_argument("--methods", default="fgloc,cpp_bearing,scipy,subset_newton", help="comma-separated methods")
     p.add_argument("--cases", help="comma-separated NODESxCAMERAS, e.g. 100x2,1000x8 (default: all six)")
-    p.add_argument("--scipy-max-nodes", type=int, help="skip scipy above this many nodes (default 1000; 60 with --quick)")
+    p.add_argument("--scipy-max-nodes", type=int, help="skip scipy above this many nodes (default 1000; 80 with --quick)")
     p.add_argument("--worker", help=argparse.SUPPRESS)
     return p
 
@@ -231,7 +231,7 @@ def run(args: argparse.Namespace) -> int:
     if bad:
         raise FglocError(f"--methods: unknown method {bad[0]!r} (known: {', '.join(METHODS)})")
     cases = parse_cases(args.cases) if args.cases else (QUICK_CASES if args.quick else FULL_CASES)
-    scipy_max = args.scipy_max_nodes if args.scipy_max_nodes is not None else (60 if args.quick else 1000)
+    scipy_max = args.scipy_max_nodes if args.scipy_max_nodes is not None else (80 if args.quick else 1000)
     report = run_suite(cases, methods, args.quick, scipy_max)
     print(report["markdown"])
     if args.json:

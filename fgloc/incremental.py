@@ -58,6 +58,10 @@ class IncrementalParams:
     relinearize_threshold: float = 0.01
     relinearize_skip: int = 10
     gauge_sigma: float = GAUGE_SIGMA
+    bootstrap_nodes: int = 12
+    """Nodes the gauge cameras must share before the first batch solve. With few
+    nodes a two-camera planar problem is nearly degenerate (camera height trades
+    against tilt); a failed bootstrap is retried after 4 more shared nodes."""
     min_camera_nodes: int = 8
     """Nodes a camera must see before it joins (at bootstrap, or later by a re-bootstrap).
     The closed-form start needs 4; a camera seen by exactly 4 is barely determined
@@ -82,6 +86,7 @@ class IncrementalLocalizer:
         self._node_index: dict[str, int] = {}
         self._cam_index = {c: i for i, c in enumerate(self.camera_ids)}
         self._isam: gtsam.ISAM2 | None = None
+        self._next_bootstrap_at = 0
         self._linearization_point: gtsam.Values | None = None
         self._cameras: dict[str, CameraPose] = {}
         self._in_graph: set[str] = set()  # node ids with a variable in iSAM2
@@ -104,8 +109,10 @@ class IncrementalLocalizer:
             self._by_node[o.node].append(len(self._observations))
             self._observations.append(o)
         if self._isam is None:
-            if self._gauge_pair_shares() >= max(MIN_SHARED_PLANAR, self.params.min_camera_nodes):
-                self._bootstrap()
+            shared = self._gauge_pair_shares()
+            if shared >= max(MIN_SHARED_PLANAR, self.params.bootstrap_nodes, self._next_bootstrap_at):
+                if not self._bootstrap(keep_on_failure=True):
+                    self._next_bootstrap_at = shared + 4
             return
         t0 = time.perf_counter()
         for i in range(first, len(self._observations)):
@@ -181,7 +188,15 @@ class IncrementalLocalizer:
         isam_params.setRelinearizeThreshold(self.params.relinearize_threshold)
         isam_params.relinearizeSkip = self.params.relinearize_skip
         self._isam = gtsam.ISAM2(isam_params)
-        self._isam.update(graph, values)
+        # Cameras last (a group above the nodes'): the Schur-complement order the
+        # batch solver uses. COLAMD's own order failed Cholesky on small, strongly
+        # gauge-weighted bootstraps.
+        cameras_last = gtsam.KeyGroupMap()
+        for cid in self._cameras:
+            cameras_last.insert2(camera_key(self._cam_index[cid]), 1)
+        update = gtsam.ISAM2UpdateParams()
+        update.constrainedKeys = cameras_last
+        self._isam.update(graph, values, update)
         self._linearization_point = self._isam.getLinearizationPoint()  # keep alive (see module docstring)
         self._new_factors = gtsam.NonlinearFactorGraph()
         self._new_values = gtsam.Values()
@@ -233,12 +248,13 @@ class IncrementalLocalizer:
             try:
                 result = solve_survey(self._survey_of(cams), SolverOptions(compute_marginals=False, gauge_sigma=self.params.gauge_sigma))
                 break
-            except FglocError:
+            except (FglocError, RuntimeError):  # degenerate start, or indeterminate system
                 continue
         if result is None:
             if keep_on_failure:
                 return False
             raise FglocError("bootstrap: the readings so far cannot be solved (degenerate geometry)")
+        previous = (self._isam, self._linearization_point, self._cameras, self._in_graph, self._factored, self._waiting)
         self._cameras = dict(result.cameras)
         self._in_graph = set(result.nodes)
         self._factored = set()
@@ -261,7 +277,13 @@ class IncrementalLocalizer:
         )
         for f in gauge.factors():
             graph.add(f)
-        self._seed_isam(graph, values)
+        try:
+            self._seed_isam(graph, values)
+        except RuntimeError:
+            if not keep_on_failure:
+                raise FglocError("bootstrap: the readings so far give an indeterminate system") from None
+            self._isam, self._linearization_point, self._cameras, self._in_graph, self._factored, self._waiting = previous
+            return False
         for i in range(len(self._observations)):  # late cameras wait; unplaced nodes retry
             self._insert(i)
         self._flush()

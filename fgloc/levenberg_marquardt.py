@@ -114,7 +114,14 @@ def levenberg_marquardt(
             noise = {d: gtsam.noiseModel.Isotropic.Sigma(d, sigma) for d in rhs}
             for key, dim, block in damping_blocks:
                 damped.add(key, block, rhs[dim], noise[dim])
-            delta = damped.optimize(ordering) if ordering is not None else damped.optimize()
+            try:
+                delta = damped.optimize(ordering) if ordering is not None else damped.optimize()
+            except RuntimeError:
+                # Cholesky met a numerically indefinite system: with little damping a
+                # poorly conditioned problem can do that; more damping always cures it.
+                lam *= nu
+                nu *= 2.0
+                continue
             predicted = error - linear.error(delta)
             candidate = values.retract(delta)
             prep(candidate)
