@@ -71,6 +71,14 @@ def hessian_diagonal(linear: gtsam.GaussianFactorGraph, key_dims: list[tuple[int
     return out
 
 
+def _diagonal_vector(linear: gtsam.GaussianFactorGraph, total: int) -> np.ndarray:
+    """Diagonal of ``J^T J`` as one vector in sorted key order (see :func:`hessian_diagonal`)."""
+    ijs = linear.sparseJacobian_()
+    cols = ijs[1].astype(np.int64) - 1
+    keep = cols < total
+    return np.bincount(cols[keep], weights=ijs[2][keep] ** 2, minlength=total)
+
+
 def levenberg_marquardt(
     graph: gtsam.NonlinearFactorGraph,
     initial: gtsam.Values,
@@ -94,6 +102,15 @@ def levenberg_marquardt(
         on_iteration(0, values, error)
     key_dims = sorted((int(k), int(d)) for k, d in values.dims().items())
     rhs = {d: np.zeros(d) for _, d in key_dims}
+    total_dim = sum(d for _, d in key_dims)
+    offsets_all = np.cumsum([0] + [d for _, d in key_dims])[:-1]
+    by_dim = {
+        d: (
+            [k for k, dd in key_dims if dd == d],
+            np.array([o for (k, dd), o in zip(key_dims, offsets_all) if dd == d], dtype=np.int64),
+        )
+        for d in rhs
+    }
     lam, nu = params.initial_lambda, 2.0
     for iteration in range(1, params.max_iterations + 1):
         if error <= params.absolute_error_tol:
@@ -101,13 +118,19 @@ def levenberg_marquardt(
             break
         prep(values)
         linear = graph.linearize(values)
-        diag = hessian_diagonal(linear, key_dims)
-        floor = params.min_diagonal * max(max(float(np.max(d)) for d in diag.values()), 1.0)
+        diag = _diagonal_vector(linear, total_dim)
+        floor = params.min_diagonal * max(float(np.max(diag)), 1.0)
         accepted = False
-        # The damping blocks sqrt(diag) are built once per linearization; each inner
-        # try only changes the noise model: sigma = 1/sqrt(lambda) whitens them to
-        # sqrt(lambda * diag).
-        damping_blocks = [(key, dim, np.diag(np.sqrt(np.maximum(diag[key], floor)))) for key, dim in key_dims]
+        # The damping blocks sqrt(diag) are built once per linearization (one
+        # vectorized pass); each inner try only changes the noise model:
+        # sigma = 1/sqrt(lambda) whitens them to sqrt(lambda * diag).
+        root = np.sqrt(np.maximum(diag, floor))
+        damping_blocks = []
+        for dim, (keys, offsets) in by_dim.items():
+            blocks = np.zeros((len(keys), dim, dim))
+            idx = np.arange(dim)
+            blocks[:, idx, idx] = root[offsets[:, None] + idx[None, :]]
+            damping_blocks.extend((key, dim, block) for key, block in zip(keys, blocks))
         while lam <= params.max_lambda:
             damped = linear.clone()
             sigma = 1.0 / float(np.sqrt(lam))
