@@ -32,7 +32,7 @@ import numpy as np
 from factors.baseline_prior import GAUGE_SIGMA, BaselinePrior
 from fgloc.geometry import FloatArray, bearing_pan_tilt, pan_tilt_bearing, pan_tilt_residual
 from fgloc.initialization import InitialEstimate
-from fgloc.joint_solver import build_problem, initialize, solve_problem
+from fgloc.joint_solver import auto_gauge_sigma, build_problem, initialize, solve_problem
 from fgloc.levenberg_marquardt import levenberg_marquardt
 from fgloc.model import Survey
 
@@ -134,7 +134,8 @@ def run_cpp_bearing(survey: Survey) -> MethodRun:
         u = gtsam.Unit3(dirs[m])
         noise = bearing_noise(float(t.pan[m]), float(t.tilt[m]), float(t.sigma[m]), u)
         graph.add(gtsam.BearingFactor3D(cam_keys[c], node_keys[n], u, noise))
-    for f in BaselinePrior(survey.mode, cam_keys[survey.gauge.origin], cam_keys[survey.gauge.baseline]).factors():
+    gauge_sigma = auto_gauge_sigma(survey, init)  # the same gauge as the fgloc pipeline
+    for f in BaselinePrior(survey.mode, cam_keys[survey.gauge.origin], cam_keys[survey.gauge.baseline], gauge_sigma).factors():
         graph.add(f)
     ordering = gtsam.Ordering()
     for k in node_keys.values():
@@ -198,6 +199,7 @@ def run_scipy(survey: Survey, xtol: float = 1e-12) -> MethodRun:
     r0 = np.array([init.cameras[c].rotation for c in cams])
     nc, nn, m = len(cams), len(nodes), len(pan)
     g0, g1 = ci[survey.gauge.origin], ci[survey.gauge.baseline]
+    gauge_sigma = auto_gauge_sigma(survey, init)
 
     def unpack(x: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
         cam = x[: 6 * nc].reshape(nc, 6)
@@ -210,7 +212,7 @@ def run_scipy(survey: Survey, xtol: float = 1e-12) -> MethodRun:
         q = np.einsum("mji,mj->mi", rot[oc], pts[on] - pos[oc])
         p, tl = bearing_pan_tilt(q)
         e = pan_tilt_residual(pan, tilt, p, tl) / sig[:, None]
-        gauge = np.concatenate([pos[g0, :2], pos[g1, :2] - [1.0, 0.0]]) / GAUGE_SIGMA
+        gauge = np.concatenate([pos[g0, :2], pos[g1, :2] - [1.0, 0.0]]) / gauge_sigma
         return np.concatenate([e.ravel(), gauge])
 
     sparsity = lil_matrix((2 * m + 4, 6 * nc + 2 * nn), dtype=np.int8)

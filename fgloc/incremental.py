@@ -42,11 +42,19 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 
-from factors.baseline_prior import GAUGE_SIGMA, BaselinePrior
+from factors.baseline_prior import BaselinePrior
 from factors.pan_tilt_factor import planar_pan_tilt_factor
 from fgloc.geometry import pan_tilt_bearing
 from fgloc.initialization import MIN_SHARED_PLANAR
-from fgloc.joint_solver import SolverOptions, camera_key, node_key, solve_survey
+from fgloc.joint_solver import (
+    SolverOptions,
+    auto_gauge_sigma,
+    build_problem,
+    camera_key,
+    initialize,
+    node_key,
+    solve_problem,
+)
 from fgloc.levenberg_marquardt import levenberg_marquardt
 from fgloc.model import CameraPose, FglocError, Gauge, NodeEstimate, NodeMode, Observation, Result, SolveStats, Survey
 
@@ -57,7 +65,9 @@ class IncrementalParams:
 
     relinearize_threshold: float = 0.01
     relinearize_skip: int = 10
-    gauge_sigma: float = GAUGE_SIGMA
+    gauge_sigma: float | None = None
+    """Sigma of the gauge priors; None: :func:`fgloc.joint_solver.auto_gauge_sigma`
+    of the first bootstrap, then kept (see ``IncrementalLocalizer.gauge_sigma``)."""
     bootstrap_nodes: int = 12
     """Nodes the gauge cameras must share before the first batch solve. With few
     nodes a two-camera planar problem is nearly degenerate (camera height trades
@@ -87,6 +97,7 @@ class IncrementalLocalizer:
         self._cam_index = {c: i for i, c in enumerate(self.camera_ids)}
         self._isam: gtsam.ISAM2 | None = None
         self._next_bootstrap_at = 0
+        self.gauge_sigma: float | None = params.gauge_sigma
         self._linearization_point: gtsam.Values | None = None
         self._cameras: dict[str, CameraPose] = {}
         self._in_graph: set[str] = set()  # node ids with a variable in iSAM2
@@ -246,7 +257,12 @@ class IncrementalLocalizer:
         result = None
         for cams in (candidates, gauge_pair):
             try:
-                result = solve_survey(self._survey_of(cams), SolverOptions(compute_marginals=False, gauge_sigma=self.params.gauge_sigma))
+                survey = self._survey_of(cams)
+                init = initialize(survey)
+                sigma = self.gauge_sigma if self.gauge_sigma is not None else auto_gauge_sigma(survey, init)
+                options = SolverOptions(compute_marginals=False, gauge_sigma=sigma)
+                result = solve_problem(build_problem(survey, init, options), options)
+                self.gauge_sigma = sigma
                 break
             except (FglocError, RuntimeError):  # degenerate start, or indeterminate system
                 continue
@@ -273,7 +289,7 @@ class IncrementalLocalizer:
             NodeMode.PLANAR,
             camera_key(self._cam_index[self.gauge.origin]),
             camera_key(self._cam_index[self.gauge.baseline]),
-            self.params.gauge_sigma,
+            self.gauge_sigma,
         )
         for f in gauge.factors():
             graph.add(f)

@@ -25,6 +25,7 @@ from factors.pan_tilt_batch import PanTiltFactorSet
 from fgloc.initialization import InitialEstimate, initialize_planar
 from fgloc.levenberg_marquardt import IterationCallback, LMParams, levenberg_marquardt
 from fgloc.model import CameraPose, FglocError, NodeEstimate, NodeMode, Result, SolveStats, Survey
+from fgloc.schur_marginals import node_marginals
 
 camera_key = gtsam.symbol_shorthand.C
 node_key = gtsam.symbol_shorthand.L
@@ -186,9 +187,16 @@ def solve_problem(
         t0 = time.perf_counter()
         try:
             problem.prepare(values)
-            marginals = gtsam.Marginals(problem.graph.linearize(values), values)
-            covariances = {nid: marginals.marginalCovariance(key) for nid, key in problem.node_keys.items()}
-        except RuntimeError as exc:
+            linear = problem.graph.linearize(values)
+            # Batched Schur-complement marginals (fgloc.schur_marginals); None when a
+            # factor couples two nodes, then GTSAM's per-key Marginals.
+            fast = node_marginals(linear, values.dims(), list(problem.node_keys.values()))
+            if fast is not None:
+                covariances = {nid: fast[key] for nid, key in problem.node_keys.items()}
+            else:
+                marginals = gtsam.Marginals(linear, values)
+                covariances = {nid: marginals.marginalCovariance(key) for nid, key in problem.node_keys.items()}
+        except (RuntimeError, np.linalg.LinAlgError) as exc:
             raise SolveError(f"marginal covariances are undefined (the graph is rank deficient): {exc}") from None
         stages["marginals"] = time.perf_counter() - t0
     nodes: dict[str, NodeEstimate] = {}

@@ -106,4 +106,7 @@ def node_marginals(
     L_inv = np.linalg.solve(L, np.eye(n_cam_cols))
     sigma_cc = L_inv.T @ L_inv
     cov = A_inv + AiB @ sigma_cc[None] @ np.transpose(AiB, (0, 2, 1))
+    variances = np.diagonal(cov, axis1=1, axis2=2)
+    if not np.all(np.isfinite(cov)) or np.any(variances <= 0):
+        raise np.linalg.LinAlgError("node information is not positive definite")
     return {int(k): cov[i] for i, k in enumerate(node_keys)}

@@ -12,7 +12,7 @@ import pytest
 
 from fgloc.bench_scenes import BenchScene, scene_survey
 from fgloc.incremental import IncrementalLocalizer
-from fgloc.joint_solver import solve_survey
+from fgloc.joint_solver import SolverOptions, solve_survey
 from fgloc.model import FglocError
 
 
@@ -40,7 +40,7 @@ def test_incremental_agrees_with_batch_after_all_readings() -> None:
     survey = scene_survey(BenchScene(120, 4, seed=1))
     loc = IncrementalLocalizer(survey.camera_ids, survey.gauge, survey.sigma)
     _feed_node_by_node(survey, loc)
-    batch = solve_survey(survey)
+    batch = solve_survey(survey, SolverOptions(gauge_sigma=loc.gauge_sigma))
     live = loc.estimate()
     assert set(live.nodes) == set(batch.nodes)
     pos, cov = _compare(live, batch)
@@ -74,7 +74,7 @@ def test_late_camera_joins_and_result_matches_batch() -> None:
         loc.add_observations([o])
     assert "cam2" in loc.estimate(covariances=False).cameras
     loc.refine()
-    pos, cov = _compare(loc.estimate(), solve_survey(survey))
+    pos, cov = _compare(loc.estimate(), solve_survey(survey, SolverOptions(gauge_sigma=loc.gauge_sigma)))
     assert pos < 1e-5 and cov < 1e-5
 
 
