@@ -72,6 +72,11 @@ class IncrementalParams:
     """Nodes the gauge cameras must share before the first batch solve. With few
     nodes a two-camera planar problem is nearly degenerate (camera height trades
     against tilt); a failed bootstrap is retried after 4 more shared nodes."""
+    batch_nodes: int = 1
+    """New nodes buffered before one iSAM2 update (each is placed at once against
+    the current cameras either way; ``estimate()`` always flushes first). An update
+    re-eliminates the camera clique, whose cost grows with n, so batching k nodes
+    divides that cost per node by about k."""
     min_camera_nodes: int = 8
     """Nodes a camera must see before it joins (at bootstrap, or later by a re-bootstrap).
     The closed-form start needs 4; a camera seen by exactly 4 is barely determined
@@ -97,6 +102,7 @@ class IncrementalLocalizer:
         self._cam_index = {c: i for i, c in enumerate(self.camera_ids)}
         self._isam: gtsam.ISAM2 | None = None
         self._next_bootstrap_at = 0
+        self._pending_nodes = 0
         self.gauge_sigma: float | None = params.gauge_sigma
         self._linearization_point: gtsam.Values | None = None
         self._cameras: dict[str, CameraPose] = {}
@@ -130,7 +136,7 @@ class IncrementalLocalizer:
             self._insert(i)
         if self._waiting and self._late_camera_ready() and self._bootstrap(keep_on_failure=True):
             pass
-        else:
+        elif self.params.batch_nodes <= 1 or self._pending_nodes >= self.params.batch_nodes:
             self._flush()
         self.update_seconds.append(time.perf_counter() - t0)
 
@@ -141,6 +147,8 @@ class IncrementalLocalizer:
     # ---------------------------------------------------------------- output
     def estimate(self, covariances: bool = True) -> Result:
         """Current node and camera estimates (gauge frame), node marginals if asked."""
+        if self._isam is not None:
+            self._flush()
         if self._isam is None:
             raise FglocError(
                 f"not enough readings yet: the gauge cameras must share {MIN_SHARED_PLANAR} nodes before a first estimate"
@@ -182,7 +190,8 @@ class IncrementalLocalizer:
         if self._isam is None:
             return
         self._flush()
-        graph = self._isam.getFactorsUnsafe()
+        graph = gtsam.NonlinearFactorGraph()
+        graph.push_back(self._isam.getFactorsUnsafe())  # own the factor pointers; the old iSAM2 goes away
         values = self._isam.calculateEstimate()
         ordering = gtsam.Ordering()
         cams = {camera_key(self._cam_index[c]) for c in self._cameras}
@@ -211,6 +220,7 @@ class IncrementalLocalizer:
         self._linearization_point = self._isam.getLinearizationPoint()  # keep alive (see module docstring)
         self._new_factors = gtsam.NonlinearFactorGraph()
         self._new_values = gtsam.Values()
+        self._pending_nodes = 0
         self._refresh_cameras()
 
     # -------------------------------------------------------------- internals
@@ -340,6 +350,7 @@ class IncrementalLocalizer:
                 return
             self._new_values.insert(node_key(self._node_index[o.node]), xy)
             self._in_graph.add(o.node)
+            self._pending_nodes += 1
         else:
             readings = [index]
         for i in readings:
@@ -366,10 +377,14 @@ class IncrementalLocalizer:
             return
         self._new_factors = gtsam.NonlinearFactorGraph()  # only new factors, then clear
         self._new_values = gtsam.Values()
+        self._pending_nodes = 0
         self._refresh_cameras()
 
     def _refresh_cameras(self) -> None:
-        assert self._isam is not None
+        """Camera poses for placing new nodes: iSAM2's linearization point (held
+        reference, no solve); it trails the estimate by less than the
+        relinearization threshold, plenty for a starting guess."""
+        assert self._linearization_point is not None
         for cid in self._cameras:
-            pose = self._isam.calculateEstimatePose3(camera_key(self._cam_index[cid]))
+            pose = self._linearization_point.atPose3(camera_key(self._cam_index[cid]))
             self._cameras[cid] = CameraPose(np.asarray(pose.translation(), float), pose.rotation().matrix())
