@@ -74,6 +74,72 @@ def _worker(n_nodes: int, n_cameras: int, method: str, repeats: int, seed: int) 
     }
 
 
+def _incremental_worker(n_nodes: int, n_cameras: int, new_nodes: int, batch_nodes: int, seed: int) -> dict:
+    """iSAM2: bootstrap on all but ``new_nodes`` nodes, then time adding them one node (all its readings) at a time."""
+    from fgloc.bench_scenes import BenchScene, scene_survey
+    from fgloc.incremental import IncrementalLocalizer, IncrementalParams
+
+    survey = scene_survey(BenchScene(n_nodes, n_cameras, seed=seed))
+    by_node: dict[str, list] = {}
+    for o in survey.observations:
+        by_node.setdefault(o.node, []).append(o)
+    loc = IncrementalLocalizer(survey.camera_ids, survey.gauge, survey.sigma, IncrementalParams(batch_nodes=batch_nodes))
+    t0 = time.perf_counter()
+    loc.add_observations([o for nid in survey.node_ids[:-new_nodes] for o in by_node[nid]])
+    bootstrap = time.perf_counter() - t0
+    per_node = []
+    for nid in survey.node_ids[-new_nodes:]:
+        t0 = time.perf_counter()
+        loc.add_observations(by_node[nid])
+        per_node.append(time.perf_counter() - t0)
+    t0 = time.perf_counter()
+    loc.estimate(covariances=False)
+    t_est = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    loc.estimate(covariances=True)
+    t_cov = time.perf_counter() - t0
+    u = np.array(per_node)
+    return {
+        "n_nodes": n_nodes,
+        "n_cameras": n_cameras,
+        "batch_nodes": batch_nodes,
+        "new_nodes": new_nodes,
+        "bootstrap_s": bootstrap,
+        "update_median_s": float(np.median(u)),
+        "update_p95_s": float(np.percentile(u, 95)),
+        "update_max_s": float(u.max()),
+        "update_mean_s": float(u.mean()),
+        "estimate_s": t_est,
+        "estimate_with_covariances_s": t_cov,
+        "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
+    }
+
+
+def run_incremental(n_nodes: int, n_cameras: int, new_nodes: int, batch_nodes: int, seed: int = 0) -> dict:
+    """One iSAM2 timing case in a fresh subprocess."""
+    spec = f"{n_nodes},{n_cameras},{new_nodes},{batch_nodes},{seed}"
+    cmd = [sys.executable, "-m", "fgloc.bench", "--incremental-worker", spec]
+    out = subprocess.run(cmd, capture_output=True, text=True, check=False)
+    if out.returncode != 0:
+        raise RuntimeError(f"incremental benchmark worker failed: {' '.join(cmd)}\n{out.stderr[-2000:]}")
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def incremental_markdown(rows: list[dict]) -> str:
+    """The iSAM2 timings as a Markdown table."""
+    lines = [
+        "| nodes x cams | nodes per iSAM2 update | per new node: median | mean | p95 | max | estimate() | with all covariances | bootstrap |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        lines.append(
+            f"| {r['n_nodes']} x {r['n_cameras']} | {r['batch_nodes']} | {_fmt_s(r['update_median_s'])} | "
+            f"{_fmt_s(r['update_mean_s'])} | {_fmt_s(r['update_p95_s'])} | {_fmt_s(r['update_max_s'])} | "
+            f"{_fmt_s(r['estimate_s'])} | {_fmt_s(r['estimate_with_covariances_s'])} | {_fmt_s(r['bootstrap_s'])} |"
+        )
+    return "\n".join(lines)
+
+
 def run_case(n_nodes: int, n_cameras: int, method: str, repeats: int, seed: int = 0) -> tuple[CaseResult, np.ndarray]:
     """Run one (scene, method) in a fresh subprocess; returns medians and final node positions."""
     cmd = [sys.executable, "-m", "fgloc.bench", "--worker", f"{n_nodes},{n_cameras},{method},{repeats},{seed}"]
@@ -200,7 +266,9 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     p.add_argument("--methods", default="fgloc,cpp_bearing,scipy,subset_newton", help="comma-separated methods")
     p.add_argument("--cases", help="comma-separated NODESxCAMERAS, e.g. 100x2,1000x8 (default: all six)")
     p.add_argument("--scipy-max-nodes", type=int, help="skip scipy above this many nodes (default 1000; 80 with --quick)")
+    p.add_argument("--incremental", default=None, help="iSAM2 cases NODESxCAMERAS (default 1000x8,10000x8; 'none' to skip)")
     p.add_argument("--worker", help=argparse.SUPPRESS)
+    p.add_argument("--incremental-worker", help=argparse.SUPPRESS)
     return p
 
 
@@ -222,6 +290,10 @@ def run(args: argparse.Namespace) -> int:
     from fgloc.files import write_json_atomic
     from fgloc.model import FglocError
 
+    if args.incremental_worker:
+        n, c, k, b, seed = (int(v) for v in args.incremental_worker.split(","))
+        print(json.dumps(_incremental_worker(n, c, k, b, seed)))
+        return 0
     if args.worker:
         n, c, method, repeats, seed = args.worker.split(",")
         print(json.dumps(_worker(int(n), int(c), method, int(repeats), int(seed))))
@@ -233,6 +305,17 @@ def run(args: argparse.Namespace) -> int:
     cases = parse_cases(args.cases) if args.cases else (QUICK_CASES if args.quick else FULL_CASES)
     scipy_max = args.scipy_max_nodes if args.scipy_max_nodes is not None else (80 if args.quick else 1000)
     report = run_suite(cases, methods, args.quick, scipy_max)
+    inc_spec = args.incremental or ("200x4" if args.quick else "1000x8,10000x8")
+    inc_rows = []
+    if inc_spec != "none":
+        for n, c in parse_cases(inc_spec):
+            for batch in (1, 10):
+                inc_rows.append(run_incremental(n, c, new_nodes=20 if args.quick else 100, batch_nodes=batch))
+                print(f"# iSAM2 {n} x {c} batch {batch} done", file=sys.stderr, flush=True)
+    report["incremental"] = inc_rows
+    if inc_rows:
+        report["markdown"] += "\n\niSAM2 (IncrementalLocalizer), new nodes added one at a time after a batch bootstrap:\n\n"
+        report["markdown"] += incremental_markdown(inc_rows)
     print(report["markdown"])
     if args.json:
         write_json_atomic(_json_safe(report), args.json)

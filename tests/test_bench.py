@@ -79,3 +79,6 @@ def test_quick_bench_output_is_consistent(tmp_path) -> None:
         assert s["max_position_diff_vs_fgloc"] < 1e-6
     assert not by[(40, 2, "subset_newton")]["available"] or by[(40, 2, "subset_newton")]["final_cost"] is not None
     assert "2 cameras" in report["slopes"] and "optimize" in report["slopes"]["2 cameras"]
+    inc = report["incremental"]
+    assert [r["batch_nodes"] for r in inc] == [1, 10]
+    assert all(0 < r["update_median_s"] <= r["update_max_s"] for r in inc)
