@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 import gtsam
 import numpy as np
 
-from factors.baseline_prior import GAUGE_SIGMA, BaselinePrior
+from factors.baseline_prior import BaselinePrior
 from fgloc.geometry import FloatArray, bearing_pan_tilt, pan_tilt_bearing, pan_tilt_residual
 from fgloc.initialization import InitialEstimate
 from fgloc.joint_solver import auto_gauge_sigma, build_problem, initialize, solve_problem
@@ -119,7 +119,8 @@ def run_cpp_bearing(survey: Survey) -> MethodRun:
     for c, k in cam_keys.items():
         cam = init.cameras[c]
         values.insert(k, gtsam.Pose3(gtsam.Rot3(cam.rotation), np.asarray(cam.position, float)))
-    on_plane = gtsam.noiseModel.Diagonal.Sigmas(np.array([1e6, 1e6, GAUGE_SIGMA]))
+    gauge_sigma = auto_gauge_sigma(survey, init)  # the same gauge as the fgloc pipeline
+    on_plane = gtsam.noiseModel.Diagonal.Sigmas(np.array([1e6, 1e6, gauge_sigma]))
     for n, k in node_keys.items():
         p = np.array(init.nodes[n], dtype=float)
         p[2] = 0.0
@@ -134,7 +135,6 @@ def run_cpp_bearing(survey: Survey) -> MethodRun:
         u = gtsam.Unit3(dirs[m])
         noise = bearing_noise(float(t.pan[m]), float(t.tilt[m]), float(t.sigma[m]), u)
         graph.add(gtsam.BearingFactor3D(cam_keys[c], node_keys[n], u, noise))
-    gauge_sigma = auto_gauge_sigma(survey, init)  # the same gauge as the fgloc pipeline
     for f in BaselinePrior(survey.mode, cam_keys[survey.gauge.origin], cam_keys[survey.gauge.baseline], gauge_sigma).factors():
         graph.add(f)
     ordering = gtsam.Ordering()

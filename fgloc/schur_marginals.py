@@ -25,14 +25,15 @@ import gtsam
 import numpy as np
 
 
-def _sum_by_node(products: np.ndarray, node: np.ndarray, n_nodes: int) -> np.ndarray:
-    """Sum (R, p, q) per-row products into (n_nodes, p, q) by each row's node."""
-    r, p, q = products.shape
-    flat = products.reshape(r, p * q)
-    out = np.empty((n_nodes, p * q))
-    for i in range(p * q):
-        out[:, i] = np.bincount(node, weights=flat[:, i], minlength=n_nodes)
-    return out.reshape(n_nodes, p, q)
+def _sum_by_node(left: np.ndarray, right: np.ndarray, node: np.ndarray, n_nodes: int) -> np.ndarray:
+    """``sum_r left[r]^T right[r]`` per node, as (n_nodes, p, q), one column pair at a time
+    (no (R, p, q) temporary: 10,000 x 8 would need ~80 MB for it)."""
+    p, q = left.shape[1], right.shape[1]
+    out = np.empty((n_nodes, p, q))
+    for i in range(p):
+        for j in range(q):
+            out[:, i, j] = np.bincount(node, weights=left[:, i] * right[:, j], minlength=n_nodes)
+    return out
 
 
 def node_marginals(
@@ -93,8 +94,8 @@ def node_marginals(
 
     has_node = row_node >= 0
     rn = row_node[has_node]
-    A = _sum_by_node(np.einsum("ri,rj->rij", J_l[has_node], J_l[has_node]), rn, n_nodes)
-    B = _sum_by_node(np.einsum("ri,rj->rij", J_l[has_node], J_c[has_node]), rn, n_nodes)
+    A = _sum_by_node(J_l[has_node], J_l[has_node], rn, n_nodes)
+    B = _sum_by_node(J_l[has_node], J_c[has_node], rn, n_nodes)
     H_cc = J_c.T @ J_c
 
     A_inv = np.linalg.inv(A)

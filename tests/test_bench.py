@@ -6,6 +6,7 @@ import sys
 
 import gtsam
 import numpy as np
+import pytest
 
 from factors.pan_tilt_factor import pan_tilt_factor
 from fgloc.bench_methods import bearing_noise
@@ -55,6 +56,7 @@ def test_bearing_noise_is_first_order_equivalent_to_pan_tilt_noise() -> None:
             assert abs(e_cpp - e_ref) <= tol * e_ref + 1e-12
 
 
+@pytest.mark.slow  # ~15 s: six subprocess workers (the suite isolates each for peak memory)
 def test_quick_bench_output_is_consistent(tmp_path) -> None:
     out = tmp_path / "bench.json"
     proc = subprocess.run(
