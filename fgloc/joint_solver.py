@@ -89,6 +89,19 @@ class LocalizationProblem:
         """
         self.pan_tilt.prepare(values)
 
+    def error(self, values: gtsam.Values) -> float:
+        """``graph.error(values)``, with the pan-tilt part summed in one numpy pass.
+
+        Relies on :func:`build_problem` adding the pan-tilt factors first (indices
+        0..len-1); every other factor (gauge, user factors) is evaluated by GTSAM.
+        Falls back to ``graph.error`` when the pan-tilt noise is not plain Gaussian.
+        """
+        pan_tilt = self.pan_tilt.error(values)
+        if pan_tilt is None:
+            return float(self.graph.error(values))
+        rest = sum(self.graph.at(i).error(values) for i in range(len(self.pan_tilt), self.graph.size()))
+        return pan_tilt + float(rest)
+
     def add_factor(self, factor: gtsam.NonlinearFactor) -> None:
         """Add a user factor (e.g. a GPS anchor on a node key, a radio range between nodes)."""
         self.graph.add(factor)
@@ -176,7 +189,8 @@ def solve_problem(
     stages = {} if stage_seconds is None else stage_seconds
     t0 = time.perf_counter()
     outcome = levenberg_marquardt(
-        problem.graph, problem.initial, problem.elimination_ordering(), options.lm, on_iteration, problem.prepare
+        problem.graph, problem.initial, problem.elimination_ordering(), options.lm, on_iteration, problem.prepare,
+        problem.error,
     )
     stages["optimize"] = time.perf_counter() - t0
     values = outcome.values

@@ -64,3 +64,21 @@ def test_small_initial_lambda_takes_fewer_iterations_to_the_same_cost() -> None:
     old = solve_problem(problem2, SolverOptions(lm=LMParams(initial_lambda=1e-4), compute_marginals=False))
     assert new.stats.iterations <= old.stats.iterations
     assert np.isclose(new.stats.final_error, old.stats.final_error, rtol=1e-9)
+
+
+def test_vectorized_error_equals_graph_error_with_extra_and_robust_factors() -> None:
+    """Truth: GTSAM's own ``graph.error`` (per-factor callbacks and C++ factors)."""
+    survey = scene_survey(BenchScene(40, 3, seed=7))
+    problem = build_problem(survey, initialize(survey))
+    values = problem.initial
+    assert np.isclose(problem.error(values), problem.graph.error(values), rtol=1e-12)
+    keys = list(problem.node_keys.values())
+    problem.add_factor(gtsam.PriorFactorPoint2(keys[0], np.array([0.3, 0.4]), gtsam.noiseModel.Isotropic.Sigma(2, 0.01)))
+    assert np.isclose(problem.error(values), problem.graph.error(values), rtol=1e-12)
+    # Robust noise: the set cannot sum the loss itself and must defer to GTSAM.
+    from factors.pan_tilt_batch import PanTiltFactorSet
+
+    robust = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(1.345), gtsam.noiseModel.Isotropic.Sigma(2, 0.01))
+    ft = problem.pan_tilt
+    rset = PanTiltFactorSet(ft.camera_keys, ft.node_keys, ft.pan, ft.tilt, [robust] * len(ft), planar=True)
+    assert rset.error(values) is None
