@@ -208,6 +208,10 @@ class IncrementalLocalizer:
         isam_params.setRelinearizeThreshold(self.params.relinearize_threshold)
         isam_params.relinearizeSkip = self.params.relinearize_skip
         self._isam = gtsam.ISAM2(isam_params)
+        # Hold the linearization point *before* the first update: the callbacks of
+        # the first (largest) update otherwise each get a copy of all values, O(n^2)
+        # (measured: 217 s instead of seconds for a 10,000-node bootstrap).
+        self._linearization_point = self._isam.getLinearizationPoint()
         # Cameras last (a group above the nodes'): the Schur-complement order the
         # batch solver uses. COLAMD's own order failed Cholesky on small, strongly
         # gauge-weighted bootstraps.
