@@ -99,6 +99,11 @@ class PanTiltFactorSet:
 
         return gtsam.CustomFactor(noise, [int(self.camera_keys[i]), int(self.node_keys[i])], error)
 
+    def errors(self, values: gtsam.Values) -> FloatArray:
+        """Unwhitened errors (M, 2) of every reading at ``values`` (measured minus predicted)."""
+        self.prepare(values)
+        return self._errors
+
     def prepare(self, values: gtsam.Values) -> None:
         """Evaluate every reading at ``values`` (do not modify ``values`` in place afterwards)."""
         if values is self._values or len(self.pan) == 0:

@@ -105,7 +105,14 @@ def levenberg_marquardt(
             damped = linear.clone()
             for key, dim in key_dims:
                 damped.add(key, np.diag(np.sqrt(lam * np.maximum(diag[key], floor))), rhs[dim], unit[dim])
-            delta = damped.optimize(ordering) if ordering is not None else damped.optimize()
+            try:
+                delta = damped.optimize(ordering) if ordering is not None else damped.optimize()
+            except RuntimeError:
+                # Cholesky found the damped system indeterminate (a variable barely
+                # constrained at tiny lambda): more damping makes it definite.
+                lam *= nu
+                nu *= 2.0
+                continue
             predicted = error - linear.error(delta)
             candidate = values.retract(delta)
             prep(candidate)

@@ -130,7 +130,12 @@ class NodeEstimate:
 
 @dataclass(frozen=True)
 class FlaggedObservation:
-    """An observation whose whitened residual is implausible under the noise model."""
+    """A reading whose residual is implausible under the noise model.
+
+    ``whitened_residual`` is the square root of the deletion residual's
+    Mahalanobis norm (chi-square, 2 dof, for a good reading), or inf when the
+    reading's node could not be placed without it.
+    """
 
     camera: str
     node: str
