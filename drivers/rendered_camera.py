@@ -67,9 +67,10 @@ class RenderSettings:
     led_flux: float = 1500.0  #: total LED spot signal (DN summed over pixels)
     led_sigma_px: float = 1.2  #: LED spot (PSF) standard deviation
     background_mean: float = 50.0  #: mean background level
+    black_level: float = 12.0  #: darkest background level (sensor black offset)
     background_contrast: float = 20.0  #: texture amplitude (std-ish)
     texture_seed: int = 7  #: seed of the background texture (fixed to the world)
-    distractor_flux: float = 6000.0  #: total signal of a static bright light (saturates)
+    distractor_flux: float = 20000.0  #: total signal of a static bright light (saturates its core)
     distractor_sigma_px: float = 2.5  #: size of a static bright light
     read_noise: float = 1.5  #: read noise sigma (DN)
     shot_gain: float = 0.05  #: shot noise variance per DN of signal
@@ -147,7 +148,7 @@ class RenderedCamera:
         phase = d @ self._waves.T.astype(np.float32) + self._phases.astype(np.float32)
         tex = np.sin(phase).sum(axis=-1) * (s.background_contrast / 2.0)
         bg = (s.background_mean + tex).astype(np.float32)
-        np.clip(bg, 0.0, None, out=bg)
+        np.maximum(bg, s.black_level, out=bg)
         if len(self.scene.distractors):
             uv, front = base_to_pixel(intr, self.base_directions(self.scene.distractors), pan, tilt)
             for k in np.flatnonzero(front & in_image(intr, uv, -10.0)):
