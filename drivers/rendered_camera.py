@@ -96,6 +96,23 @@ def add_spot(image: np.ndarray, u: float, v: float, flux: float, sigma: float) -
     image[r0:r1, c0:c1] += flux * np.outer(gy, gx)
 
 
+_RAY_CACHE: OrderedDict[CameraIntrinsics, np.ndarray] = OrderedDict()
+
+
+def _pixel_rays(intr: CameraIntrinsics) -> np.ndarray:
+    """Unit optical rays (H, W, 3) float32 of every pixel; cached for the last few models."""
+    rays = _RAY_CACHE.get(intr)
+    if rays is None:
+        jj, ii = np.meshgrid(np.arange(intr.width, dtype=float), np.arange(intr.height, dtype=float))
+        rays = pixel_to_ray(intr, np.stack([jj, ii], axis=-1)).astype(np.float32)
+        _RAY_CACHE[intr] = rays
+        while len(_RAY_CACHE) > 4:
+            _RAY_CACHE.popitem(last=False)
+    else:
+        _RAY_CACHE.move_to_end(intr)
+    return rays
+
+
 class RenderedCamera:
     """Renders frames of one camera base looking at an :class:`LedScene`."""
 
@@ -109,7 +126,6 @@ class RenderedCamera:
         dirs = rng.normal(size=(8, 3))
         self._waves = dirs / np.linalg.norm(dirs, axis=1, keepdims=True) * freqs[:, None]
         self._phases = rng.uniform(0.0, 2.0 * np.pi, size=8)
-        self._rays: dict[CameraIntrinsics, np.ndarray] = {}
         self._backgrounds: OrderedDict[tuple, np.ndarray] = OrderedDict()
 
     # ----- truth -------------------------------------------------------------------------
@@ -129,12 +145,7 @@ class RenderedCamera:
 
     # ----- rendering ---------------------------------------------------------------------
     def _pixel_rays(self, intr: CameraIntrinsics) -> np.ndarray:
-        rays = self._rays.get(intr)
-        if rays is None:
-            jj, ii = np.meshgrid(np.arange(intr.width, dtype=float), np.arange(intr.height, dtype=float))
-            rays = pixel_to_ray(intr, np.stack([jj, ii], axis=-1)).astype(np.float32)
-            self._rays[intr] = rays
-        return rays
+        return _pixel_rays(intr)
 
     def background(self, intr: CameraIntrinsics, pan: float, tilt: float) -> np.ndarray:
         """Noise-free background (float32 DN, distractors included) for a view; cached."""
