@@ -12,7 +12,8 @@ Method:
    ``diff > threshold_sigma * sigma(off)``. Saturated LED-off pixels are ignored.
 3. 8-connected components of candidate pixels. Blobs are rejected when they
    are too small (noise), too large (a light switched, a person walked by),
-   too elongated (motion, edges) or too weak at their peak.
+   too elongated (motion, edges), too weak at their peak, or cut by the image
+   border (their centroid would be biased).
 4. Centroid: intensity-weighted mean of the *unclipped* difference in a square
    window centred on the blob, iterated twice (unbiased for a symmetric spot;
    zero-mean noise adds no bias). Pixel convention as OpenCV: the centre of
@@ -230,6 +231,9 @@ def detect_led(on: np.ndarray, off: np.ndarray, config: DetectorConfig | None = 
         u, v = mu, mv
         for _ in range(3):
             u, v, total, jj, ii = _centroid(diff, u, v, half)
+        if len(jj) < 2 * half + 1 or len(ii) < 2 * half + 1:
+            rejected.append(RejectedBlob(u=u, v=v, area=area, reason="spot cut by the image border"))
+            continue
         cu, cv = int(round(u)), int(round(v))
         win_sigma = sigma_map[max(cv - half, 0) : cv + half + 1, max(cu - half, 0) : cu + half + 1]
         s = float(np.mean(win_sigma))
