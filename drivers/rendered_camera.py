@@ -23,6 +23,7 @@ cached, and each frame only renders small patches around spots.
 from __future__ import annotations
 
 import math
+import threading
 from collections import OrderedDict
 from dataclasses import dataclass, field
 
@@ -99,17 +100,23 @@ def add_spot(image: np.ndarray, u: float, v: float, flux: float, sigma: float) -
 _RAY_CACHE: OrderedDict[CameraIntrinsics, np.ndarray] = OrderedDict()
 
 
+_RAY_LOCK = threading.Lock()
+
+
 def _pixel_rays(intr: CameraIntrinsics) -> np.ndarray:
-    """Unit optical rays (H, W, 3) float32 of every pixel; cached for the last few models."""
-    rays = _RAY_CACHE.get(intr)
-    if rays is None:
-        jj, ii = np.meshgrid(np.arange(intr.width, dtype=float), np.arange(intr.height, dtype=float))
-        rays = pixel_to_ray(intr, np.stack([jj, ii], axis=-1)).astype(np.float32)
+    """Unit optical rays (H, W, 3) float32 of every pixel; cached for the last few models.
+    Thread-safe (survey code runs one thread per camera)."""
+    with _RAY_LOCK:
+        rays = _RAY_CACHE.get(intr)
+        if rays is not None:
+            _RAY_CACHE.move_to_end(intr)
+            return rays
+    jj, ii = np.meshgrid(np.arange(intr.width, dtype=float), np.arange(intr.height, dtype=float))
+    rays = pixel_to_ray(intr, np.stack([jj, ii], axis=-1)).astype(np.float32)
+    with _RAY_LOCK:
         _RAY_CACHE[intr] = rays
         while len(_RAY_CACHE) > 4:
             _RAY_CACHE.popitem(last=False)
-    else:
-        _RAY_CACHE.move_to_end(intr)
     return rays
 
 
@@ -127,6 +134,7 @@ class RenderedCamera:
         self._waves = dirs / np.linalg.norm(dirs, axis=1, keepdims=True) * freqs[:, None]
         self._phases = rng.uniform(0.0, 2.0 * np.pi, size=8)
         self._backgrounds: OrderedDict[tuple, np.ndarray] = OrderedDict()
+        self._lock = threading.Lock()
 
     # ----- truth -------------------------------------------------------------------------
     def base_directions(self, points: np.ndarray) -> np.ndarray:
@@ -150,10 +158,11 @@ class RenderedCamera:
     def background(self, intr: CameraIntrinsics, pan: float, tilt: float) -> np.ndarray:
         """Noise-free background (float32 DN, distractors included) for a view; cached."""
         key = (intr, round(pan, 12), round(tilt, 12))
-        bg = self._backgrounds.get(key)
-        if bg is not None:
-            self._backgrounds.move_to_end(key)
-            return bg
+        with self._lock:
+            bg = self._backgrounds.get(key)
+            if bg is not None:
+                self._backgrounds.move_to_end(key)
+                return bg
         s = self.settings
         d = self._pixel_rays(intr) @ optical_to_base(pan, tilt).T.astype(np.float32)
         phase = d @ self._waves.T.astype(np.float32) + self._phases.astype(np.float32)
@@ -164,16 +173,17 @@ class RenderedCamera:
             uv, front = base_to_pixel(intr, self.base_directions(self.scene.distractors), pan, tilt)
             for k in np.flatnonzero(front & in_image(intr, uv, -10.0)):
                 add_spot(bg, float(uv[k, 0]), float(uv[k, 1]), s.distractor_flux, s.distractor_sigma_px)
-        self._backgrounds[key] = bg
-        while len(self._backgrounds) > 4:
-            self._backgrounds.popitem(last=False)
+        with self._lock:
+            self._backgrounds[key] = bg
+            while len(self._backgrounds) > 4:
+                self._backgrounds.popitem(last=False)
         return bg
 
     def render(self, intr: CameraIntrinsics, pan: float, tilt: float, rng: np.random.Generator) -> np.ndarray:
         """A noisy uint8 (H, W) frame with the head at (pan, tilt) radians through ``intr``."""
         s = self.settings
         img = self.background(intr, pan, tilt).copy()
-        lit = [i for i in sorted(self.scene.lit) if i in self.scene.positions]
+        lit = [i for i in sorted(set(self.scene.lit)) if i in self.scene.positions]
         if lit:
             pts = np.array([self.scene.positions[i] for i in lit], dtype=float)
             uv, front = base_to_pixel(intr, self.base_directions(pts), pan, tilt)

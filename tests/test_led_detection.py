@@ -178,3 +178,22 @@ def test_spot_cut_by_the_border_is_rejected():
     add_spot(on, 1.2, 30.0, 1500.0, 1.2)
     res = detect_led(on, off)
     assert res.status is DetectionStatus.NOT_FOUND and "border" in res.rejected[0].reason
+
+
+def test_camera_moved_between_frames_reports_nothing():
+    """A view that shifted between the frames: with the smooth rendered texture nothing is
+    found; with a sharp blocky scene every edge changes, and the detector refuses outright
+    (NOT_FOUND, with the reason) instead of weighing hundreds of blobs."""
+    head = SimulatedHead(POSE, LedScene({}), INTR, seed=1)
+    head.move_to(*VIEWS[0])
+    off = head.grab_frame()
+    head.move_to(VIEWS[0][0] + 3 / INTR.fx, VIEWS[0][1])
+    assert detect_led(head.grab_frame(), off).status is DetectionStatus.NOT_FOUND
+
+    rng = np.random.default_rng(2)
+    blocks = np.kron(rng.uniform(20, 200, (60, 80)), np.ones((8, 8)))
+    off = (blocks + rng.normal(0, 2, blocks.shape)).clip(0, 255).astype(np.uint8)
+    on = (np.roll(blocks, 2, axis=1) + rng.normal(0, 2, blocks.shape)).clip(0, 255).astype(np.uint8)
+    res = detect_led(on, off)
+    assert res.status is DetectionStatus.NOT_FOUND and not res.candidates
+    assert "moved" in res.rejected[0].reason
