@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from fgloc.geometry import world_to_base
+from fgloc.geometry import pan_tilt_bearing, world_to_base
 from fgloc.intrinsics import CameraIntrinsics
 from fgloc.model import CameraPose
 from fgloc.pixel_angles import base_to_pixel, in_image, optical_to_base, pixel_to_ray
@@ -137,17 +137,25 @@ class RenderedCamera:
         self._lock = threading.Lock()
 
     # ----- truth -------------------------------------------------------------------------
-    def base_directions(self, points: np.ndarray) -> np.ndarray:
-        """World point(s) (..., 3) as base-frame vectors from the camera."""
-        return world_to_base(self.pose.rotation, self.pose.position, points)
+    def base_directions(self, points: np.ndarray, pan: float = 0.0, tilt: float = 0.0, pupil_shift: float = 0.0) -> np.ndarray:
+        """World point(s) (..., 3) as base-frame vectors from the optical centre.
 
-    def led_pixels(self, intrinsics: CameraIntrinsics, pan: float, tilt: float, margin: float = 0.0) -> dict[str, tuple[float, float]]:
+        The optical centre is the base position moved ``pupil_shift`` (survey units) forward
+        along the optical axis of the head at (pan, tilt); 0 means on the rotation axes."""
+        q = world_to_base(self.pose.rotation, self.pose.position, points)
+        if pupil_shift:
+            q = q - pupil_shift * pan_tilt_bearing(pan, tilt)
+        return q
+
+    def led_pixels(
+        self, intrinsics: CameraIntrinsics, pan: float, tilt: float, margin: float = 0.0, pupil_shift: float = 0.0
+    ) -> dict[str, tuple[float, float]]:
         """True pixel (u, v) of every node LED (lit or not) in the image at least ``margin`` px inside."""
         if not self.scene.positions:
             return {}
         ids = list(self.scene.positions)
         pts = np.array([self.scene.positions[i] for i in ids], dtype=float)
-        uv, front = base_to_pixel(intrinsics, self.base_directions(pts), pan, tilt)
+        uv, front = base_to_pixel(intrinsics, self.base_directions(pts, pan, tilt, pupil_shift), pan, tilt)
         ok = front & in_image(intrinsics, uv, margin)
         return {i: (float(uv[k, 0]), float(uv[k, 1])) for k, i in enumerate(ids) if ok[k]}
 
@@ -179,14 +187,17 @@ class RenderedCamera:
                 self._backgrounds.popitem(last=False)
         return bg
 
-    def render(self, intr: CameraIntrinsics, pan: float, tilt: float, rng: np.random.Generator) -> np.ndarray:
-        """A noisy uint8 (H, W) frame with the head at (pan, tilt) radians through ``intr``."""
+    def render(
+        self, intr: CameraIntrinsics, pan: float, tilt: float, rng: np.random.Generator, pupil_shift: float = 0.0
+    ) -> np.ndarray:
+        """A noisy uint8 (H, W) frame with the head at (pan, tilt) radians through ``intr``
+        (optical centre ``pupil_shift`` forward of the rotation axes, see ``base_directions``)."""
         s = self.settings
         img = self.background(intr, pan, tilt).copy()
         lit = [i for i in sorted(set(self.scene.lit)) if i in self.scene.positions]
         if lit:
             pts = np.array([self.scene.positions[i] for i in lit], dtype=float)
-            uv, front = base_to_pixel(intr, self.base_directions(pts), pan, tilt)
+            uv, front = base_to_pixel(intr, self.base_directions(pts, pan, tilt, pupil_shift), pan, tilt)
             for k in np.flatnonzero(front & in_image(intr, uv, -10.0)):
                 add_spot(img, float(uv[k, 0]), float(uv[k, 1]), s.led_flux, s.led_sigma_px)
         noise_sd = np.sqrt(s.read_noise**2 + s.shot_gain * img)
@@ -199,7 +210,9 @@ class SimulatedHead:
 
     ``angle_step`` (radians, e.g. ``math.radians(1 / 14.4)`` for the EVI-D100) quantises
     where the head actually goes; ``position()`` reads back the quantised angles exactly.
-    The frame is rendered through ``intrinsics.at_zoom(zoom())``.
+    The frame is rendered through ``intrinsics.at_zoom(zoom())``. ``pupil_shift_at_tele``
+    (survey units) moves the optical centre forward along the optical axis in proportion to
+    zoom, 0 at the widest zoom: the effect that makes only the widest zoom trustworthy.
     """
 
     def __init__(
@@ -210,8 +223,10 @@ class SimulatedHead:
         seed: int = 0,
         angle_step: float | None = None,
         settings: RenderSettings | None = None,
+        pupil_shift_at_tele: float = 0.0,
     ) -> None:
         self.camera = RenderedCamera(pose, scene, settings)
+        self.pupil_shift_at_tele = pupil_shift_at_tele
         self.intrinsics = intrinsics
         self.angle_step = angle_step
         self.rng = np.random.default_rng(seed)
@@ -255,8 +270,12 @@ class SimulatedHead:
         return self.intrinsics.at_zoom(self._zoom)
 
     def grab_frame(self) -> np.ndarray:
-        return self.camera.render(self.current_intrinsics(), self._pan, self._tilt, self.rng)
+        return self.camera.render(self.current_intrinsics(), self._pan, self._tilt, self.rng, self.pupil_shift())
 
     def visible_leds(self, margin: float = 0.0) -> dict[str, tuple[float, float]]:
         """Truth: pixel of every node LED in the current view (lit or not)."""
-        return self.camera.led_pixels(self.current_intrinsics(), self._pan, self._tilt, margin)
+        return self.camera.led_pixels(self.current_intrinsics(), self._pan, self._tilt, margin, self.pupil_shift())
+
+    def pupil_shift(self) -> float:
+        """Current optical-centre offset along the optical axis (survey units), 0 at the widest zoom."""
+        return self.pupil_shift_at_tele * self._zoom

@@ -86,8 +86,7 @@ class CameraIntrinsics:
         """Idealised model at another zoom: focal lengths scale linearly from 1x (zoom 0) to
         ``max_magnification`` (zoom 1), relative to this model's own zoom. Distortion is kept.
         Used by the simulator; real cameras must be calibrated at each zoom used."""
-        mag = lambda z: 1.0 + (max_magnification - 1.0) * z  # noqa: E731
-        s = mag(zoom) / mag(self.zoom)
+        s = (1.0 + (max_magnification - 1.0) * zoom) / (1.0 + (max_magnification - 1.0) * self.zoom)
         return replace(self, fx=self.fx * s, fy=self.fy * s, zoom=zoom, rms_px=None, images=())
 
 
