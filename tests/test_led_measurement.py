@@ -157,3 +157,16 @@ class _no_warning:
 
     def __exit__(self, *exc):
         return self._ctx.__exit__(*exc)
+
+
+def test_frames_of_another_size_than_calibrated_are_an_error():
+    from fgloc.led_measurement import FrameSizeError
+
+    scene = LedScene({"n": _points_in_view(0.0, 0.0, 1, np.random.default_rng(1))[0]})
+    head = SimulatedHead(POSE, scene, INTR, seed=1)
+    on, off = grab_led_pair(head, SimulatedLedController(scene), "n")
+    half = CameraIntrinsics.from_fov(320, 240, 65.0)
+    with pytest.raises(FrameSizeError, match="frame: size 640x480 differs from the calibrated image size 320x240"):
+        measure_led(head, on, off, half)
+    with pytest.raises(FrameSizeError):
+        centre_on_led(head, led_detector(head, SimulatedLedController(scene), "n"), half)
