@@ -279,3 +279,28 @@ class SimulatedHead:
     def pupil_shift(self) -> float:
         """Current optical-centre offset along the optical axis (survey units), 0 at the widest zoom."""
         return self.pupil_shift_at_tele * self._zoom
+
+
+def simulated_rig(
+    cameras: dict[str, CameraPose],
+    nodes: dict[str, np.ndarray],
+    intrinsics: CameraIntrinsics,
+    seed: int = 0,
+    angle_step: float | None = None,
+    settings: RenderSettings | None = None,
+    distractors: np.ndarray | None = None,
+) -> tuple[dict[str, SimulatedHead], SimulatedLedController]:
+    """Heads for every camera pose (camera i seeded ``seed + i``) looking at one shared
+    :class:`LedScene` of ``nodes``, and the LED controller that switches them.
+
+    E.g. ``simulated_rig(survey.truth.cameras, survey.truth.nodes, intrinsics)``.
+    """
+    scene = LedScene(
+        positions={k: np.asarray(v, dtype=float) for k, v in nodes.items()},
+        distractors=np.zeros((0, 3)) if distractors is None else np.asarray(distractors, dtype=float),
+    )
+    heads = {
+        cam_id: SimulatedHead(pose, scene, intrinsics, seed=seed + i, angle_step=angle_step, settings=settings)
+        for i, (cam_id, pose) in enumerate(cameras.items())
+    }
+    return heads, SimulatedLedController(scene)
