@@ -347,8 +347,8 @@ class PacketSplitter:
 class ViscaLink(Protocol):
     """Carries whole VISCA packets; implementations: serial, VISCA-over-IP, HTTP tunnel."""
 
-    def send(self, packet: bytes) -> None:
-        """Send one packet (``8x ... FF``)."""
+    def send(self, packet: bytes, retransmit: bool = False) -> None:
+        """Send one packet (``8x ... FF``); ``retransmit`` marks a resend after a timeout."""
 
     def receive(self, timeout: float) -> bytes | None:
         """Next reply packet, or None after ``timeout`` seconds without one."""
@@ -386,7 +386,7 @@ class SerialLink:
     def garbage_bytes(self) -> int:
         return self._splitter.dropped_bytes
 
-    def send(self, packet: bytes) -> None:
+    def send(self, packet: bytes, retransmit: bool = False) -> None:
         try:
             self._serial.write(packet)
             self._serial.flush()
@@ -532,9 +532,9 @@ class ViscaSession:
                     if self._on_reconnect is not None:
                         self._on_reconnect()
 
-    def _send(self, packet: bytes) -> None:
+    def _send(self, packet: bytes, retransmit: bool = False) -> None:
         self.stats.sent += 1
-        self.link.send(packet)
+        self.link.send(packet, retransmit)
 
     def _next(self, deadline: float) -> Reply | None:
         """Next well-formed reply from our camera before ``deadline``; None on timeout."""
@@ -563,10 +563,12 @@ class ViscaSession:
     def _command(self, packet: bytes, completion_timeout: float, name: str) -> None:
         t = self.timeouts
         last: ViscaError | None = None
+        acked = True  # a resend after an ACKed attempt is a new message, not a retransmission
         for attempt in range(t.retries + 1):
             if attempt:
                 self.stats.retries += 1
-            self._send(packet)
+            self._send(packet, retransmit=attempt > 0 and not acked)
+            acked = False
             # stage 1: ACK or error
             deadline = time.monotonic() + t.ack
             socket = None
@@ -592,6 +594,7 @@ class ViscaSession:
                     last = ViscaTimeout(f"no ACK from camera {self.address} to {name}")
                 continue
             # stage 2: completion on that socket
+            acked = True
             deadline = time.monotonic() + completion_timeout
             while True:
                 reply = self._next(deadline)
@@ -615,7 +618,7 @@ class ViscaSession:
         for attempt in range(t.retries + 1):
             if attempt:
                 self.stats.retries += 1
-            self._send(packet)
+            self._send(packet, attempt > 0)
             deadline = time.monotonic() + t.inquiry
             while True:
                 reply = self._next(deadline)
@@ -648,7 +651,7 @@ class ViscaSession:
         for attempt in range(t.retries + 1):
             if attempt:
                 self.stats.retries += 1
-            self._send(cmd_if_clear(self.address))
+            self._send(cmd_if_clear(self.address), attempt > 0)
             deadline = time.monotonic() + t.ack
             while True:
                 reply = self._next(deadline)
