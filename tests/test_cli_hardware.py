@@ -110,7 +110,7 @@ def test_motes_errors(capsys) -> None:
 def test_ptz_subprocess_on_the_pty() -> None:
     """The installed entry point, as a person at the rig would run it, on the twin's pty path."""
     with ViscaSerialTwin() as twin:
-        run = subprocess.run([sys.executable, "-c", "import sys; from fgloc.cli import main; sys.exit(main())", "ptz", "--port", twin.port, "goto", "-20", "3"],
+        run = subprocess.run([sys.executable, "-c", "import sys; from fgloc.cli import main; sys.exit(main())", "ptz", "--port", twin.port, "goto", "-20", "5"],
                              capture_output=True, text=True, timeout=60)
         assert run.returncode == 0, run.stderr
-        assert _pos(run.stdout) == pytest.approx((-20.0, 3.0), abs=1e-3)
+        assert _pos(run.stdout) == pytest.approx((-20.0, 5.0), abs=1e-3)
