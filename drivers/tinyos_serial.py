@@ -592,7 +592,8 @@ class MoteNetwork:
     address_map: Mapping[str, int] | None = None
     report_timeout: float = 0.5
     attempts: int = 3
-    reconnects: int = 1
+    reconnects: int = 3
+    reconnect_wait: float = 0.2
     group: int = DEFAULT_GROUP
     mask: int = ALL_LEDS
     unrelated: list[AmPacket] = field(default_factory=list)  # packets received that were not our reports
@@ -608,7 +609,7 @@ class MoteNetwork:
                     if reconnect >= self.reconnects:
                         raise
                     log.warning("mote link lost; reconnecting")
-                    time.sleep(0.05)
+                    time.sleep(self.reconnect_wait)
                     try:
                         self.link.reopen()
                     except MoteDisconnected:

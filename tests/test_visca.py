@@ -238,3 +238,27 @@ def test_grab_frame_uses_the_twin_renderer() -> None:
     with ViscaSerialTwin(emulator) as twin, _head(twin, frames=emulator.frame_source()) as head:
         head.move_to_counts(77, 0)
         assert head.grab_frame().shape == (4, 6) and head.grab_frame()[0, 0] == 77
+
+
+def test_network_change_triggers_address_set_and_if_clear() -> None:
+    """An unsolicited ``90 38 FF`` (protocols.md 1.10 item 6): the head re-initialises before its next command."""
+    with ViscaSerialTwin() as twin, _head(twin) as head:
+        head.move_to_counts(20, 20)
+        n_before = len(twin.emulator.log)
+        twin.inject_raw(bytes.fromhex("90 38 FF"))
+        head.move_to_counts(30, 30)  # the change is seen while waiting for this move's replies
+        assert head.position_counts() == (30, 30)
+        after = twin.emulator.log[n_before:]
+        assert cmd_address_set() in after and cmd_if_clear(1) in after
+        assert head.session.stats.network_changes == 1
+
+
+def test_line_noise_one_percent_of_bytes() -> None:
+    """1 % of all reply bytes corrupted (the issue's acceptance level): 40 moves land exactly, reads agree."""
+    with ViscaSerialTwin(faults=FaultConfig(byte_error_rate=0.01, drop_rate=0.05, seed=21)) as twin, \
+            _head(twin, timeouts=Timeouts(0.05, 0.05, 0.1, retries=6)) as head:
+        for k in range(40):
+            target = ((k * 73) % 2800 - 1400, (k * 37) % 700 - 350)
+            head.move_to_counts(*target)
+            assert head.position_counts() == target
+        assert twin.faults.counts["byte_error"] > 5 and twin.faults.counts["drop"] > 5

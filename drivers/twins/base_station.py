@@ -98,7 +98,7 @@ class BaseStationSerialTwin:
             data = data[:1] + self.faults.garble(data[1:-1]) + data[-1:]
         if fate == "slow":
             due += self.faults.config.slow_seconds
-        self._out.put(due, data)
+        self._out.put(due, self.faults.line_noise(data))
 
     def _serve(self) -> None:
         while not self._stop.is_set():
@@ -210,6 +210,7 @@ class SerialForwarderTwin:
             data = self.faults.garble(data)
         if fate == "slow":
             time.sleep(self.faults.config.slow_seconds)
+        data = self.faults.line_noise(data)  # TCP itself never corrupts; this models a bad radio packet
         try:
             client.sendall(bytes([len(data)]) + data)
         except OSError:
