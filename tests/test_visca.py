@@ -262,3 +262,12 @@ def test_line_noise_one_percent_of_bytes() -> None:
             head.move_to_counts(*target)
             assert head.position_counts() == target
         assert twin.faults.counts["byte_error"] > 5 and twin.faults.counts["drop"] > 5
+
+
+def test_heads_satisfy_the_rig_protocol() -> None:
+    from drivers.sony_cgi import SonyCgiClient, SonyCgiHead
+    from fgloc.rig import PanTiltHead
+
+    with ViscaSerialTwin() as twin, _head(twin) as head:
+        assert isinstance(head, PanTiltHead)
+    assert isinstance(SonyCgiHead(SonyCgiClient("http://127.0.0.1:1")), PanTiltHead)
