@@ -31,6 +31,7 @@ class HeadOptions:
     address: int = 1
     timeout: float = 0.3  # ACK / inquiry / HTTP timeout, seconds
     retries: int = 3
+    completion_margin: float = 1.0  # added to the nominal move time before a Completion counts as lost
     video: str | None = None  # cv2.VideoCapture source for grab_frame
 
 
@@ -62,7 +63,7 @@ def open_head(port: str, options: HeadOptions | None = None, frames=None):
         from drivers.frames import open_frame_source
 
         frames = open_frame_source(o.video)
-    timeouts = Timeouts(ack=o.timeout, inquiry=o.timeout, retries=o.retries)
+    timeouts = Timeouts(ack=o.timeout, inquiry=o.timeout, completion_margin=o.completion_margin, retries=o.retries)
     if transport == "serial":
         from drivers.visca import open_serial_head
 
