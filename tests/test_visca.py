@@ -98,6 +98,9 @@ def test_splitter_resyncs_on_garbage_and_overlong_packets() -> None:
     out = s.feed(H("00 12 90 41 FF 05") + H("90") + bytes([0x01] * 20) + H("90 51 FF"))
     assert out == [H("90 41 FF"), H("90 51 FF")]
     assert s.dropped_bytes >= 3 and s.dropped_packets == 1
+    # a lost terminator does not swallow the next packet
+    assert s.feed(H("90 50 0F 0A") + H("90 41 FF")) == [H("90 41 FF")]
+    assert s.dropped_packets == 2
 
 
 # ---------------------------------------------------------------- driver against the pty twin
