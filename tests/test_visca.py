@@ -274,3 +274,16 @@ def test_heads_satisfy_the_rig_protocol() -> None:
     with ViscaSerialTwin() as twin, _head(twin) as head:
         assert isinstance(head, PanTiltHead)
     assert isinstance(SonyCgiHead(SonyCgiClient("http://127.0.0.1:1")), PanTiltHead)
+
+
+def test_every_d100_count_round_trips_through_the_wire_format() -> None:
+    """Full pan and tilt ranges: command encoding -> emulator decoding -> inquiry reply -> driver decoding."""
+    emulator = ViscaCameraEmulator(EVI_D100)
+    for pan in range(EVI_D100.pan_min, EVI_D100.pan_max + 1):
+        tilt = (pan * 7) % 721 - 360
+        emulator.handle(cmd_pan_tilt_absolute(1, pan, tilt))
+        (_, reply, _), = emulator.handle(cmd_pan_tilt_position_inquiry(1))
+        assert decode_pan_tilt(parse_reply(reply).data) == (pan, tilt)
+    # one past the limits is refused by the camera with a syntax error
+    (_, reply, _), = emulator.handle(cmd_pan_tilt_absolute(1, EVI_D100.pan_max + 1, 0))
+    assert parse_reply(reply).error_code == 0x02
