@@ -78,7 +78,8 @@ def open_head(port: str, options: HeadOptions | None = None, frames=None):
     creds = url_creds
     if creds is None and os.environ.get("FGLOC_CAMERA_USER"):
         creds = Credentials(os.environ["FGLOC_CAMERA_USER"], os.environ.get("FGLOC_CAMERA_PASSWORD", ""))
-    return open_cgi_head(port, units, creds, timeout=max(o.timeout, 0.5), retries=o.retries, frames=frames)
+    # an old network camera answers HTTP far slower than VISCA: at least 2 s per request
+    return open_cgi_head(port, units, creds, timeout=max(o.timeout, 2.0), retries=o.retries, frames=frames)
 
 
 def open_leds(port: str, address_map: Mapping[str, int] | None = None, timeout: float = 0.25, retries: int = 5,
