@@ -32,6 +32,7 @@ class HeadOptions:
     timeout: float = 0.3  # ACK / inquiry / HTTP timeout, seconds
     retries: int = 3
     completion_margin: float = 1.0  # added to the nominal move time before a Completion counts as lost
+    http_timeout: float | None = None  # per HTTP request; None: max(timeout, 2 s)
     video: str | None = None  # cv2.VideoCapture source for grab_frame
 
 
@@ -78,8 +79,9 @@ def open_head(port: str, options: HeadOptions | None = None, frames=None):
     creds = url_creds
     if creds is None and os.environ.get("FGLOC_CAMERA_USER"):
         creds = Credentials(os.environ["FGLOC_CAMERA_USER"], os.environ.get("FGLOC_CAMERA_PASSWORD", ""))
-    # an old network camera answers HTTP far slower than VISCA: at least 2 s per request
-    return open_cgi_head(port, units, creds, timeout=max(o.timeout, 2.0), retries=o.retries, frames=frames)
+    # an old network camera answers HTTP far slower than VISCA: at least 2 s per request by default
+    http_timeout = o.http_timeout if o.http_timeout is not None else max(o.timeout, 2.0)
+    return open_cgi_head(port, units, creds, timeout=http_timeout, retries=o.retries, frames=frames)
 
 
 def open_leds(port: str, address_map: Mapping[str, int] | None = None, timeout: float = 0.25, retries: int = 5,

@@ -118,7 +118,8 @@ class TwinRig:
         cam = self.cameras[camera_id]
         frames = self.frame_source(camera_id) if self._render else None
         head = open_head(self.ports[camera_id], HeadOptions(cam.model, cam.mount, timeout=timeout, retries=retries,
-                                                                completion_margin=completion_margin),
+                                                                completion_margin=completion_margin,
+                                                                http_timeout=max(3 * timeout, 0.2)),
                          frames=frames)
         self._opened.append(head)
         return head
