@@ -20,6 +20,7 @@ from dataclasses import dataclass
 from drivers.ptz_units import EVI_D100, SNC_RZ25N, VISCA_IP_GENERIC, CameraModel, PanTiltUnits, camera_model, mounting
 from drivers.visca import Timeouts
 from fgloc.model import FglocError
+from fgloc.rig import LedController, PanTiltHead
 
 
 @dataclass(frozen=True)
@@ -52,7 +53,7 @@ def default_model(transport: str) -> CameraModel:
     return {"serial": EVI_D100, "udp": VISCA_IP_GENERIC, "http": SNC_RZ25N}[transport]
 
 
-def open_head(port: str, options: HeadOptions | None = None, frames=None):
+def open_head(port: str, options: HeadOptions | None = None, frames: object | None = None) -> PanTiltHead:
     """A ``fgloc.rig.PanTiltHead`` for ``port`` (initialised and answering), see the module doc."""
     o = options or HeadOptions()
     transport = transport_of(port)
@@ -85,7 +86,7 @@ def open_head(port: str, options: HeadOptions | None = None, frames=None):
 
 
 def open_leds(port: str, address_map: Mapping[str, int] | None = None, timeout: float = 0.25, retries: int = 5,
-              report_timeout: float = 0.5, attempts: int = 3):
+              report_timeout: float = 0.5, attempts: int = 3) -> LedController:
     """A ``fgloc.rig.LedController`` (:class:`drivers.tinyos_serial.MoteNetwork`) for a serial port or tcp://."""
     from drivers.tinyos_serial import open_mote_network
 

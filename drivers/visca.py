@@ -27,14 +27,18 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from enum import Enum
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol, TypeVar
 
 import numpy as np
 
-from drivers.ptz_units import EVI_D100, PanTiltUnits, PositionOutOfRangeError
+from drivers.ptz_units import EVI_D100, CameraModel, PanTiltUnits, PositionOutOfRangeError
 from fgloc.model import FglocError
 
+if TYPE_CHECKING:
+    import serial
+
 log = logging.getLogger(__name__)
+_T = TypeVar("_T")
 
 TERMINATOR = 0xFF
 BROADCAST = 0x88
@@ -380,7 +384,7 @@ class SerialLink:
         self._pending: list[bytes] = []
         self._serial = self._open()
 
-    def _open(self):  # -> serial.Serial
+    def _open(self) -> serial.Serial:
         import serial
 
         try:
@@ -520,7 +524,7 @@ class ViscaSession:
         return self._with_reconnect(self._address_set)
 
     # -- internals
-    def _with_reconnect(self, op):
+    def _with_reconnect(self, op: Callable[[], _T]) -> _T:
         with self._lock:
             attempts = 0
             while True:
@@ -733,7 +737,7 @@ class ViscaHead:
         self._last_counts: tuple[int, int] | None = None
 
     @property
-    def model(self):
+    def model(self) -> CameraModel:
         return self.units.model
 
     @property

@@ -31,7 +31,9 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from drivers.ptz_units import PanTiltUnits, camera_model, mounting
-from drivers.tinyos_serial import node_address
+from drivers.frames import FrameSource
+from drivers.tinyos_serial import MoteNetwork, node_address
+from fgloc.rig import PanTiltHead
 from drivers.twins.base_station import BaseStationSerialTwin, MoteFieldEmulator, SerialForwarderTwin
 from drivers.twins.faults import FaultConfig
 from drivers.twins.sony_cgi_camera import SonyCgiTwin
@@ -121,11 +123,12 @@ class TwinRig:
 
         return renderer
 
-    def frame_source(self, camera_id: str):
+    def frame_source(self, camera_id: str) -> FrameSource:
         """The scene's view from ``camera_id``'s current (device-reported) pose."""
         return self.twins[camera_id].emulator.frame_source()
 
-    def open_head(self, camera_id: str, timeout: float = 0.1, retries: int = 5, completion_margin: float = 0.2):
+    def open_head(self, camera_id: str, timeout: float = 0.1, retries: int = 5,
+                  completion_margin: float = 0.2) -> PanTiltHead:
         """The real driver for ``camera_id`` on its twin (frames from the scene when a renderer is set)."""
         from drivers.connect import HeadOptions, open_head
 
@@ -138,7 +141,8 @@ class TwinRig:
         self._opened.append(head)
         return head
 
-    def open_leds(self, timeout: float = 0.05, retries: int = 8, report_timeout: float = 0.1, attempts: int = 5):
+    def open_leds(self, timeout: float = 0.05, retries: int = 8, report_timeout: float = 0.1,
+                  attempts: int = 5) -> MoteNetwork:
         """The real MoteNetwork on the base-station twin."""
         from drivers.connect import open_leds
 

@@ -29,6 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from drivers.frames import CallableFrameSource
 from drivers.ptz_units import EVI_D100, CameraModel
 from drivers.twins.faults import FaultConfig, FaultInjector
 from drivers.twins.pty_port import PtyPort
@@ -112,18 +113,9 @@ class ViscaCameraEmulator:
             raise RuntimeError("this simulated camera has no renderer")
         return self.renderer(self.pose())
 
-    def frame_source(self):
+    def frame_source(self) -> CallableFrameSource:
         """A FrameSource (``read() -> ndarray``) rendering the current pose."""
-        emulator = self
-
-        class _Frames:
-            def read(self) -> np.ndarray:
-                return emulator.frame()
-
-            def close(self) -> None:
-                pass
-
-        return _Frames()
+        return CallableFrameSource(self.frame)
 
     # -- replies
     def _hdr(self) -> int:
