@@ -222,6 +222,16 @@ def cmd_zoom_position_inquiry(address: int = 1) -> bytes:
     return _packet(address, 0x09, 0x04, 0x47)
 
 
+def cmd_focus_auto(address: int = 1) -> bytes:
+    """CAM_Focus Auto ``8x 01 04 38 02 FF``."""
+    return _packet(address, 0x01, 0x04, 0x38, 0x02)
+
+
+def cmd_focus_manual(address: int = 1) -> bytes:
+    """CAM_Focus Manual ``8x 01 04 38 03 FF`` (lock focus while measuring, protocols.md 1.6)."""
+    return _packet(address, 0x01, 0x04, 0x38, 0x03)
+
+
 def cmd_cancel(address: int, socket: int) -> bytes:
     """Command cancel ``8x 2y FF``."""
     return _packet(address, 0x20 | (socket & 0x0F))
@@ -845,6 +855,11 @@ class ViscaHead:
 
     def zoom(self) -> float:
         return self.units.zoom_from_counts(self.zoom_counts())
+
+    def set_autofocus(self, on: bool) -> None:
+        """Auto focus on, or manual (focus held where it is) while measuring."""
+        packet = cmd_focus_auto(self.address) if on else cmd_focus_manual(self.address)
+        self.session.command(packet, name="focus auto" if on else "focus manual")
 
     def stop(self) -> None:
         ps, ts = self._speeds()
