@@ -13,7 +13,9 @@ Because the bearing factors cannot resist a gauge motion, these priors are
 satisfied exactly at the optimum whatever their sigma: they do not bias the
 solution. Their sigma only has to be small against the node covariances so
 that the gauge leaks nothing into the marginals (it adds O(sigma^2)); the
-default 1e-7 baseline units is ~1e-5 of a typical node standard deviation.
+default 1e-6 baseline units is ~1e-3 of a typical node standard deviation
+(leaking ~1e-6 relative into the marginals) while keeping the Cholesky
+factorization well conditioned against 0.1-degree bearings.
 """
 
 from __future__ import annotations
@@ -25,7 +27,7 @@ import numpy as np
 
 from fgloc.model import NodeMode
 
-GAUGE_SIGMA = 1e-7
+GAUGE_SIGMA = 1e-6
 
 
 def ground_point_factor(camera_key: int, ground_xy: tuple[float, float], sigma: float = GAUGE_SIGMA) -> gtsam.CustomFactor:

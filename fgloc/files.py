@@ -42,7 +42,7 @@ class FileFormatError(FglocError):
 
 
 def _show(value: Any) -> str:
-    text = json.dumps(value) if not isinstance(value, float) else repr(value)
+    text = json.dumps(value)  # NaN and Infinity shown as the JSON literals a user wrote
     return text if len(text) <= 60 else text[:57] + "..."
 
 

@@ -93,9 +93,10 @@ def pan_tilt_jacobian(direction: ArrayLike) -> FloatArray:
     q = np.asarray(direction, dtype=float)
     x, y, z = q[..., 0], q[..., 1], q[..., 2]
     n2 = x * x + y * y + z * z
-    r = np.maximum(np.hypot(x, y), PAN_SINGULARITY_EPS * np.sqrt(n2) + 1e-300)
+    # Floor 1e-100 keeps r^2 and r * n^2 representable (no 0/0) even for q = 0.
+    r = np.maximum(np.hypot(x, y), np.maximum(PAN_SINGULARITY_EPS * np.sqrt(n2), 1e-100))
     r2 = r * r
-    n2 = np.maximum(n2, 1e-300)
+    n2 = np.maximum(n2, r2)
     jac = np.zeros(q.shape[:-1] + (2, 3))
     jac[..., 0, 0] = -y / r2
     jac[..., 0, 1] = x / r2

@@ -1,0 +1,7 @@
+"""``python -m fgloc`` is the ``fgloc`` command."""
+
+import sys
+
+from fgloc.cli import main
+
+sys.exit(main())
