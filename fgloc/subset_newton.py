@@ -267,6 +267,10 @@ def gauss_newton_step(J: FloatArray, F: FloatArray, rank_tol: float = 1e-10) -> 
     Returns the step (S, n), the upper-triangular factor (S, n, n) and a bool
     (S,) that is True where J is rank deficient (step set to zero there).
     """
+    short = J.shape[2] - J.shape[1]
+    if short > 0:  # fewer residuals than unknowns: pad with zero rows (rank deficient)
+        J = np.concatenate([J, np.zeros((J.shape[0], short, J.shape[2]))], axis=1)
+        F = np.concatenate([F, np.zeros((F.shape[0], short))], axis=1)
     Q, Rt = np.linalg.qr(J)
     d = np.abs(np.diagonal(Rt, axis1=-2, axis2=-1))
     deficient = ~np.all(np.isfinite(Rt), axis=(1, 2)) | (d.min(axis=1) <= rank_tol * np.maximum(d.max(axis=1), 1e-300))
