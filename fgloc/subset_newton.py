@@ -453,6 +453,14 @@ def solve_subsets(state0: SubsetState, obs: SubsetReadings, options: SubsetNewto
 # ------------------------------------------------------------------ initial guess
 
 
+def _lower_median(values: FloatArray, valid: np.ndarray) -> FloatArray:
+    """Lower median of the valid entries along the last axis (NaN where none), keepdims."""
+    srt = np.sort(np.where(valid, values, np.inf), axis=-1)
+    count = valid.sum(axis=-1, keepdims=True)
+    med = np.take_along_axis(srt, np.maximum(count - 1, 0) // 2, axis=-1)
+    return np.where(count > 0, med, np.nan)
+
+
 def level_camera_guesses(obs: SubsetReadings, grid_deg: float = 5.0, n_best: int = 1) -> list[SubsetState]:
     """Generic starts from the readings alone: level cameras, yaws from a grid search.
 
@@ -482,8 +490,8 @@ def level_camera_guesses(obs: SubsetReadings, grid_deg: float = 5.0, n_best: int
         h0 = -t0 * np.tan(tilt[:, None, None, 0, :])
         h1 = -t1 * np.tan(tilt[:, None, None, 1, :])
         valid = (t0 > 0) & (t1 > 0) & (h0 > 0) & (h1 > 0) & np.isfinite(h0) & np.isfinite(h1)
-        h0m = np.nanmedian(np.where(valid, h0, np.nan), axis=-1, keepdims=True)
-        h1m = np.nanmedian(np.where(valid, h1, np.nan), axis=-1, keepdims=True)
+        h0m = _lower_median(h0, valid)
+        h1m = _lower_median(h1, valid)
         e0 = np.arctan2(-h0m, t0) - tilt[:, None, None, 0, :]
         e1 = np.arctan2(-h1m, t1) - tilt[:, None, None, 1, :]
         cost = np.where(valid, e0**2 + e1**2, 1.0).sum(axis=-1)
