@@ -9,6 +9,7 @@ import pytest
 from fgloc.cli import main
 
 
+@pytest.mark.slow  # end to end: 8 solves, 3 CRLBs, matplotlib import and 4 PNGs (~5 s)
 def test_report_quick_writes_table_and_figures(tmp_path) -> None:
     """The quick report writes report.md with Table 1 rows for every k (paper column
     honest: 'not available'), the CDF, the per-k subset scatter and the joint ellipse PNGs."""
