@@ -12,10 +12,10 @@ The spec's gauges remove exactly those degrees of freedom:
 Because the bearing factors cannot resist a gauge motion, these priors are
 satisfied exactly at the optimum whatever their sigma: they do not bias the
 solution. Their sigma only has to be small against the node covariances so
-that the gauge leaks nothing into the marginals (it adds O(sigma^2)); the
-default 1e-6 baseline units is ~1e-3 of a typical node standard deviation
-(leaking ~1e-6 relative into the marginals) while keeping the Cholesky
-factorization well conditioned against 0.1-degree bearings.
+that the gauge leaks nothing into the marginals (it adds O(sigma^2)), and not
+so small that Cholesky loses precision: the solver picks 1e-3 of a typical node
+standard deviation (``fgloc.joint_solver.auto_gauge_sigma``); ``GAUGE_SIGMA``
+is the default for direct use of these factors.
 """
 
 from __future__ import annotations

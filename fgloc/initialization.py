@@ -94,28 +94,34 @@ def _place_nodes(cameras: dict[int, CameraPose], bs: BearingSet, nodes: dict[int
             nodes[j] = np.array([xy[0], xy[1], 0.0])
 
 
-def _pair_frame(bs: BearingSet, a: int, b: int) -> dict[int, CameraPose]:
-    """Cameras a and b in a frame with the plane at z = 0 and camera a above the origin."""
+def _pair_frames(bs: BearingSet, a: int, b: int) -> list[dict[int, CameraPose]]:
+    """Cameras a and b in a frame with the plane at z = 0 and camera a above the origin.
+
+    Returns every decomposition of the pair's homography that puts (nearly) all
+    shared nodes in front of both cameras: usually one, but a planar scene seen
+    by two cameras can admit two (the classic two-fold ambiguity).
+    """
     shared = bs.seen[a] & bs.seen[b]
     b1, b2 = bs.bearings[a, shared], bs.bearings[b, shared]
     H = estimate_bearing_homography(b1, b2)
     candidates = decompose_bearing_homography(H)
-    scores = [chirality_score(c, b1, b2) for c in candidates]
-    best = candidates[int(np.argmax(scores))]
-    n = best.normal / np.linalg.norm(best.normal)  # points from camera a down to the plane
-    height = 1.0 / np.linalg.norm(best.normal)
-    up = -n
-    w = -best.rotation.T @ best.translation  # camera b's centre in camera a's base frame
-    horiz = w - (w @ up) * up
-    if np.linalg.norm(horiz) < 1e-9 * max(np.linalg.norm(w), 1e-300):
-        raise DegenerateGeometryError("the two cameras stand on the same vertical: no ground baseline")
-    x_axis = horiz / np.linalg.norm(horiz)
-    y_axis = np.cross(up, x_axis)
-    R_a = np.vstack([x_axis, y_axis, up])  # camera-a base -> world
-    c_a = np.array([0.0, 0.0, height])
-    c_b = R_a @ w + c_a
-    R_b = R_a @ best.rotation.T
-    return {a: CameraPose(c_a, R_a), b: CameraPose(c_b, R_b)}
+    scores = np.array([chirality_score(c, b1, b2) for c in candidates])
+    keep = [c for c, sc in zip(candidates, scores) if sc >= 0.98 * scores.max()]
+    frames = []
+    for cand in keep:
+        n = cand.normal / np.linalg.norm(cand.normal)  # points from camera a down to the plane
+        height = 1.0 / np.linalg.norm(cand.normal)
+        up = -n
+        w = -cand.rotation.T @ cand.translation  # camera b's centre in camera a's base frame
+        horiz = w - (w @ up) * up
+        if np.linalg.norm(horiz) < 1e-9 * max(np.linalg.norm(w), 1e-300):
+            raise DegenerateGeometryError("the two cameras stand on the same vertical: no ground baseline")
+        x_axis = horiz / np.linalg.norm(horiz)
+        y_axis = np.cross(up, x_axis)
+        R_a = np.vstack([x_axis, y_axis, up])  # camera-a base -> world
+        c_a = np.array([0.0, 0.0, height])
+        frames.append({a: CameraPose(c_a, R_a), b: CameraPose(R_a @ w + c_a, R_a @ cand.rotation.T)})
+    return frames
 
 
 def _to_planar_gauge(
@@ -146,8 +152,55 @@ def covisibility(bs: BearingSet) -> np.ndarray:
     return s @ s.T
 
 
+def _grow(bs: BearingSet, cameras: dict[int, CameraPose], ids: list[str]) -> dict[int, FloatArray]:
+    """Place nodes from the starting cameras, then add every other camera and its nodes."""
+    nodes: dict[int, FloatArray] = {}
+    _place_nodes(cameras, bs, nodes)
+    while len(cameras) < len(ids):
+        placed = np.zeros(bs.seen.shape[1], dtype=bool)
+        placed[list(nodes)] = True
+        counts = [(int(np.sum(bs.seen[i] & placed)), i) for i in range(len(ids)) if i not in cameras]
+        n_best, k = max(counts)
+        if n_best < MIN_SHARED_PLANAR:
+            missing = sorted(ids[i] for _, i in counts)
+            raise DegenerateGeometryError(
+                f"camera(s) {', '.join(missing)} share fewer than {MIN_SHARED_PLANAR} nodes with the placed cameras"
+            )
+        vis = bs.seen[k] & placed
+        xy = np.array([nodes[j][:2] for j in np.flatnonzero(vis)])
+        cameras[k] = camera_from_plane_homography(plane_to_bearing_homography(xy, bs.bearings[k, vis]))
+        _place_nodes(cameras, bs, nodes)
+    return nodes
+
+
+def angular_cost(bs: BearingSet, cameras: dict[int, CameraPose], nodes: dict[int, FloatArray]) -> float:
+    """Sum over observed (camera, node) pairs of the squared angle between bearing and prediction."""
+    total = 0.0
+    for i, cam in cameras.items():
+        js = [j for j in np.flatnonzero(bs.seen[i]) if j in nodes]
+        if not js:
+            continue
+        pred = (np.array([nodes[j] for j in js]) - cam.position) @ cam.rotation
+        pred /= np.linalg.norm(pred, axis=1, keepdims=True)
+        cos = np.clip(np.einsum("mi,mi->m", pred, bs.bearings[i, js]), -1.0, 1.0)
+        total += float(np.sum(np.arccos(cos) ** 2))
+    return total
+
+
+def _uprightness(cameras: dict[int, CameraPose]) -> float:
+    """How close the bases are to level or to hanging upside down (sum of |R_zz|)."""
+    return float(sum(abs(c.rotation[2, 2]) for c in cameras.values()))
+
+
 def initialize_planar(survey: Survey) -> InitialEstimate:
-    """Closed-form start for a planar survey (see the module docstring)."""
+    """Closed-form start for a planar survey (see the module docstring).
+
+    When the starting pair's homography admits two physical decompositions,
+    each is grown over all cameras and the one whose bearings fit best wins.
+    With only two cameras both fit equally (the scene is truly ambiguous from
+    bearings alone); then the one with the more level (or upside-down) camera
+    bases is kept, which is how PTZ heads are mounted in practice.
+    """
     if survey.mode is not NodeMode.PLANAR:
         raise FglocError("initialize_planar needs a planar survey")
     bs = BearingSet.from_survey(survey)
@@ -163,25 +216,15 @@ def initialize_planar(survey: Survey) -> InitialEstimate:
             raise DegenerateGeometryError(
                 f"no two cameras share {MIN_SHARED_PLANAR} nodes (best: {ids[a]} and {ids[b]} share {off[a, b]})"
             )
-    cameras = _pair_frame(bs, int(a), int(b))
-    nodes: dict[int, FloatArray] = {}
-    only_pair = {k: cameras[k] for k in (a, b)}
-    _place_nodes(only_pair, bs, nodes)
-    while len(cameras) < len(ids):
-        placed = np.zeros(bs.seen.shape[1], dtype=bool)
-        placed[list(nodes)] = True
-        counts = [(int(np.sum(bs.seen[i] & placed)), i) for i in range(len(ids)) if i not in cameras]
-        n_best, k = max(counts)
-        if n_best < MIN_SHARED_PLANAR:
-            missing = sorted(ids[i] for _, i in counts)
-            raise DegenerateGeometryError(
-                f"camera(s) {', '.join(missing)} share fewer than {MIN_SHARED_PLANAR} nodes with the placed cameras"
-            )
-        vis = bs.seen[k] & placed
-        xy = np.array([nodes[j][:2] for j in np.flatnonzero(vis)])
-        cameras[k] = camera_from_plane_homography(plane_to_bearing_homography(xy, bs.bearings[k, vis]))
-        _place_nodes(cameras, bs, nodes)
-    cameras, nodes = _to_planar_gauge(cameras, nodes, origin, baseline)
+    best: tuple[float, float, dict[int, CameraPose], dict[int, FloatArray]] | None = None
+    for cameras in _pair_frames(bs, int(a), int(b)):
+        nodes = _grow(bs, cameras, ids)
+        cost = angular_cost(bs, cameras, nodes)
+        key = (round(cost / (len(survey.observations) * survey.sigma**2 + 1e-300), 0), -_uprightness(cameras))
+        if best is None or key < best[:2]:
+            best = (key[0], key[1], cameras, nodes)
+    assert best is not None
+    cameras, nodes = _to_planar_gauge(best[2], best[3], origin, baseline)
     unlocalized = {
         survey.node_ids[j]: ("seen by no camera" if not bs.seen[:, j].any() else "no ray reaches the ground plane")
         for j in range(len(survey.node_ids))

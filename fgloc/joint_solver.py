@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 import gtsam
 import numpy as np
 
-from factors.baseline_prior import GAUGE_SIGMA, BaselinePrior
+from factors.baseline_prior import BaselinePrior
 from factors.pan_tilt_batch import PanTiltFactorSet
 from fgloc.initialization import InitialEstimate, initialize_planar
 from fgloc.levenberg_marquardt import IterationCallback, LMParams, levenberg_marquardt
@@ -40,7 +40,28 @@ class SolverOptions:
 
     lm: LMParams = LMParams()
     compute_marginals: bool = True
-    gauge_sigma: float = GAUGE_SIGMA
+    #: Sigma of the gauge priors in baseline units; None scales it to the problem
+    #: (see :func:`auto_gauge_sigma`).
+    gauge_sigma: float | None = None
+
+
+def auto_gauge_sigma(survey: Survey, initial: InitialEstimate) -> float:
+    """A gauge sigma 1e-3 times a typical node standard deviation (sigma x camera range).
+
+    Small enough that the gauge leaks ~1e-6 (relative) into the marginals, large
+    enough that Cholesky stays well conditioned when cameras stand far away or
+    high above a short baseline. The positions do not depend on it.
+    """
+    table = survey.observation_table
+    ranges = []
+    for cid, cam in initial.cameras.items():
+        i = survey.camera_ids.index(cid)
+        js = np.unique(table.node_index[table.camera_index == i])
+        pts = [initial.nodes[survey.node_ids[j]] for j in js if survey.node_ids[j] in initial.nodes]
+        if pts:
+            ranges.append(np.linalg.norm(np.asarray(pts) - cam.position, axis=1))
+    typical_range = float(np.median(np.concatenate(ranges))) if ranges else 1.0
+    return float(max(1e-3 * np.median(table.sigma) * typical_range, 1e-9))
 
 
 @dataclass
@@ -122,9 +143,8 @@ def build_problem(survey: Survey, initial: InitialEstimate, options: SolverOptio
     )
     for f in pan_tilt.factors:
         graph.add(f)
-    gauge = BaselinePrior(
-        survey.mode, camera_keys[survey.gauge.origin], camera_keys[survey.gauge.baseline], options.gauge_sigma
-    )
+    gauge_sigma = options.gauge_sigma if options.gauge_sigma is not None else auto_gauge_sigma(survey, initial)
+    gauge = BaselinePrior(survey.mode, camera_keys[survey.gauge.origin], camera_keys[survey.gauge.baseline], gauge_sigma)
     for f in gauge.factors():
         graph.add(f)
     return LocalizationProblem(

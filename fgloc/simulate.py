@@ -130,3 +130,83 @@ def paper_scenario(config: PaperScenario = PaperScenario()) -> Survey:
         observations=observations,
         truth=Truth(cameras=dict(zip(camera_ids, cameras)), nodes={n: p for n, p in zip(node_ids, nodes)}),
     )
+
+
+@dataclass(frozen=True)
+class RandomScene:
+    """A random deployment for stress tests: N cameras around a field, occlusions, any mount.
+
+    Lengths are in field units before the gauge normalization (the field is the
+    unit square; nodes of 3d scenes get heights up to ``max_node_height``).
+    Each camera sees each node with probability ``visibility``; a share
+    ``ceiling_share`` of cameras hang upside down (base roll pi plus a tilt).
+    """
+
+    n_cameras: int = 4
+    n_nodes: int = 100
+    mode: NodeMode = NodeMode.PLANAR
+    sigma: float = PAPER_SIGMA
+    height_range: tuple[float, float] = (0.05, 1.0)
+    visibility: float = 0.8
+    ceiling_share: float = 0.25
+    max_node_height: float = 0.3
+    repeats: int = 1
+    seed: int = 0
+
+
+def _to_gauge(
+    cameras: list[CameraPose], nodes: FloatArray, mode: NodeMode
+) -> tuple[list[CameraPose], FloatArray]:
+    """Similarity taking a scene into the spec's gauge for cameras 0 (origin) and 1 (baseline)."""
+    if mode is NodeMode.PLANAR:
+        g0, g1 = cameras[0].position[:2], cameras[1].position[:2]
+        d = g1 - g0
+        scale, ang = float(np.linalg.norm(d)), float(np.arctan2(d[1], d[0]))
+        c, s = np.cos(-ang), np.sin(-ang)
+        rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        shift = np.array([g0[0], g0[1], 0.0])
+    else:
+        rot = cameras[0].rotation.T
+        shift = cameras[0].position
+        scale = float(np.linalg.norm(cameras[1].position - cameras[0].position))
+
+    def move(p: FloatArray) -> FloatArray:
+        return (np.asarray(p) - shift) @ rot.T / scale
+
+    moved = [CameraPose(move(cam.position), rot @ cam.rotation) for cam in cameras]
+    return moved, move(nodes)
+
+
+def random_scene(config: RandomScene = RandomScene()) -> Survey:
+    """A random multi-camera survey with truth in the gauge frame (cameras 'cam0', 'cam1' hold it)."""
+    if config.n_cameras < 2:
+        raise ValueError(f"n_cameras must be >= 2, got {config.n_cameras}")
+    rng = np.random.default_rng(config.seed)
+    planar = config.mode is NodeMode.PLANAR
+    nodes = rng.uniform(0.0, 1.0, size=(config.n_nodes, 3))
+    nodes[:, 2] = 0.0 if planar else nodes[:, 2] * config.max_node_height
+    cameras = []
+    for i in range(config.n_cameras):
+        while True:
+            xy = rng.uniform(-0.3, 1.3, size=2)
+            if i != 1 or np.linalg.norm(xy - cameras[0].position[:2]) > 0.2:
+                break
+        h = rng.uniform(*config.height_range)
+        rotation = random_base_rotation(rng, 15.0)
+        if rng.uniform() < config.ceiling_share:
+            rotation = rotation @ base_rotation(0.0, 0.0, np.pi)
+        cameras.append(CameraPose(np.array([xy[0], xy[1], h + (config.max_node_height if not planar else 0.0)]), rotation))
+    visible = rng.uniform(size=(config.n_cameras, config.n_nodes)) < config.visibility
+    cameras, nodes = _to_gauge(cameras, nodes, config.mode)
+    camera_ids = [f"cam{i}" for i in range(config.n_cameras)]
+    node_ids = [f"n{j:04d}" for j in range(config.n_nodes)]
+    observations = observe(camera_ids, cameras, node_ids, nodes, config.sigma, rng, config.repeats, visible)
+    return Survey(
+        mode=config.mode,
+        gauge=Gauge(origin="cam0", baseline="cam1"),
+        sigma=config.sigma,
+        camera_ids=camera_ids,
+        node_ids=node_ids,
+        observations=observations,
+        truth=Truth(cameras=dict(zip(camera_ids, cameras)), nodes={n: p for n, p in zip(node_ids, nodes)}),
+    )
