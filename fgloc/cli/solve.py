@@ -13,6 +13,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("solve", help="solve a survey (joint factor-graph solve by default)")
     p.add_argument("survey", help="survey.json to read")
     p.add_argument("-o", "--output", required=True, help="result.json to write (atomically)")
+    p.add_argument(
+        "--method", choices=("joint", "subset-newton"), default="joint",
+        help="joint factor-graph solve (default) or the paper's subset-averaging Newton baseline",
+    )
+    p.add_argument("--subset-size", type=int, default=10, help="subset-newton: nodes per subset (untagged surveys)")
+    p.add_argument("--subsets", type=int, default=50, help="subset-newton: number of subsets (untagged surveys)")
+    p.add_argument("--seed", type=int, default=0, help="subset-newton: seed of the subset draw (untagged surveys)")
     p.set_defaults(run=run)
 
 
@@ -36,7 +43,17 @@ def describe(result: Result) -> str:
 
 def run(args: argparse.Namespace) -> int:
     survey = read_survey(args.survey)
-    result = solve_survey(survey)
+    if args.method == "subset-newton":
+        from fgloc.subset_newton import SubsetNewtonOptions, solve_subset_newton
+
+        outcome = solve_subset_newton(
+            survey, SubsetNewtonOptions(subset_size=args.subset_size, n_subsets=args.subsets, seed=args.seed)
+        )
+        result = outcome.result
+        failed = ", ".join(f"{k} {v}" for k, v in outcome.failures.items() if v) or "none"
+        print(f"subset-newton: {len(outcome.subsets)} subsets, failed: {failed}")
+    else:
+        result = solve_survey(survey)
     write_result(result, args.output)
     print(describe(result))
     print(f"wrote {args.output}")
