@@ -676,16 +676,19 @@ def viewer_binary() -> Path:
     return Path(rerun_cli.__file__).parent / "rerun"
 
 
+def has_display() -> bool:
+    """Whether a native viewer window can be shown (X11/Wayland display, or macOS/Windows)."""
+    if os.name != "posix" or Path("/System/Library").exists():
+        return True
+    return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+
+
 def view_rrd(path: str | os.PathLike[str], bind: str = "127.0.0.1") -> int:
-    """Open an .rrd in the native viewer and wait until it is closed.
+    """Open an .rrd in the native viewer and wait until it is closed (returns its exit status).
 
     The viewer's own server listens on ``bind`` (127.0.0.1 unless the user asks
-    otherwise) on a free port. Raises FglocError when there is no display.
+    otherwise) on a free port.
     """
-    if not os.environ.get("DISPLAY") and not os.environ.get("WAYLAND_DISPLAY") and os.name == "posix" \
-            and not Path("/System").exists():
-        raise FglocError(f"{path}: no display to show the viewer on (DISPLAY is unset); "
-                         "use --save FILE.rrd and open it elsewhere with `rerun FILE.rrd`")
     cmd = [str(viewer_binary()), "--bind", bind, "--port", "auto", str(path)]
     return subprocess.call(cmd)
 

@@ -13,6 +13,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("solve", help="solve a survey (joint factor-graph solve by default)")
     p.add_argument("survey", help="survey.json to read")
     p.add_argument("-o", "--output", required=True, help="result.json to write (atomically)")
+    p.add_argument("--rerun", metavar="FILE.rrd", help="also write a Rerun recording (open with `rerun FILE.rrd`)")
     p.set_defaults(run=run)
 
 
@@ -36,8 +37,18 @@ def describe(result: Result) -> str:
 
 def run(args: argparse.Namespace) -> int:
     survey = read_survey(args.survey)
-    result = solve_survey(survey)
+    recorder = None
+    if args.rerun:
+        from fgloc.viz import IterationRecorder  # rerun is imported only when asked for
+
+        recorder = IterationRecorder(survey)
+    result = solve_survey(survey, on_iteration=recorder)
     write_result(result, args.output)
     print(describe(result))
     print(f"wrote {args.output}")
+    if args.rerun:
+        from fgloc.viz import write_rrd
+
+        write_rrd(args.rerun, result, survey, recorder=recorder)
+        print(f"wrote {args.rerun} (open it with `rerun {args.rerun}`)")
     return 0
