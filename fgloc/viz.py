@@ -291,7 +291,7 @@ def log_nodes(
         "world/nodes/covariance",
         rr.Ellipsoids3D(
             centers=nodes.positions[ok], half_sizes=ell.half_sizes[ok], quaternions=ell.quaternions[ok],
-            colors=COVARIANCE_COLOR, line_radii=THIN_LINE_RADIUS, fill_mode="majorwireframe",
+            colors=COVARIANCE_COLOR, line_radii=LINE_RADIUS, fill_mode="majorwireframe",
             labels=[f"{n} {100 * options.confidence:g}%" for n, good in zip(nodes.ids, ok) if good],
             show_labels=False,
         ),
