@@ -71,7 +71,7 @@ ITERATE_COLOR = (200, 200, 200, 255)
 GROUND_COLOR = (90, 90, 90, 255)
 BASELINE_COLOR = (255, 255, 255, 255)
 CAMERA_COLORS = [(80, 150, 255), (255, 230, 60), (200, 120, 255), (255, 120, 90), (120, 255, 220)]
-RAY_ALPHA = 45
+RAY_ALPHA = 28
 
 # Sizes in UI points (negative radii in Rerun), so they read the same at any zoom.
 NODE_RADIUS = rr.Radius.ui_points(4.0)
@@ -399,7 +399,9 @@ def worst_nodes_markdown(rows: list[WorstNode], confidence: float = DEFAULT_CONF
         return "No localized nodes."
     by_truth = np.isfinite(rows[0].error)
     head = "Worst nodes by true error" if by_truth else f"Least certain nodes (largest {100 * confidence:g}% axis)"
-    lines = [f"### {head}", "", "lengths in 1/1000 baseline", "",
+    lines = [f"### {head}", "",
+             f"Lengths in 1/1000 of the baseline. Orange: estimate, green: truth, magenta: error, "
+             f"cyan: {100 * confidence:g}% region (true scale: see the close-up), red rays: flagged outliers.", "",
              f"| node | error | NEES | {100 * confidence:g}% major axis |", "|---|---:|---:|---:|"]
     for r in rows:
         err = f"{1000 * r.error:.2f}" if np.isfinite(r.error) else "-"

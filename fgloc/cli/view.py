@@ -15,6 +15,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("result", help="result.json to show")
     p.add_argument("--survey", help="its survey.json: adds bearing rays, truth and error segments")
     p.add_argument("--save", metavar="FILE.rrd", help="write the recording here instead of opening a viewer")
+    p.add_argument("--screenshot", metavar="FILE.png",
+                   help="render the default layout headless to a PNG (needs a Vulkan driver, e.g. Debian's "
+                        "mesa-vulkan-drivers) instead of opening a viewer")
+    p.add_argument("--size", default="1600x900", help="window size for --screenshot (default 1600x900)")
     p.add_argument("--bind", default="127.0.0.1",
                    help="address the viewer's server listens on (default 127.0.0.1, loopback only)")
     p.set_defaults(run=run)
@@ -33,6 +37,17 @@ def run(args: argparse.Namespace) -> int:
     if args.save:
         viz.write_rrd(args.save, result, survey)
         print(f"wrote {args.save} (open it with `rerun {args.save}`)")
+    if args.screenshot:
+        with tempfile.TemporaryDirectory(prefix="fgloc-view-") as tmp:
+            rrd = Path(args.save) if args.save else viz.write_rrd(Path(tmp) / "view.rrd", result, survey)
+            try:
+                report = viz.render_headless(rrd, args.screenshot, window_size=args.size)
+            except (RuntimeError, TimeoutError) as exc:
+                raise FglocError(f"{args.screenshot}: headless render failed: {exc}") from None
+        bad = {name: r for name, r in report.view_reports.items() if r}
+        print(f"wrote {args.screenshot}" + (f"; view problems: {bad}" if bad else ""))
+        return 0 if not bad else 1
+    if args.save:
         return 0
     if not viz.has_display():
         raise FglocError(f"{args.result}: no display to show the viewer on (DISPLAY is unset); "
