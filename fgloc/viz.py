@@ -763,6 +763,8 @@ def render_headless(
                 seq = known[timeline].end if sequence is None else sequence
                 client.set_time(timeline, sequence=int(seq), play_state="paused")
         time.sleep(settle_seconds)
+        client.take_screenshot(max_size=64)  # a first frame retires expired start-up notifications
+        time.sleep(0.5)
         client.save_screenshot(str(Path(png).resolve()))
         views = client.get_state().views  # reports describe the frame just painted
         reports = {f"{v.view_class}:{v.name}": [str(r) for r in v.reports] for v in views}
