@@ -234,7 +234,7 @@ def log_cameras(
         if cov is not None:
             cov = np.asarray(cov, dtype=float)
             rot_sigma_deg = np.degrees(np.sqrt(np.linalg.eigvalsh(cov[:3, :3]).max()))
-            label = f"{cid} (rot sigma {rot_sigma_deg:.3f} deg)"
+            label = f"{cid} (rot sigma {rot_sigma_deg:.3f}°)"
             ell = confidence_ellipsoids(cov[None, 3:, 3:], options.confidence)
             rec.log(
                 f"{path}/position_covariance",
@@ -610,7 +610,7 @@ def default_blueprint(result: Result | None = None, survey: Survey | None = None
         centre = 0.5 * (pts.min(axis=0) + pts.max(axis=0))
         size = float(np.ptp(pts, axis=0).max()) or 1.0
         overview_eye = rrb.EyeControls3D(
-            position=centre + size * np.array([0.35, -1.05, 0.85]), look_target=centre, eye_up=[0.0, 0.0, 1.0])
+            position=centre + size * np.array([0.12, -1.18, 0.9]), look_target=centre, eye_up=[0.0, 0.0, 1.0])
         rows = worst_nodes(result, survey, 1, options.confidence)
         if rows:
             target = np.asarray(result.nodes[rows[0].node].position, float)
@@ -637,6 +637,18 @@ def default_blueprint(result: Result | None = None, survey: Survey | None = None
 
 
 # --------------------------------------------------------------------------- one-shot
+
+
+def camera_covariances_or_none(survey: Survey | None, result: Result) -> dict[str, FloatArray] | None:
+    """Camera pose covariances for drawing, or None when there is no survey or they are undefined."""
+    if survey is None or not result.cameras:
+        return None
+    from fgloc.camera_uncertainty import camera_covariances
+
+    try:
+        return camera_covariances(survey, result)
+    except FglocError:
+        return None
 
 
 def write_rrd(

@@ -47,8 +47,9 @@ def run(args: argparse.Namespace) -> int:
     print(describe(result))
     print(f"wrote {args.output}")
     if args.rerun:
-        from fgloc.viz import write_rrd
+        from fgloc.viz import camera_covariances_or_none, write_rrd
 
-        write_rrd(args.rerun, result, survey, recorder=recorder)
+        write_rrd(args.rerun, result, survey, recorder=recorder,
+                  camera_covariances=camera_covariances_or_none(survey, result))
         print(f"wrote {args.rerun} (open it with `rerun {args.rerun}`)")
     return 0

@@ -34,12 +34,17 @@ def run(args: argparse.Namespace) -> int:
         if unknown:
             raise FglocError(f"{args.survey}: node_ids: result {args.result} has nodes not in the survey: "
                              f"{', '.join(unknown[:5])}")
+    if not (args.save or args.screenshot) and not viz.has_display():
+        raise FglocError(f"{args.result}: no display to show the viewer on (DISPLAY is unset); "
+                         "use --save FILE.rrd and open that file where there is a screen (`rerun FILE.rrd`)")
+    cam_cov = viz.camera_covariances_or_none(survey, result)
     if args.save:
-        viz.write_rrd(args.save, result, survey)
+        viz.write_rrd(args.save, result, survey, camera_covariances=cam_cov)
         print(f"wrote {args.save} (open it with `rerun {args.save}`)")
     if args.screenshot:
         with tempfile.TemporaryDirectory(prefix="fgloc-view-") as tmp:
-            rrd = Path(args.save) if args.save else viz.write_rrd(Path(tmp) / "view.rrd", result, survey)
+            rrd = Path(args.save) if args.save else viz.write_rrd(Path(tmp) / "view.rrd", result, survey,
+                                                                        camera_covariances=cam_cov)
             try:
                 report = viz.render_headless(rrd, args.screenshot, window_size=args.size)
             except (RuntimeError, TimeoutError) as exc:
@@ -49,10 +54,7 @@ def run(args: argparse.Namespace) -> int:
         return 0 if not bad else 1
     if args.save:
         return 0
-    if not viz.has_display():
-        raise FglocError(f"{args.result}: no display to show the viewer on (DISPLAY is unset); "
-                         "use --save FILE.rrd and open that file where there is a screen (`rerun FILE.rrd`)")
     with tempfile.TemporaryDirectory(prefix="fgloc-view-") as tmp:
         path = Path(tmp) / "view.rrd"
-        viz.write_rrd(path, result, survey)
+        viz.write_rrd(path, result, survey, camera_covariances=cam_cov)
         return viz.view_rrd(path, bind=args.bind)
