@@ -44,6 +44,7 @@ a log call costs ~190 us, so per-item calls would be orders of magnitude slower
 from __future__ import annotations
 
 import os
+import re
 import socket
 import subprocess
 import time
@@ -715,6 +716,7 @@ class RenderReport:
     png: Path
     view_reports: dict[str, list[str]]
     problems: list[str]
+    listening: list[str]  # addresses the viewer reported listening on
 
 
 def _free_loopback_port() -> int:
@@ -780,14 +782,17 @@ def render_headless(
         client.save_screenshot(str(Path(png).resolve()))
         views = client.get_state().views  # reports describe the frame just painted
         reports = {f"{v.view_class}:{v.name}": [str(r) for r in v.reports] for v in views}
-        problems = [f"{e.level} {e.target}: {e.message}" for e in client.get_logs()
+        logs = client.get_logs()
+        problems = [f"{e.level} {e.target}: {e.message}" for e in logs
                     if e.level in ("WARN", "ERROR") and "oftware rasterizer" not in e.message]
+        listening = [m.group(1) for e in logs if e.message.startswith("Listening for")
+                     for m in [re.search(r" on (\S+:\d+)", e.message)] if m]
         try:
             client.run_command("ui.quit")
             proc.wait(timeout=10)
         except Exception:
             pass
-        return RenderReport(Path(png), reports, problems)
+        return RenderReport(Path(png), reports, problems, listening)
     finally:
         if proc.poll() is None:
             proc.terminate()

@@ -259,3 +259,12 @@ def test_cli_and_solver_do_not_need_rerun() -> None:
     code = ("import sys, fgloc.cli, fgloc.joint_solver, fgloc.scoring; "
             "assert 'rerun' not in sys.modules, 'rerun imported'")
     subprocess.run([sys.executable, "-c", code], check=True, cwd=REPO)
+
+
+def test_viewer_is_started_on_loopback_only(monkeypatch, tmp_path) -> None:
+    """`fgloc view` must start the real viewer binary bound to 127.0.0.1 unless --bind says otherwise."""
+    calls = []
+    monkeypatch.setattr(viz.subprocess, "call", lambda cmd: calls.append(cmd) or 0)
+    assert viz.view_rrd(tmp_path / "x.rrd") == 0
+    cmd = calls[0]
+    assert Path(cmd[0]) == viz.viewer_binary() and cmd[cmd.index("--bind") + 1] == "127.0.0.1"

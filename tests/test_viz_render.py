@@ -64,6 +64,7 @@ def test_default_blueprint_renders_without_errors_and_shows_the_scene(software_v
     assert report.view_reports and all(r == [] for r in report.view_reports.values()), report.view_reports
     assert {name.split(":")[0] for name in report.view_reports} == {"3D", "TimeSeries", "TextDocument"}
     assert report.problems == []
+    assert report.listening and all(a.startswith("127.0.0.1:") for a in report.listening), report.listening
     img = cv2.imread(str(report.png))
     assert img is not None and img.shape[:2] == (720, 1280)
     assert img.std() > 10  # not blank
