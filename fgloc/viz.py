@@ -375,8 +375,9 @@ def worst_nodes(result: Result, survey: Survey | None = None, count: int = 10,
     if not nodes.ids:
         return []
     ell = confidence_ellipsoids(nodes.covariances, confidence)
-    major = np.nanmax(np.where(np.isfinite(ell.half_sizes), ell.half_sizes, np.nan), axis=1) \
-        if np.isfinite(ell.half_sizes).any() else np.full(len(nodes.ids), np.nan)
+    major = np.full(len(nodes.ids), np.nan)
+    finite = np.isfinite(ell.half_sizes).all(axis=1)
+    major[finite] = ell.half_sizes[finite].max(axis=1)
     error = np.full(len(nodes.ids), np.nan)
     nees = np.full(len(nodes.ids), np.nan)
     if survey is not None and survey.truth is not None:
@@ -527,6 +528,14 @@ class IterationRecorder:
 # --------------------------------------------------------------------------- baseline
 
 
+def _as_points3(points: FloatArray) -> FloatArray:
+    """(K, 3) points; (K, 2) planar points are placed on z = 0."""
+    p = np.asarray(points, dtype=float)
+    if p.ndim != 2 or p.shape[1] not in (2, 3):
+        raise ValueError(f"points must be (K, 2) or (K, 3), got {p.shape}")
+    return np.column_stack([p, np.zeros(len(p))]) if p.shape[1] == 2 else p
+
+
 def log_subset_solutions(
     rec: rr.RecordingStream,
     node_ids: Sequence[str],
@@ -535,10 +544,10 @@ def log_subset_solutions(
     mean_positions: FloatArray | None = None,
     static: bool = True,
 ) -> None:
-    """The subset-Newton baseline: every subset solution (K, 3) as one point cloud,
+    """The subset-Newton baseline: every subset solution (K, 3), or (K, 2) on z = 0, as one point cloud,
     coloured by its node (``node_index`` (K,) into ``node_ids``) — the paper's
     Figure 4 — and the averaged positions (N, 3) labelled with the node ids."""
-    positions = np.asarray(positions, dtype=float).reshape(-1, 3)
+    positions = _as_points3(positions)
     node_index = np.asarray(node_index, dtype=np.int64).reshape(-1)
     if positions.shape[0] != node_index.shape[0]:
         raise ValueError(f"{positions.shape[0]} subset positions but {node_index.shape[0]} node indices")
@@ -547,7 +556,7 @@ def log_subset_solutions(
     rec.log("world/subset_newton/subsets",
             rr.Points3D(positions[ok], colors=palette[node_index[ok]], radii=SUBSET_RADIUS), **_time_kwargs(static))
     if mean_positions is not None:
-        mean = np.asarray(mean_positions, dtype=float).reshape(-1, 3)
+        mean = _as_points3(mean_positions)
         okm = np.isfinite(mean).all(axis=1)
         rec.log("world/subset_newton/mean",
                 rr.Points3D(mean[okm], colors=palette[okm], radii=NODE_RADIUS,

@@ -268,3 +268,17 @@ def test_viewer_is_started_on_loopback_only(monkeypatch, tmp_path) -> None:
     assert viz.view_rrd(tmp_path / "x.rrd") == 0
     cmd = calls[0]
     assert Path(cmd[0]) == viz.viewer_binary() and cmd[cmd.index("--bind") + 1] == "127.0.0.1"
+
+
+def test_planar_subset_solutions_are_accepted_as_2d(tmp_path) -> None:
+    """The baseline reports subset solutions as (P, 2) on z = 0: they must land on the plane unchanged."""
+    rec = viz.open_recording(tmp_path / "s.rrd")
+    viz.log_subset_solutions(rec, ["a", "b"], np.array([[0.1, 0.2], [0.3, 0.4], [0.5, 0.6]]), np.array([0, 0, 1]),
+                             np.array([[0.2, 0.3], [np.nan, np.nan]]))
+    viz.close_recording(rec)
+    e = load_rrd(tmp_path / "s.rrd")
+    np.testing.assert_allclose(last_static(e, "world/subset_newton/subsets", "Points3D:positions"),
+                               [[0.1, 0.2, 0], [0.3, 0.4, 0], [0.5, 0.6, 0]], atol=1e-7)
+    assert list(last_static(e, "world/subset_newton/mean", "Points3D:labels")) == ["a"]  # NaN mean skipped
+    with pytest.raises(ValueError):
+        viz.log_subset_solutions(rec, ["a"], np.zeros((3, 2)), np.zeros(2, dtype=int))
