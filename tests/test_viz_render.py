@@ -59,7 +59,7 @@ def test_default_blueprint_renders_without_errors_and_shows_the_scene(software_v
     recorder = viz.IterationRecorder(survey)
     result = solve_survey(survey, on_iteration=recorder)
     rrd = viz.write_rrd(tmp_path / "scene.rrd", result, survey, recorder=recorder)
-    report = viz.render_headless(rrd, tmp_path / "scene.png", window_size="1280x720", settle_seconds=1.0,
+    report = viz.render_headless(rrd, tmp_path / "scene.png", window_size="1280x720", settle_seconds=5.0,
                                  timeout=150)
     assert report.view_reports and all(r == [] for r in report.view_reports.values()), report.view_reports
     assert {name.split(":")[0] for name in report.view_reports} == {"3D", "TimeSeries", "TextDocument"}
