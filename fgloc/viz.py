@@ -811,15 +811,3 @@ def render_headless(
                 proc.kill()
                 proc.wait()
 
-
-def screenshot(path: str | os.PathLike[str], png: str | os.PathLike[str], *, window_size: str = "1600x900",
-               timeout: float = 120.0) -> subprocess.CompletedProcess[str]:
-    """Render an .rrd with its default blueprint headless (software Vulkan) to a PNG.
-
-    Needs Mesa's Vulkan driver (Debian: mesa-vulkan-drivers). The viewer's server
-    listens on 127.0.0.1 only. Raises ``subprocess.TimeoutExpired`` after ``timeout``.
-    """
-    cmd = [str(viewer_binary()), str(path), "--headless", "--renderer", "vulkan", "--bind", "127.0.0.1",
-           "--port", "auto", "--window-size", window_size, "--screenshot-to", str(png)]
-    return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout)
-
