@@ -225,6 +225,9 @@ def test_cli_solve_and_view_write_recordings(tmp_path, solved, capsys) -> None:
     assert main(["solve", str(tmp_path / "survey.json"), "-o", str(tmp_path / "r.json"),
                  "--rerun", str(tmp_path / "s.rrd")]) == 0
     assert len(load_rrd(tmp_path / "s.rrd")["world/solve/nodes"].timed["iteration"]["Points3D:positions"]) > 1
+    verify = subprocess.run([str(viz.viewer_binary()), "rrd", "verify", str(tmp_path / "s.rrd")],
+                            capture_output=True, text=True, timeout=60)
+    assert verify.returncode == 0, verify.stderr[-500:]  # complete file with footer, loads in Rerun
     write_result(result, tmp_path / "result.json")
     assert main(["view", str(tmp_path / "result.json"), "--survey", str(tmp_path / "survey.json"),
                  "--save", str(tmp_path / "v.rrd")]) == 0
