@@ -24,11 +24,17 @@ def run(args: argparse.Namespace) -> int:
     survey = paper_scenario(PaperScenario(seed=args.seed))
     write_survey(survey, out / "survey.json")
     print(f"simulated the paper's scenario: {len(survey.node_ids)} nodes, 2 cameras, sigma 0.1 deg, seed {args.seed}")
-    result = solve_survey(survey)
+    from fgloc.viz import IterationRecorder, camera_covariances_or_none, write_rrd  # keeps `import fgloc.cli` free of rerun
+
+    recorder = IterationRecorder(survey)
+    result = solve_survey(survey, on_iteration=recorder)
     write_result(result, out / "result.json")
+    write_rrd(out / "fgloc.rrd", result, survey, recorder=recorder,
+              camera_covariances=camera_covariances_or_none(survey, result))
     print(describe(result))
     print()
     print(format_score_table(score(survey, result)))
     print()
-    print(f"wrote {out / 'survey.json'} and {out / 'result.json'}")
+    print(f"wrote {out / 'survey.json'}, {out / 'result.json'} and {out / 'fgloc.rrd'}")
+    print(f"see it: rerun {out / 'fgloc.rrd'}   (or .venv/bin/rerun {out / 'fgloc.rrd'})")
     return 0
