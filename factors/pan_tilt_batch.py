@@ -128,6 +128,11 @@ class PanTiltFactorSet:
         self.prepare(values)
         return float(0.5 * np.sum((self._errors * self._inv_sigmas) ** 2))
 
+    def errors(self, values: gtsam.Values) -> FloatArray:
+        """Unwhitened errors (M, 2) of every reading at ``values`` (measured minus predicted)."""
+        self.prepare(values)
+        return self._errors
+
     def prepare(self, values: gtsam.Values) -> None:
         """Evaluate every reading at ``values`` (do not modify ``values`` in place afterwards)."""
         if values is self._values or len(self.pan) == 0:

@@ -28,7 +28,7 @@ for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
 
 import numpy as np  # noqa: E402
 
-STAGES = ("build", "initialize", "optimize", "marginals")
+STAGES = ("build", "initialize", "optimize", "marginals")  # plus "other" for fgloc (flagging, assembly)
 FULL_CASES = [(100, 2), (100, 8), (1000, 2), (1000, 8), (10000, 2), (10000, 8)]
 QUICK_CASES = [(40, 2), (80, 2), (60, 4)]
 

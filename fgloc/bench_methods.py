@@ -32,7 +32,7 @@ import numpy as np
 from factors.baseline_prior import BaselinePrior
 from fgloc.geometry import FloatArray, bearing_pan_tilt, pan_tilt_bearing, pan_tilt_residual
 from fgloc.initialization import InitialEstimate
-from fgloc.joint_solver import auto_gauge_sigma, build_problem, initialize, solve_problem
+from fgloc.joint_solver import auto_gauge_sigma, initialize, solve_survey
 from fgloc.levenberg_marquardt import levenberg_marquardt
 from fgloc.model import Survey
 
@@ -76,24 +76,22 @@ def _initial(survey: Survey) -> tuple[InitialEstimate, float]:
 
 
 def run_fgloc(survey: Survey) -> MethodRun:
-    """The production pipeline, with every node marginal."""
-    init, t_init = _initial(survey)
-    stages = {"initialize": t_init}
+    """The production pipeline (:func:`fgloc.joint_solver.solve_survey`), with every node marginal.
+
+    Stages come from the solver's own ``stage_seconds``; ``other`` is the rest of
+    the wall time (outlier flagging, result assembly).
+    """
     t0 = time.perf_counter()
-    problem = build_problem(survey, init)
-    stages["build"] = time.perf_counter() - t0
-    result = solve_problem(problem, stage_seconds=stages)
+    result = solve_survey(survey)
+    wall = time.perf_counter() - t0
+    assert result.stats is not None
+    stages = {k: float(result.stats.stage_seconds.get(k, 0.0)) for k in ("build", "initialize", "optimize", "marginals")}
+    stages["other"] = max(wall - sum(stages.values()), 0.0)
     positions = np.array([result.nodes[n].position if n in result.nodes else [np.nan] * 3 for n in survey.node_ids])
     traces = np.array([np.trace(result.nodes[n].covariance) if n in result.nodes else np.nan for n in survey.node_ids])
     cams = {c: (p.rotation, p.position) for c, p in result.cameras.items()}
-    assert result.stats is not None
     return MethodRun(
-        "fgloc",
-        {k: stages[k] for k in ("build", "initialize", "optimize", "marginals")},
-        result.stats.iterations,
-        pan_tilt_cost(survey, positions, cams),
-        positions,
-        traces,
+        "fgloc", stages, result.stats.iterations, pan_tilt_cost(survey, positions, cams), positions, traces
     )
 
 

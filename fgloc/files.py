@@ -191,6 +191,9 @@ def read_survey(path: str | os.PathLike[str]) -> Survey:
         if abs(tilt) > math.pi / 2 + 1e-9:
             raise r.fail(f"{where}.tilt", f"must lie in [-pi/2, pi/2], got {_show(tilt)}")
         obs_sigma = r.get(o, "sigma", where, required=False)
+        obs_subset = r.get(o, "subset", where, required=False)
+        if obs_subset is not None and (isinstance(obs_subset, bool) or not isinstance(obs_subset, int) or obs_subset < 0):
+            raise r.fail(f"{where}.subset", f"expected a non-negative integer, got {_show(obs_subset)}")
         observations.append(
             Observation(
                 camera=cam,
@@ -198,6 +201,7 @@ def read_survey(path: str | os.PathLike[str]) -> Survey:
                 pan=pan,
                 tilt=tilt,
                 sigma=None if obs_sigma is None else r.number(obs_sigma, f"{where}.sigma", positive=True),
+                subset=obs_subset,
             )
         )
 
@@ -239,6 +243,7 @@ def survey_to_json(survey: Survey) -> dict:
         "observations": [
             {"camera": o.camera, "node": o.node, "pan": o.pan, "tilt": o.tilt}
             | ({} if o.sigma is None else {"sigma": o.sigma})
+            | ({} if o.subset is None else {"subset": o.subset})
             for o in survey.observations
         ],
     }

@@ -275,7 +275,7 @@ class IncrementalLocalizer:
                 init = initialize(survey)
                 sigma = self.gauge_sigma if self.gauge_sigma is not None else auto_gauge_sigma(survey, init)
                 options = SolverOptions(compute_marginals=False, gauge_sigma=sigma)
-                result = solve_problem(build_problem(survey, init, options), options)
+                result = solve_problem(build_problem(survey, init, options), options).result
                 self.gauge_sigma = sigma
                 break
             except (FglocError, RuntimeError):  # degenerate start, or indeterminate system

@@ -35,8 +35,15 @@ from fgloc.homography import (
     plane_to_bearing_homography,
 )
 from fgloc.model import CameraPose, FglocError, NodeMode, Survey
+from fgloc.ransac import ransac
 
 MIN_SHARED_PLANAR = 4
+#: RANSAC inlier thresholds in units of the reading sigma: a pair's homography
+#: transfer combines two readings; a resection also carries the start's node errors.
+PAIR_THRESHOLD_SIGMAS = 25.0
+RESECTION_THRESHOLD_SIGMAS = 30.0
+#: RANSAC is seeded so that a survey always gives the same start.
+RANSAC_SEED = 20260101
 
 
 @dataclass
@@ -46,6 +53,8 @@ class InitialEstimate:
     cameras: dict[str, CameraPose]
     nodes: dict[str, FloatArray]
     unlocalized: dict[str, str] = field(default_factory=dict)
+    #: (camera, node) pairs RANSAC found inconsistent while building the start.
+    suspected_outliers: int = 0
 
 
 @dataclass(frozen=True)
@@ -54,6 +63,7 @@ class BearingSet:
 
     bearings: FloatArray  # (n_cameras, n_nodes, 3), NaN where not observed
     seen: np.ndarray  # (n_cameras, n_nodes) bool
+    sigma: float  # typical reading noise, radians
 
     @classmethod
     def from_survey(cls, survey: Survey) -> "BearingSet":
@@ -65,45 +75,87 @@ class BearingSet:
         seen = norm > 0
         with np.errstate(invalid="ignore", divide="ignore"):
             bearings = np.where(seen[..., None], acc / norm[..., None], np.nan)
-        return cls(bearings=bearings, seen=seen)
+        return cls(bearings=bearings, seen=seen, sigma=float(np.median(t.sigma)) if len(t) else survey.sigma)
 
 
-def _ground_hits(cameras: dict[int, CameraPose], bs: BearingSet, node: int) -> tuple[FloatArray, FloatArray]:
-    """Ground points (K, 2) where placed cameras' rays to ``node`` meet z = 0, and their weights."""
-    points, weights = [], []
-    for i, cam in cameras.items():
-        if not bs.seen[i, node]:
-            continue
-        d = cam.rotation @ bs.bearings[i, node]
-        if d[2] >= -1e-9 or cam.position[2] <= 0:
-            continue  # ray does not reach the ground in front of the camera
-        s = -cam.position[2] / d[2]
-        points.append((cam.position + s * d)[:2])
-        sin_grazing = -d[2]
-        weights.append((sin_grazing / s) ** 2)
-    return np.array(points).reshape(-1, 2), np.array(weights)
+def ground_hits(
+    positions: FloatArray, directions: FloatArray, sigma: float
+) -> tuple[FloatArray, FloatArray, np.ndarray]:
+    """Where rays (world directions from camera positions, (K, 3)) meet z = 0.
+
+    Returns ground points (K, 2), each hit's tolerance radius (a generous
+    6 x its along-range error, range x sigma / sin(grazing)), and which rays
+    reach the ground in front of their camera.
+    """
+    d = directions / np.linalg.norm(directions, axis=1, keepdims=True)
+    ok = (d[:, 2] < -1e-9) & (positions[:, 2] > 0)
+    s = np.where(ok, -positions[:, 2] / np.where(ok, d[:, 2], -1.0), 0.0)
+    pts = positions[:, :2] + s[:, None] * d[:, :2]
+    tol = 6.0 * s * sigma / np.maximum(-d[:, 2], 1e-9) + 1e-12
+    return pts, tol, ok
+
+
+def consensus_ground_point(pts: FloatArray, tol: FloatArray) -> tuple[FloatArray, np.ndarray]:
+    """The ground point most hits agree on, and which hits agree (a 1-point RANSAC).
+
+    Two hits agree when they are closer than the sum of their tolerances; the
+    hit with the most agreeing hits wins (ties: the sharpest), and the result is
+    the inverse-variance mean of its agreeing set. One gross ray among three or
+    more cannot drag the point away.
+    """
+    dist = np.linalg.norm(pts[:, None, :] - pts[None, :, :], axis=-1)
+    agree = dist < tol[:, None] + tol[None, :]
+    counts = agree.sum(axis=1)
+    best = int(np.lexsort((tol, -counts))[0])
+    inliers = agree[best]
+    w = 1.0 / tol[inliers] ** 2
+    return (w[:, None] * pts[inliers]).sum(0) / w.sum(), inliers
+
+
+def _angles(a: FloatArray, b: FloatArray) -> FloatArray:
+    """Angle between rows of a and b (any lengths), radians."""
+    a = a / np.linalg.norm(a, axis=1, keepdims=True)
+    b = b / np.linalg.norm(b, axis=1, keepdims=True)
+    return np.arctan2(np.linalg.norm(np.cross(a, b), axis=1), np.einsum("mi,mi->m", a, b))
 
 
 def _place_nodes(cameras: dict[int, CameraPose], bs: BearingSet, nodes: dict[int, FloatArray]) -> None:
+    cam_ids = list(cameras)
     for j in range(bs.seen.shape[1]):
         if j in nodes:
             continue
-        pts, w = _ground_hits(cameras, bs, j)
-        if len(pts):
-            xy = (w[:, None] * pts).sum(0) / w.sum()
-            nodes[j] = np.array([xy[0], xy[1], 0.0])
+        seen = [i for i in cam_ids if bs.seen[i, j]]
+        if not seen:
+            continue
+        positions = np.array([cameras[i].position for i in seen])
+        dirs = np.array([cameras[i].rotation @ bs.bearings[i, j] for i in seen])
+        pts, tol, ok = ground_hits(positions, dirs, bs.sigma)
+        if not ok.any():
+            continue
+        xy, _ = consensus_ground_point(pts[ok], tol[ok])
+        nodes[j] = np.array([xy[0], xy[1], 0.0])
 
 
-def _pair_frames(bs: BearingSet, a: int, b: int) -> list[dict[int, CameraPose]]:
+def _pair_frames(bs: BearingSet, a: int, b: int, rng: np.random.Generator) -> tuple[list[dict[int, CameraPose]], int]:
     """Cameras a and b in a frame with the plane at z = 0 and camera a above the origin.
 
     Returns every decomposition of the pair's homography that puts (nearly) all
     shared nodes in front of both cameras: usually one, but a planar scene seen
-    by two cameras can admit two (the classic two-fold ambiguity).
+    by two cameras can admit two (the classic two-fold ambiguity). The
+    homography is fitted by RANSAC over 4-node samples; the second value is the
+    number of shared nodes it found inconsistent.
     """
     shared = bs.seen[a] & bs.seen[b]
     b1, b2 = bs.bearings[a, shared], bs.bearings[b, shared]
-    H = estimate_bearing_homography(b1, b2)
+    H, inliers = ransac(
+        len(b1), 4,
+        lambda idx: estimate_bearing_homography(b1[idx], b2[idx]),
+        # Transfer both ways and keep the smaller angle: one direction amplifies the
+        # noise by the ratio of the node's ranges, the other shrinks it.
+        lambda H: np.minimum(_angles(b1 @ H.T, b2), _angles(b2 @ np.linalg.inv(H).T, b1)),
+        threshold=PAIR_THRESHOLD_SIGMAS * bs.sigma, rng=rng,
+    )
+    b1, b2 = b1[inliers], b2[inliers]
     candidates = decompose_bearing_homography(H)
     scores = np.array([chirality_score(c, b1, b2) for c in candidates])
     keep = [c for c, sc in zip(candidates, scores) if sc >= 0.98 * scores.max()]
@@ -121,7 +173,7 @@ def _pair_frames(bs: BearingSet, a: int, b: int) -> list[dict[int, CameraPose]]:
         R_a = np.vstack([x_axis, y_axis, up])  # camera-a base -> world
         c_a = np.array([0.0, 0.0, height])
         frames.append({a: CameraPose(c_a, R_a), b: CameraPose(R_a @ w + c_a, R_a @ cand.rotation.T)})
-    return frames
+    return frames, int(len(inliers) - inliers.sum())
 
 
 def _to_planar_gauge(
@@ -152,7 +204,9 @@ def covisibility(bs: BearingSet) -> np.ndarray:
     return s @ s.T
 
 
-def _grow(bs: BearingSet, cameras: dict[int, CameraPose], ids: list[str]) -> dict[int, FloatArray]:
+def _grow(
+    bs: BearingSet, cameras: dict[int, CameraPose], ids: list[str], rng: np.random.Generator
+) -> dict[int, FloatArray]:
     """Place nodes from the starting cameras, then add every other camera and its nodes."""
     nodes: dict[int, FloatArray] = {}
     _place_nodes(cameras, bs, nodes)
@@ -168,7 +222,15 @@ def _grow(bs: BearingSet, cameras: dict[int, CameraPose], ids: list[str]) -> dic
             )
         vis = bs.seen[k] & placed
         xy = np.array([nodes[j][:2] for j in np.flatnonzero(vis)])
-        cameras[k] = camera_from_plane_homography(plane_to_bearing_homography(xy, bs.bearings[k, vis]))
+        bk = bs.bearings[k, vis]
+        p = np.column_stack([xy, np.ones(len(xy))])
+        G, _ = ransac(
+            len(xy), 4,
+            lambda idx: plane_to_bearing_homography(xy[idx], bk[idx]),
+            lambda G: _angles(p @ G.T, bk),
+            threshold=RESECTION_THRESHOLD_SIGMAS * bs.sigma, rng=rng,
+        )
+        cameras[k] = camera_from_plane_homography(G)
         _place_nodes(cameras, bs, nodes)
     return nodes
 
@@ -217,8 +279,10 @@ def initialize_planar(survey: Survey) -> InitialEstimate:
                 f"no two cameras share {MIN_SHARED_PLANAR} nodes (best: {ids[a]} and {ids[b]} share {off[a, b]})"
             )
     best: tuple[float, float, dict[int, CameraPose], dict[int, FloatArray]] | None = None
-    for cameras in _pair_frames(bs, int(a), int(b)):
-        nodes = _grow(bs, cameras, ids)
+    rng = np.random.default_rng(RANSAC_SEED)
+    frames, outliers = _pair_frames(bs, int(a), int(b), rng)
+    for cameras in frames:
+        nodes = _grow(bs, cameras, ids, rng)
         cost = angular_cost(bs, cameras, nodes)
         key = (round(cost / (len(survey.observations) * survey.sigma**2 + 1e-300), 0), -_uprightness(cameras))
         if best is None or key < best[:2]:
@@ -234,4 +298,5 @@ def initialize_planar(survey: Survey) -> InitialEstimate:
         cameras={ids[i]: cam for i, cam in cameras.items()},
         nodes={survey.node_ids[j]: p for j, p in nodes.items()},
         unlocalized=unlocalized,
+        suspected_outliers=outliers,
     )

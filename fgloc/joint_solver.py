@@ -14,17 +14,28 @@ The initial estimate comes from the bearings alone
 
 from __future__ import annotations
 
+import enum
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import gtsam
 import numpy as np
 
 from factors.baseline_prior import BaselinePrior
 from factors.pan_tilt_batch import PanTiltFactorSet
-from fgloc.initialization import InitialEstimate, initialize_planar
-from fgloc.levenberg_marquardt import IterationCallback, LMParams, levenberg_marquardt
-from fgloc.model import CameraPose, FglocError, NodeEstimate, NodeMode, Result, SolveStats, Survey
+from fgloc.geometry import bearing_pan_tilt, pan_tilt_bearing, pan_tilt_jacobian, pan_tilt_residual
+from fgloc.initialization import InitialEstimate, consensus_ground_point, ground_hits, initialize_planar
+from fgloc.levenberg_marquardt import IterationCallback, LMOutcome, LMParams, levenberg_marquardt
+from fgloc.model import (
+    CameraPose,
+    FglocError,
+    FlaggedObservation,
+    NodeEstimate,
+    NodeMode,
+    Result,
+    SolveStats,
+    Survey,
+)
 from fgloc.schur_marginals import node_marginals
 
 camera_key = gtsam.symbol_shorthand.C
@@ -35,12 +46,32 @@ class SolveError(FglocError):
     """The survey cannot be solved as given."""
 
 
+class RobustKernel(str, enum.Enum):
+    """Noise model of the pan-tilt factors. AUTO: Cauchy when RANSAC found outliers, else Gaussian."""
+
+    AUTO = "auto"
+    NONE = "none"
+    HUBER = "huber"
+    CAUCHY = "cauchy"
+
+
+#: chi-square quantile (2 dof) above which a reading's squared whitened residual is
+#: implausible: P = 1 - 1e-6 (about 5.3 sigma), so clean surveys lose no readings
+#: while gross detection errors (degrees, i.e. tens of sigma) stand out.
+FLAG_CHI2 = 2.0 * np.log(1e6)
+
+
 @dataclass(frozen=True)
 class SolverOptions:
     """Settings of the joint solve."""
 
     lm: LMParams = LMParams()
     compute_marginals: bool = True
+    robust: RobustKernel = RobustKernel.AUTO
+    #: Kernel width in whitened units (multiples of sigma).
+    robust_scale: float = 3.0
+    #: Flag readings whose squared whitened residual exceeds this after the solve.
+    flag_chi2: float = FLAG_CHI2
     #: Sigma of the gauge priors in baseline units; None scales it to the problem
     #: (see :func:`auto_gauge_sigma`).
     gauge_sigma: float | None = None
@@ -79,6 +110,8 @@ class LocalizationProblem:
     camera_keys: dict[str, int]
     node_keys: dict[str, int]
     pan_tilt: PanTiltFactorSet
+    #: Index in ``survey.observations`` of each pan-tilt factor, in factor order.
+    observation_index: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     unlocalized: dict[str, str] = field(default_factory=dict)
 
     def prepare(self, values: gtsam.Values) -> None:
@@ -123,13 +156,36 @@ def _pose3(cam: CameraPose) -> gtsam.Pose3:
     return gtsam.Pose3(gtsam.Rot3(cam.rotation), np.asarray(cam.position, dtype=float))
 
 
-def build_problem(survey: Survey, initial: InitialEstimate, options: SolverOptions = SolverOptions()) -> LocalizationProblem:
-    """One factor per observation, the gauge prior, and initial values from ``initial``."""
+def _noise_model(sigma: float, kernel: RobustKernel, scale: float) -> gtsam.noiseModel.Base:
+    base = gtsam.noiseModel.Isotropic.Sigma(2, sigma)
+    if kernel is RobustKernel.HUBER:
+        return gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(scale), base)
+    if kernel is RobustKernel.CAUCHY:
+        return gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Cauchy.Create(scale), base)
+    return base
+
+
+def build_problem(
+    survey: Survey,
+    initial: InitialEstimate,
+    options: SolverOptions = SolverOptions(),
+    exclude: frozenset[int] = frozenset(),
+) -> LocalizationProblem:
+    """One factor per observation, the gauge prior, and initial values from ``initial``.
+
+    ``exclude`` lists observation indices to leave out (flagged outliers).
+    Nodes left without observations get no variable. The kernel is
+    ``options.robust`` (AUTO counts as NONE here; :func:`solve_survey` resolves it).
+    """
     planar = survey.mode is NodeMode.PLANAR
     graph = gtsam.NonlinearFactorGraph()
     values = gtsam.Values()
+    table = survey.observation_table
+    kept = np.ones(len(table), dtype=bool)
+    kept[list(exclude)] = False
+    observed = set(np.asarray(survey.node_ids)[table.node_index[kept]].tolist()) if kept.any() else set()
     camera_keys = {cid: camera_key(i) for i, cid in enumerate(survey.camera_ids) if cid in initial.cameras}
-    node_keys = {nid: node_key(j) for j, nid in enumerate(survey.node_ids) if nid in initial.nodes}
+    node_keys = {nid: node_key(j) for j, nid in enumerate(survey.node_ids) if nid in initial.nodes and nid in observed}
     for cid, key in camera_keys.items():
         values.insert(key, _pose3(initial.cameras[cid]))
     for nid, key in node_keys.items():
@@ -138,15 +194,13 @@ def build_problem(survey: Survey, initial: InitialEstimate, options: SolverOptio
             values.insert(key, p[:2].copy())
         else:
             values.insert(key, p.copy())
-    table = survey.observation_table
     cam_key_of = np.array([camera_keys.get(c, -1) for c in survey.camera_ids], dtype=np.int64)
     node_key_of = np.array([node_keys.get(n, -1) for n in survey.node_ids], dtype=np.int64)
     obs_cam_keys = cam_key_of[table.camera_index]
     obs_node_keys = node_key_of[table.node_index]
-    used = (obs_cam_keys >= 0) & (obs_node_keys >= 0)
-    noise_cache: dict[float, gtsam.noiseModel.Base] = {}
-    for sigma in np.unique(table.sigma[used]):
-        noise_cache[float(sigma)] = gtsam.noiseModel.Isotropic.Sigma(2, float(sigma))
+    used = (obs_cam_keys >= 0) & (obs_node_keys >= 0) & kept
+    kernel = RobustKernel.NONE if options.robust is RobustKernel.AUTO else options.robust
+    noise_cache = {float(s): _noise_model(float(s), kernel, options.robust_scale) for s in np.unique(table.sigma[used])}
     pan_tilt = PanTiltFactorSet(
         obs_cam_keys[used],
         obs_node_keys[used],
@@ -168,6 +222,7 @@ def build_problem(survey: Survey, initial: InitialEstimate, options: SolverOptio
         camera_keys=camera_keys,
         node_keys=node_keys,
         pan_tilt=pan_tilt,
+        observation_index=np.flatnonzero(used),
         unlocalized=dict(initial.unlocalized),
     )
 
@@ -179,20 +234,67 @@ def initialize(survey: Survey) -> InitialEstimate:
     raise SolveError("3d surveys are not supported yet")
 
 
+@dataclass
+class Solution:
+    """An optimized problem: the GTSAM values and the result built from them."""
+
+    values: gtsam.Values
+    result: Result
+
+
+def solve(
+    problem: LocalizationProblem,
+    options: SolverOptions = SolverOptions(),
+    on_iteration: IterationCallback | None = None,
+) -> Result:
+    """Optimize a built problem (e.g. one you added factors to) and return the result with marginals."""
+    return solve_problem(problem, options, on_iteration).result
+
+
 def solve_problem(
     problem: LocalizationProblem,
     options: SolverOptions = SolverOptions(),
     on_iteration: IterationCallback | None = None,
     stage_seconds: dict[str, float] | None = None,
-) -> Result:
-    """Optimize a built problem and collect estimates and marginal covariances."""
+    start: gtsam.Values | None = None,
+) -> Solution:
+    """Optimize a built problem and collect estimates and (optionally) marginal covariances."""
+    stages = {} if stage_seconds is None else stage_seconds
+    outcome = optimize(problem, options, on_iteration, stages, start)
+    return Solution(values=outcome.values, result=collect_result(problem, outcome, options, stages))
+
+
+def optimize(
+    problem: LocalizationProblem,
+    options: SolverOptions = SolverOptions(),
+    on_iteration: IterationCallback | None = None,
+    stage_seconds: dict[str, float] | None = None,
+    start: gtsam.Values | None = None,
+) -> LMOutcome:
+    """Run Levenberg-Marquardt on a built problem from ``start`` (default: its initial values)."""
     stages = {} if stage_seconds is None else stage_seconds
     t0 = time.perf_counter()
     outcome = levenberg_marquardt(
-        problem.graph, problem.initial, problem.elimination_ordering(), options.lm, on_iteration, problem.prepare,
+        problem.graph,
+        problem.initial if start is None else start,
+        problem.elimination_ordering(),
+        options.lm,
+        on_iteration,
+        problem.prepare,
         problem.error,
     )
-    stages["optimize"] = time.perf_counter() - t0
+    stages["optimize"] = stages.get("optimize", 0.0) + time.perf_counter() - t0
+    return outcome
+
+
+def collect_result(
+    problem: LocalizationProblem,
+    outcome: LMOutcome,
+    options: SolverOptions = SolverOptions(),
+    stage_seconds: dict[str, float] | None = None,
+) -> Result:
+    """Estimates at the optimizer's values, with marginal covariances when asked."""
+    stages = {} if stage_seconds is None else stage_seconds
     values = outcome.values
     survey = problem.survey
     planar = survey.mode is NodeMode.PLANAR
@@ -212,7 +314,7 @@ def solve_problem(
                 covariances = {nid: marginals.marginalCovariance(key) for nid, key in problem.node_keys.items()}
         except (RuntimeError, np.linalg.LinAlgError) as exc:
             raise SolveError(f"marginal covariances are undefined (the graph is rank deficient): {exc}") from None
-        stages["marginals"] = time.perf_counter() - t0
+        stages["marginals"] = stages.get("marginals", 0.0) + time.perf_counter() - t0
     nodes: dict[str, NodeEstimate] = {}
     for nid, key in problem.node_keys.items():
         p = values.atPoint2(key) if planar else values.atPoint3(key)
@@ -236,15 +338,219 @@ def solve_problem(
     return Result(mode=survey.mode, nodes=nodes, cameras=cameras, unlocalized=dict(problem.unlocalized), stats=stats)
 
 
+def whitened_residuals(problem: LocalizationProblem, values: gtsam.Values) -> np.ndarray:
+    """Norm of each pan-tilt factor's residual over its sigma (plain, not robust-weighted)."""
+    problem.prepare(values)
+    sigma = problem.survey.observation_table.sigma[problem.observation_index]
+    return np.linalg.norm(problem.pan_tilt.errors(values), axis=1) / sigma
+
+
+def estimate_from_values(problem: LocalizationProblem, values: gtsam.Values) -> InitialEstimate:
+    """The problem's current values as an :class:`InitialEstimate` (gauge frame)."""
+    planar = problem.survey.mode is NodeMode.PLANAR
+    cameras = {}
+    for cid, key in problem.camera_keys.items():
+        pose = values.atPose3(key)
+        cameras[cid] = CameraPose(np.asarray(pose.translation(), float), pose.rotation().matrix())
+    nodes = {}
+    for nid, key in problem.node_keys.items():
+        p = values.atPoint2(key) if planar else values.atPoint3(key)
+        nodes[nid] = np.array([p[0], p[1], 0.0]) if planar else np.asarray(p, float)
+    return InitialEstimate(cameras=cameras, nodes=nodes, unlocalized=dict(problem.unlocalized))
+
+
+def _flag(
+    problem: LocalizationProblem, values: gtsam.Values, options: SolverOptions
+) -> tuple[list[FlaggedObservation], dict[str, str]]:
+    """Readings with an implausible residual, and nodes whose readings cannot be told apart.
+
+    A node read exactly twice (planar: either reading alone places it; 3d: two
+    readings are the minimum) cannot say which of its two readings is wrong:
+    both are flagged and the node is reported unlocalized rather than guessed.
+    """
+    survey = problem.survey
+    obs_index = problem.observation_index
+    included = np.zeros(len(survey.observations), dtype=bool)
+    included[obs_index] = True
+    m2 = deletion_residuals(survey, estimate_from_values(problem, values), included)[obs_index]
+    r = np.sqrt(m2)
+    bad = m2 > options.flag_chi2
+    node_of = survey.observation_table.node_index[obs_index]
+    counts = np.bincount(node_of, minlength=len(survey.node_ids))
+    ambiguous_nodes = set(node_of[bad & (counts[node_of] <= 2)].tolist())
+    bad |= np.isin(node_of, list(ambiguous_nodes))
+    flagged = [
+        FlaggedObservation(
+            camera=survey.observations[k].camera,
+            node=survey.observations[k].node,
+            index=int(k),
+            whitened_residual=float(r[i]),
+        )
+        for i, k in enumerate(obs_index)
+        if bad[i]
+    ]
+    reasons = {
+        survey.node_ids[j]: "its two readings disagree (a gross error in one of them) and cannot be told apart"
+        for j in sorted(ambiguous_nodes)
+    }
+    return flagged, reasons
+
+
+#: Rounds of "solve without the flagged readings, re-check all readings".
+MAX_FLAG_ROUNDS = 4
+
+
+def deletion_residuals(survey: Survey, estimate: InitialEstimate, included: np.ndarray) -> np.ndarray:
+    """Squared Mahalanobis norm of every reading's residual with the reading itself left out.
+
+    For reading k of node j: ``r^T S^-1 r`` with ``S = sigma^2 I + J Sigma_j J^T``,
+    where J is d(pan, tilt)/d(node position) and ``Sigma_j`` the node's
+    covariance from its other included readings (cameras held fixed). Under the
+    noise model it is chi-square with 2 degrees of freedom, also where a reading
+    is very sensitive to the node (near the pole, pan moves a lot for a small
+    shift). NaN where the camera or node has no estimate or no other reading
+    determines the node.
+    """
+    t = survey.observation_table
+    dim = survey.mode.position_dim
+    n_obs = len(t)
+    r = np.full((n_obs, 2), np.nan)
+    jac = np.full((n_obs, 2, dim), np.nan)
+    for i, cid in enumerate(survey.camera_ids):
+        cam = estimate.cameras.get(cid)
+        if cam is None:
+            continue
+        rows = np.flatnonzero(t.camera_index == i)
+        have = np.array([survey.node_ids[j] in estimate.nodes for j in t.node_index[rows]], dtype=bool)
+        rows = rows[have]
+        if not len(rows):
+            continue
+        pts = np.array([estimate.nodes[survey.node_ids[j]] for j in t.node_index[rows]])
+        q = (pts - cam.position) @ cam.rotation
+        pan, tilt = bearing_pan_tilt(q)
+        r[rows] = pan_tilt_residual(t.pan[rows], t.tilt[rows], pan, tilt)
+        jac[rows] = (pan_tilt_jacobian(q) @ cam.rotation.T)[:, :, :dim]
+    valid = np.all(np.isfinite(r), axis=1)
+    info = np.zeros((n_obs, dim, dim))
+    info[valid] = np.einsum("mki,mkj->mij", jac[valid], jac[valid]) / t.sigma[valid, None, None] ** 2
+    node_info = np.zeros((len(survey.node_ids), dim, dim))
+    use = valid & included
+    np.add.at(node_info, t.node_index[use], info[use])
+    loo = node_info[t.node_index] - np.where(use[:, None, None], info, 0.0)
+    out = np.full(n_obs, np.nan)
+    eye = np.eye(dim)
+    for k in np.flatnonzero(valid):
+        if np.linalg.cond(loo[k]) > 1e12:
+            continue  # no other reading determines the node
+        cov = np.linalg.solve(loo[k], eye)
+        S = t.sigma[k] ** 2 * np.eye(2) + jac[k] @ cov @ jac[k].T
+        out[k] = float(r[k] @ np.linalg.solve(S, r[k]))
+    return out
+
+
+def _replace_by_consensus(survey: Survey, estimate: InitialEstimate) -> None:
+    t = survey.observation_table
+    cam_ids = survey.camera_ids
+    for j in np.flatnonzero(np.bincount(t.node_index, minlength=len(survey.node_ids)) >= 3):
+        rows = np.flatnonzero(t.node_index == j)
+        rows = rows[[cam_ids[c] in estimate.cameras for c in t.camera_index[rows]]]
+        if len(rows) < 3:
+            continue
+        cams = [estimate.cameras[cam_ids[c]] for c in t.camera_index[rows]]
+        dirs = np.array([c.rotation @ b for c, b in zip(cams, pan_tilt_bearing(t.pan[rows], t.tilt[rows]))])
+        pts, tol, ok = ground_hits(np.array([c.position for c in cams]), dirs, float(np.median(t.sigma[rows])))
+        if ok.sum() >= 3:
+            xy, inliers = consensus_ground_point(pts[ok], tol[ok])
+            if inliers.sum() >= 2:
+                estimate.nodes[survey.node_ids[j]] = np.array([xy[0], xy[1], 0.0])
+
+
+def _reflag(
+    survey: Survey,
+    estimate: InitialEstimate,
+    previous: frozenset[int],
+    ambiguous: dict[str, str],
+    options: SolverOptions,
+) -> tuple[list[FlaggedObservation], dict[str, str]]:
+    """Flag readings implausible under ``estimate``; readings of undecidable nodes stay flagged.
+
+    Planar nodes with three or more readings are first re-placed by consensus of
+    all their readings' ground points under the estimated cameras, so a node the
+    robust solve left at a bad reading's ray is pulled back to where its good
+    readings agree (``estimate`` is updated in place).
+    """
+    t = survey.observation_table
+    if survey.mode is NodeMode.PLANAR:
+        _replace_by_consensus(survey, estimate)
+    included = ~np.isin(np.arange(len(t)), list(previous))
+    m2 = deletion_residuals(survey, estimate, included)
+    r = np.sqrt(m2)
+    amb_idx = {survey.node_ids.index(n) for n in ambiguous}
+    bad = (m2 > options.flag_chi2) | (np.isnan(m2) & ~included)
+    bad |= np.isin(t.node_index, list(amb_idx))
+    flagged = [
+        FlaggedObservation(survey.observations[k].camera, survey.observations[k].node, int(k),
+                           float(r[k]) if np.isfinite(r[k]) else float("inf"))
+        for k in np.flatnonzero(bad)
+    ]
+    return flagged, ambiguous
+
+
 def solve_survey(
     survey: Survey, options: SolverOptions = SolverOptions(), on_iteration: IterationCallback | None = None
 ) -> Result:
-    """Initialize from the bearings, build the graph, optimize, and compute marginals."""
+    """Initialize from the bearings, optimize, flag implausible readings, and compute marginals.
+
+    1. Closed-form start (RANSAC inside). 2. Levenberg-Marquardt, with a Cauchy
+    kernel when the start found outliers (``RobustKernel.AUTO``) or as asked.
+    3. Flag readings whose whitened residual is implausible (chi-square, 2 dof);
+    if a Gaussian solve flags any, re-solve robustly and flag again. 4. When
+    anything was flagged or a kernel was used, a final Gaussian solve without
+    the flagged readings gives the estimates and honest marginal covariances.
+    Flagged readings are listed in ``Result.flagged``, never silently dropped.
+    """
     stages: dict[str, float] = {}
     t0 = time.perf_counter()
     init = initialize(survey)
     stages["initialize"] = time.perf_counter() - t0
+    kernel = options.robust
+    if kernel is RobustKernel.AUTO:
+        kernel = RobustKernel.CAUCHY if init.suspected_outliers > 0 else RobustKernel.NONE
     t0 = time.perf_counter()
-    problem = build_problem(survey, init, options)
+    problem = build_problem(survey, init, replace(options, robust=kernel))
     stages["build"] = time.perf_counter() - t0
-    return solve_problem(problem, options, on_iteration, stages)
+    first = optimize(problem, options, on_iteration, stages)
+    values = first.values
+    flagged, ambiguous = _flag(problem, values, options)
+    if flagged and kernel is RobustKernel.NONE and options.robust is RobustKernel.AUTO:
+        kernel = RobustKernel.CAUCHY
+        problem = build_problem(survey, estimate_from_values(problem, values), replace(options, robust=kernel))
+        values = optimize(problem, options, None, stages).values
+        flagged, ambiguous = _flag(problem, values, options)
+    if not flagged and kernel is RobustKernel.NONE:
+        return collect_result(problem, first, options, stages)
+    start = estimate_from_values(problem, values)
+    robust = replace(options, robust=kernel if kernel is not RobustKernel.NONE else RobustKernel.CAUCHY)
+    for _ in range(MAX_FLAG_ROUNDS):
+        # Re-check every reading, flagged ones included, against a robust solve
+        # without the flagged ones: a misjudged reading is restored, a missed one caught.
+        refl, ambiguous = _reflag(survey, start, frozenset(f.index for f in flagged), ambiguous, options)
+        if {f.index for f in refl} == {f.index for f in flagged}:
+            break
+        flagged = refl
+        loop_problem = build_problem(survey, start, robust, frozenset(f.index for f in flagged))
+        start = estimate_from_values(loop_problem, optimize(loop_problem, options, None, stages).values)
+    exclude = frozenset(f.index for f in flagged)
+    final_problem = build_problem(survey, start, replace(options, robust=RobustKernel.NONE), exclude)
+    final_problem.unlocalized.update(ambiguous)
+    for nid in start.nodes:
+        if nid not in final_problem.node_keys and nid not in final_problem.unlocalized:
+            final_problem.unlocalized[nid] = "all its readings were flagged as outliers"
+    result = solve_problem(final_problem, options, None, stages).result
+    result.flagged = flagged
+    if result.stats is not None:
+        result.stats.method = f"joint ({kernel.value} kernel, then Gaussian without flagged readings)"
+        result.stats.initial_error = first.error_history[0]
+        result.stats.error_history = first.error_history + result.stats.error_history[1:]
+        result.stats.iterations += first.iterations
+    return result

@@ -53,6 +53,9 @@ class Observation:
     """One (pan, tilt) reading in radians of ``node`` by ``camera``.
 
     ``sigma`` (radians) overrides the survey's default noise when not None.
+    ``subset`` (optional, >= 0) tags a reading taken for one subset of a
+    re-measured survey (the subset-Newton baseline solves each tag on its own
+    readings; every other solver ignores it).
     """
 
     camera: str
@@ -60,6 +63,7 @@ class Observation:
     pan: float
     tilt: float
     sigma: float | None = None
+    subset: int | None = None
 
 
 @dataclass(frozen=True)
@@ -130,7 +134,12 @@ class NodeEstimate:
 
 @dataclass(frozen=True)
 class FlaggedObservation:
-    """An observation whose whitened residual is implausible under the noise model."""
+    """A reading whose residual is implausible under the noise model.
+
+    ``whitened_residual`` is the square root of the deletion residual's
+    Mahalanobis norm (chi-square, 2 dof, for a good reading), or inf when the
+    reading's node could not be placed without it.
+    """
 
     camera: str
     node: str

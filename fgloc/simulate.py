@@ -8,12 +8,13 @@ sigma = 0.1 degree. Positions are in the planar gauge frame (baseline = 1).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from fgloc.geometry import FloatArray, base_rotation, project_pan_tilt, wrap_angle
 from fgloc.model import CameraPose, Gauge, NodeMode, Observation, Survey, Truth
+from fgloc.subset_schedule import draw_subsets
 
 PAPER_SIGMA = float(np.deg2rad(0.1))
 
@@ -25,6 +26,12 @@ class PaperScenario:
     Heights are in baseline units; ``max_roll_pitch_deg`` bounds the uniform
     random roll and pitch of each camera base; ``repeats`` is how many
     independent (pan, tilt) readings each camera takes of each node.
+
+    ``subset_schedule = (k, T)`` re-measures instead, as the paper's system
+    does: T random subsets of k nodes are drawn (:mod:`fgloc.subset_schedule`)
+    and for each subset every camera takes ``repeats`` fresh readings of each
+    of its nodes, tagged with the subset's index. A node in c subsets then
+    has ``c * repeats`` readings per camera; the joint solve uses them all.
     """
 
     n_nodes: int = 100
@@ -33,6 +40,7 @@ class PaperScenario:
     max_roll_pitch_deg: float = 3.0
     repeats: int = 1
     seed: int = 0
+    subset_schedule: tuple[int, int] | None = None
 
 
 def random_base_rotation(rng: np.random.Generator, max_roll_pitch_deg: float) -> FloatArray:
@@ -100,7 +108,19 @@ def paper_scenario(config: PaperScenario = PaperScenario()) -> Survey:
     width = max(3, len(str(config.n_nodes - 1)))
     node_ids = [f"n{j:0{width}d}" for j in range(config.n_nodes)]
     nodes = np.column_stack([rng.uniform(0.0, 1.0, size=(config.n_nodes, 2)), np.zeros(config.n_nodes)])
-    observations = observe(camera_ids, cameras, node_ids, nodes, config.sigma, rng, repeats=config.repeats)
+    if config.subset_schedule is None:
+        observations = observe(camera_ids, cameras, node_ids, nodes, config.sigma, rng, repeats=config.repeats)
+    else:
+        k, n_subsets = config.subset_schedule
+        if not 1 <= k <= config.n_nodes or n_subsets < 1:
+            raise ValueError(f"subset schedule needs 1 <= k <= {config.n_nodes} and T >= 1, got k={k}, T={n_subsets}")
+        schedule = draw_subsets(config.n_nodes, k, n_subsets, rng)
+        observations = []
+        for s, subset in enumerate(schedule):
+            readings = observe(
+                camera_ids, cameras, [node_ids[j] for j in subset], nodes[subset], config.sigma, rng, config.repeats
+            )
+            observations += [replace(o, subset=s) for o in readings]
     return Survey(
         mode=NodeMode.PLANAR,
         gauge=Gauge(origin="cam0", baseline="cam1"),

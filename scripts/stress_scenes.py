@@ -20,7 +20,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 
 from fgloc.initialization import InitialEstimate  # noqa: E402
-from fgloc.joint_solver import build_problem, solve_problem, solve_survey  # noqa: E402
+from fgloc.joint_solver import build_problem, solve, solve_survey  # noqa: E402
 from fgloc.model import NodeMode, Survey  # noqa: E402
 from fgloc.simulate import RandomScene, random_scene  # noqa: E402
 
@@ -44,7 +44,7 @@ def reaches_global_optimum(survey: Survey, rel_tol: float = 1e-6) -> tuple[bool,
     ours = solve_survey(survey)
     truth = survey.truth
     start = InitialEstimate(cameras=dict(truth.cameras), nodes={n: truth.nodes[n] for n in ours.nodes})
-    ref = solve_problem(build_problem(survey, start))
+    ref = solve(build_problem(survey, start))
     ok = ours.stats.final_error <= ref.stats.final_error * (1 + rel_tol) + 1e-6
     return ok, ours.stats.final_error, ref.stats.final_error
 

@@ -41,5 +41,6 @@ def test_demo_as_a_user_runs_it(tmp_path: Path) -> None:
                           capture_output=True, text=True, timeout=240)
     assert proc.returncode == 0, proc.stderr
     assert "| median |" in proc.stdout and "ANEES" in proc.stdout
-    for name in ("survey.json", "result.json"):
+    assert "paper's subset Newton" in proc.stdout and "Cramér–Rao bound" in proc.stdout
+    for name in ("survey.json", "result.json", "result-subset-newton.json", "fgloc.rrd"):
         assert (tmp_path / "out" / name).is_file()

@@ -59,9 +59,9 @@ def test_small_initial_lambda_takes_fewer_iterations_to_the_same_cost() -> None:
     """Regression guard for the lambda schedule: the default start must not lose to 1e-4."""
     survey = scene_survey(BenchScene(100, 2, seed=0))
     problem = build_problem(survey, initialize(survey))
-    new = solve_problem(problem, SolverOptions(compute_marginals=False))
+    new = solve_problem(problem, SolverOptions(compute_marginals=False)).result
     problem2 = build_problem(survey, initialize(survey))
-    old = solve_problem(problem2, SolverOptions(lm=LMParams(initial_lambda=1e-4), compute_marginals=False))
+    old = solve_problem(problem2, SolverOptions(lm=LMParams(initial_lambda=1e-4), compute_marginals=False)).result
     assert new.stats.iterations <= old.stats.iterations
     assert np.isclose(new.stats.final_error, old.stats.final_error, rtol=1e-9)
 

@@ -7,7 +7,7 @@ import pytest
 from factors.baseline_prior import BaselinePrior, ground_point_factor
 from fgloc.initialization import InitialEstimate
 from fgloc.model import CameraPose
-from fgloc.joint_solver import SolverOptions, build_problem, initialize, solve_problem
+from fgloc.joint_solver import SolverOptions, build_problem, initialize, solve
 from fgloc.simulate import PaperScenario, paper_scenario
 
 
@@ -19,7 +19,7 @@ def survey():
 def test_solution_independent_of_gauge_sigma(survey) -> None:
     """Bearings cannot resist a gauge motion, so the prior's strength must not move the optimum."""
     init = initialize(survey)
-    results = [solve_problem(build_problem(survey, init, SolverOptions(gauge_sigma=s)), SolverOptions(gauge_sigma=s))
+    results = [solve(build_problem(survey, init, SolverOptions(gauge_sigma=s)), SolverOptions(gauge_sigma=s))
                for s in (1e-5, 1e-6, 1e-7)]
     for r in results[1:]:
         for n in survey.node_ids:
@@ -34,7 +34,7 @@ def test_solution_independent_of_how_the_gauge_is_held(survey) -> None:
     """Pin the two cameras' ground points at arbitrary other places, solve, and map back by the
     plane similarity: the result must equal the direct solve (the prior carries no information)."""
     init = initialize(survey)
-    direct = solve_problem(build_problem(survey, init))
+    direct = solve(build_problem(survey, init))
     a, b = np.array([0.3, -0.2]), np.array([2.3, 1.0])
     d = b - a
     scale, ang = np.linalg.norm(d), np.arctan2(d[1], d[0])
@@ -52,7 +52,7 @@ def test_solution_independent_of_how_the_gauge_is_held(survey) -> None:
     g.add(ground_point_factor(problem.camera_keys["cam0"], tuple(a)))
     g.add(ground_point_factor(problem.camera_keys["cam1"], tuple(b)))
     problem.graph = g
-    other = solve_problem(problem)
+    other = solve(problem)
     rot = np.array([[np.cos(ang), np.sin(ang)], [-np.sin(ang), np.cos(ang)]])  # undo rotation
     for n in survey.node_ids:
         mapped = rot @ (other.nodes[n].position[:2] - a) / scale

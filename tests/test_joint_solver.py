@@ -5,7 +5,7 @@ import pytest
 
 from fgloc.crlb import cramer_rao_bound
 from fgloc.initialization import InitialEstimate
-from fgloc.joint_solver import build_problem, solve_problem, solve_survey
+from fgloc.joint_solver import build_problem, solve, solve_survey
 from fgloc.model import CameraPose
 from fgloc.scoring import CHI2_95, nees, score
 from fgloc.simulate import PAPER_SIGMA, PaperScenario, paper_scenario
@@ -31,7 +31,7 @@ def test_reaches_the_optimum_found_from_the_truth(seed: int) -> None:
     ours = solve_survey(survey)
     truth = survey.truth
     start = InitialEstimate(cameras=dict(truth.cameras), nodes=dict(truth.nodes))
-    from_truth = solve_problem(build_problem(survey, start))
+    from_truth = solve(build_problem(survey, start))
     assert ours.stats.final_error == pytest.approx(from_truth.stats.final_error, rel=1e-7)
     for n in survey.node_ids:
         np.testing.assert_allclose(ours.nodes[n].position, from_truth.nodes[n].position, atol=1e-8)

@@ -23,6 +23,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--roll-pitch-deg", type=float, default=3.0, help="max random base roll/pitch in degrees")
     p.add_argument("--repeats", type=int, default=1, help="readings per camera and node (default 1)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument(
+        "--subset-schedule", type=int, nargs=2, default=None, metavar=("K", "T"),
+        help="re-measure per subset: T random subsets of K nodes, each read afresh (--repeats times) "
+        "and tagged with its subset index (for fgloc solve --method subset-newton)",
+    )
     p.set_defaults(run=run)
 
 
@@ -35,8 +40,13 @@ def scenario_from_args(args: argparse.Namespace) -> PaperScenario:
             max_roll_pitch_deg=args.roll_pitch_deg,
             repeats=args.repeats,
             seed=args.seed,
+            subset_schedule=None if args.subset_schedule is None else tuple(args.subset_schedule),
         )
         paper_scenario(PaperScenario(n_nodes=1, sigma=config.sigma, heights=config.heights, repeats=config.repeats))
+        if config.subset_schedule is not None:
+            k, t = config.subset_schedule
+            if not 1 <= k <= config.n_nodes or t < 1:
+                raise ValueError(f"--subset-schedule needs 1 <= K <= {config.n_nodes} and T >= 1, got {k} {t}")
     except ValueError as exc:
         raise FglocError(f"simulate: {exc}") from None
     return config

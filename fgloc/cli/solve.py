@@ -3,16 +3,30 @@
 from __future__ import annotations
 
 import argparse
+from typing import TYPE_CHECKING
+
+import numpy as np
 
 from fgloc.files import read_survey, write_result
 from fgloc.joint_solver import solve_survey
-from fgloc.model import Result
+from fgloc.model import Result, Survey
+
+if TYPE_CHECKING:
+    from fgloc.subset_newton import SubsetNewtonResult
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("solve", help="solve a survey (joint factor-graph solve by default)")
     p.add_argument("survey", help="survey.json to read")
     p.add_argument("-o", "--output", required=True, help="result.json to write (atomically)")
+    p.add_argument(
+        "--method", choices=("joint", "subset-newton"), default="joint",
+        help="joint factor-graph solve (default) or the paper's subset-averaging Newton baseline",
+    )
+    p.add_argument("--subset-size", type=int, default=10, help="subset-newton: nodes per subset (untagged surveys)")
+    p.add_argument("--subsets", type=int, default=50, help="subset-newton: number of subsets (untagged surveys)")
+    p.add_argument("--seed", type=int, default=0, help="subset-newton: seed of the subset draw (untagged surveys)")
+    p.add_argument("--rerun", metavar="FILE.rrd", help="also write a Rerun recording (open with `rerun FILE.rrd`)")
     p.set_defaults(run=run)
 
 
@@ -34,10 +48,43 @@ def describe(result: Result) -> str:
     return "\n".join(lines)
 
 
+def subset_cloud(survey: Survey, outcome: "SubsetNewtonResult") -> tuple:
+    """The baseline's subset solutions as ``(node_ids, positions, node_index, mean)`` for Rerun."""
+    mean = np.full((len(survey.node_ids), 3), np.nan)
+    for j, nid in enumerate(survey.node_ids):
+        if nid in outcome.result.nodes:
+            mean[j] = outcome.result.nodes[nid].position
+    sol = outcome.solutions
+    return survey.node_ids, sol.position, sol.node_index, mean
+
+
 def run(args: argparse.Namespace) -> int:
     survey = read_survey(args.survey)
-    result = solve_survey(survey)
+    recorder = None
+    subsets = None
+    if args.method == "subset-newton":
+        from fgloc.subset_newton import SubsetNewtonOptions, solve_subset_newton
+
+        outcome = solve_subset_newton(
+            survey, SubsetNewtonOptions(subset_size=args.subset_size, n_subsets=args.subsets, seed=args.seed)
+        )
+        result = outcome.result
+        failed = ", ".join(f"{k} {v}" for k, v in outcome.failures.items() if v) or "none"
+        print(f"subset-newton: {len(outcome.subsets)} subsets, failed: {failed}")
+        subsets = subset_cloud(survey, outcome)
+    else:
+        if args.rerun:
+            from fgloc.viz import IterationRecorder  # rerun is imported only when asked for
+
+            recorder = IterationRecorder(survey)
+        result = solve_survey(survey, on_iteration=recorder)
     write_result(result, args.output)
     print(describe(result))
     print(f"wrote {args.output}")
+    if args.rerun:
+        from fgloc.viz import camera_covariances_or_none, write_rrd
+
+        write_rrd(args.rerun, result, survey, recorder=recorder, subsets=subsets,
+                  camera_covariances=camera_covariances_or_none(survey, result) if subsets is None else None)
+        print(f"wrote {args.rerun} (open it with `rerun {args.rerun}`)")
     return 0
