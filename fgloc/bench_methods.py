@@ -13,8 +13,8 @@
 * ``scipy``: ``scipy.optimize.least_squares(method="trf")`` on the same
   whitened residuals (pan-tilt readings and the gauge), finite-difference
   Jacobian with ``jac_sparsity``, same start. No marginals.
-* ``subset_newton``: the paper's baseline, if ``fgloc.subset_newton`` exists
-  (branch issue-4); otherwise reported as unavailable.
+* ``subset_newton``: the paper's subset-averaging Newton baseline
+  (:mod:`fgloc.subset_newton`), two-camera scenes only.
 
 Every runner returns a :class:`MethodRun`: wall seconds per stage, iterations,
 the final cost (GTSAM convention, 0.5 * sum of squared whitened residuals of
@@ -249,18 +249,37 @@ def run_scipy(survey: Survey, xtol: float = 1e-12) -> MethodRun:
 
 
 def run_subset_newton(survey: Survey) -> MethodRun:
-    """The paper's subset-averaging Newton baseline, if it is on this branch.
+    """The paper's subset-averaging Newton baseline (:mod:`fgloc.subset_newton`, two cameras).
 
-    HOOK: ``fgloc.subset_newton`` is written on branch issue-4. When it lands,
-    call it here (two cameras only) and fill the stages.
+    Its whole run (grid-search start, per-subset Newton, averaging) is the
+    ``optimize`` stage; ``iterations`` is the median Newton iterations per
+    subset. It does not minimize the joint cost, so its final cost is higher.
     """
-    try:
-        import fgloc.subset_newton as subset_newton  # noqa: F401
-    except ImportError:
-        nan = np.full((len(survey.node_ids), 3), np.nan)
-        return MethodRun("subset_newton", {}, 0, float("nan"), nan, available=False, note="fgloc.subset_newton not on main yet")
+    from fgloc.subset_newton import SubsetNewtonError, solve_subset_newton
+
     nan = np.full((len(survey.node_ids), 3), np.nan)
-    return MethodRun("subset_newton", {}, 0, float("nan"), nan, available=False, note="hook present, not wired yet")
+    try:
+        t0 = time.perf_counter()
+        out = solve_subset_newton(survey)
+        wall = time.perf_counter() - t0
+    except SubsetNewtonError as exc:
+        return MethodRun("subset_newton", {}, 0, float("nan"), nan, available=False, note=f"failed: {exc}")
+    res = out.result
+    positions = np.array([res.nodes[n].position if n in res.nodes else [np.nan] * 3 for n in survey.node_ids])
+    cost = float("nan")
+    if set(survey.camera_ids) <= set(res.cameras):
+        cams = {c: (p.rotation, p.position) for c, p in res.cameras.items()}
+        seen = np.isfinite(positions).all(axis=1)
+        if seen.all():
+            cost = pan_tilt_cost(survey, positions, cams)
+    return MethodRun(
+        "subset_newton",
+        {"optimize": wall},
+        int(np.median(out.iterations)) if len(out.iterations) else 0,
+        cost,
+        positions,
+        note=f"{out.n_failed} of {len(out.subsets)} subsets failed",
+    )
 
 
 RUNNERS = {"fgloc": run_fgloc, "cpp_bearing": run_cpp_bearing, "scipy": run_scipy, "subset_newton": run_subset_newton}
