@@ -42,6 +42,8 @@ MIN_SHARED_PLANAR = 4
 #: transfer combines two readings; a resection also carries the start's node errors.
 PAIR_THRESHOLD_SIGMAS = 25.0
 RESECTION_THRESHOLD_SIGMAS = 30.0
+#: Floor of every RANSAC angle threshold (radians): numerical noise of noise-free data.
+MIN_THRESHOLD = 1e-9
 #: RANSAC is seeded so that a survey always gives the same start.
 RANSAC_SEED = 20260101
 
@@ -153,7 +155,7 @@ def _pair_frames(bs: BearingSet, a: int, b: int, rng: np.random.Generator) -> tu
         # Transfer both ways and keep the smaller angle: one direction amplifies the
         # noise by the ratio of the node's ranges, the other shrinks it.
         lambda H: np.minimum(_angles(b1 @ H.T, b2), _angles(b2 @ np.linalg.inv(H).T, b1)),
-        threshold=PAIR_THRESHOLD_SIGMAS * bs.sigma, rng=rng,
+        threshold=max(PAIR_THRESHOLD_SIGMAS * bs.sigma, MIN_THRESHOLD), rng=rng,
     )
     b1, b2 = b1[inliers], b2[inliers]
     candidates = decompose_bearing_homography(H)
@@ -228,7 +230,7 @@ def _grow(
             len(xy), 4,
             lambda idx: plane_to_bearing_homography(xy[idx], bk[idx]),
             lambda G: _angles(p @ G.T, bk),
-            threshold=RESECTION_THRESHOLD_SIGMAS * bs.sigma, rng=rng,
+            threshold=max(RESECTION_THRESHOLD_SIGMAS * bs.sigma, MIN_THRESHOLD), rng=rng,
         )
         cameras[k] = camera_from_plane_homography(G)
         _place_nodes(cameras, bs, nodes)

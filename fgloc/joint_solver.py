@@ -25,6 +25,7 @@ from factors.baseline_prior import BaselinePrior
 from factors.pan_tilt_batch import PanTiltFactorSet
 from fgloc.geometry import bearing_pan_tilt, pan_tilt_bearing, pan_tilt_jacobian, pan_tilt_residual
 from fgloc.initialization import InitialEstimate, consensus_ground_point, ground_hits, initialize_planar
+from fgloc.initialization3d import initialize_3d
 from fgloc.levenberg_marquardt import IterationCallback, LMOutcome, LMParams, levenberg_marquardt
 from fgloc.model import (
     CameraPose,
@@ -217,7 +218,7 @@ def initialize(survey: Survey) -> InitialEstimate:
     """Closed-form initial estimate for the survey's mode."""
     if survey.mode is NodeMode.PLANAR:
         return initialize_planar(survey)
-    raise SolveError("3d surveys are not supported yet")
+    return initialize_3d(survey)
 
 
 @dataclass

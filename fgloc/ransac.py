@@ -48,7 +48,9 @@ def ransac(
             w = count / n
             if w >= 1.0:
                 break
-            needed = int(np.ceil(np.log(1 - confidence) / np.log(max(1 - w**sample_size, 1e-12))))
+            miss = 1.0 - w**sample_size
+            if 1e-12 < miss < 1.0:
+                needed = int(np.ceil(np.log(1 - confidence) / np.log(miss)))
     if best_mask is None or best_count < sample_size:
         raise ValueError("RANSAC found no consistent model")
     # Refit on all inliers, then take the final inlier set of the refitted model.
