@@ -44,6 +44,17 @@ def estimate_essential(b1: FloatArray, b2: FloatArray) -> FloatArray:
     return u @ np.diag([1.0, 1.0, 0.0]) @ wt
 
 
+def check_not_coplanar(b1: FloatArray, b2: FloatArray, threshold: float = 0.2) -> None:
+    """Raise if the epipolar system's null space is not one-dimensional (coplanar nodes,
+    or all nodes on a line with the cameras): the essential matrix is then ambiguous."""
+    rows = np.einsum("mi,mj->mij", b2, b1).reshape(-1, 9)
+    s = np.linalg.svd(rows, compute_uv=False)
+    if len(s) < 9 or s[-1] / max(s[-2], 1e-300) > threshold:
+        raise DegenerateGeometryError(
+            "the shared nodes are (nearly) coplanar: a 3d survey needs nodes off one plane (use planar mode)"
+        )
+
+
 def triangulate_pair(pose: RelativePose, b1: FloatArray, b2: FloatArray) -> tuple[FloatArray, FloatArray]:
     """Depths (s1, s2) along b1 and b2 (M,) that best satisfy ``s2 b2 = R s1 b1 + t``."""
     rb1 = b1 @ pose.rotation.T

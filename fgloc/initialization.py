@@ -29,6 +29,7 @@ from fgloc.geometry import FloatArray, pan_tilt_bearing
 from fgloc.homography import (
     DegenerateGeometryError,
     camera_from_plane_homography,
+    check_spans_plane,
     chirality_score,
     decompose_bearing_homography,
     estimate_bearing_homography,
@@ -158,6 +159,7 @@ def _pair_frames(bs: BearingSet, a: int, b: int, rng: np.random.Generator) -> tu
         threshold=max(PAIR_THRESHOLD_SIGMAS * bs.sigma, MIN_THRESHOLD), rng=rng,
     )
     b1, b2 = b1[inliers], b2[inliers]
+    check_spans_plane(b1, b2)
     candidates = decompose_bearing_homography(H)
     scores = np.array([chirality_score(c, b1, b2) for c in candidates])
     keep = [c for c, sc in zip(candidates, scores) if sc >= 0.98 * scores.max()]
@@ -168,7 +170,7 @@ def _pair_frames(bs: BearingSet, a: int, b: int, rng: np.random.Generator) -> tu
         up = -n
         w = -cand.rotation.T @ cand.translation  # camera b's centre in camera a's base frame
         horiz = w - (w @ up) * up
-        if np.linalg.norm(horiz) < 1e-9 * max(np.linalg.norm(w), 1e-300):
+        if np.linalg.norm(horiz) < 1e-3 * max(np.linalg.norm(w), 1e-300):
             raise DegenerateGeometryError("the two cameras stand on the same vertical: no ground baseline")
         x_axis = horiz / np.linalg.norm(horiz)
         y_axis = np.cross(up, x_axis)
@@ -185,7 +187,7 @@ def _to_planar_gauge(
     g0 = cameras[origin].position[:2]
     d = cameras[baseline].position[:2] - g0
     length = float(np.linalg.norm(d))
-    if length < 1e-12:
+    if length < 1e-3 * max(np.linalg.norm(cameras[baseline].position - cameras[origin].position), 1e-300):
         raise DegenerateGeometryError("the gauge cameras stand on the same vertical: no ground baseline")
     ang = np.arctan2(d[1], d[0])
     c, s = np.cos(-ang), np.sin(-ang)

@@ -15,6 +15,7 @@ The initial estimate comes from the bearings alone
 from __future__ import annotations
 
 import enum
+import re
 import time
 from dataclasses import dataclass, field, replace
 
@@ -273,6 +274,19 @@ def optimize(
     return outcome
 
 
+def _variable_named_in(message: str, problem: LocalizationProblem) -> str:
+    """The camera or node id GTSAM's indeterminate-system message points at."""
+    match = re.search(r"\(Symbol: ([a-z])(\d+)\)", message)
+    if match is None:
+        return "every variable"
+    index = int(match.group(2))
+    if match.group(1) == "c" and index < len(problem.survey.camera_ids):
+        return f"camera {problem.survey.camera_ids[index]}"
+    if match.group(1) == "l" and index < len(problem.survey.node_ids):
+        return f"node {problem.survey.node_ids[index]}"
+    return "every variable"
+
+
 def collect_result(
     problem: LocalizationProblem,
     outcome: LMOutcome,
@@ -292,7 +306,11 @@ def collect_result(
             marginals = gtsam.Marginals(problem.graph.linearize(values), values)
             covariances = {nid: marginals.marginalCovariance(key) for nid, key in problem.node_keys.items()}
         except RuntimeError as exc:
-            raise SolveError(f"marginal covariances are undefined (the graph is rank deficient): {exc}") from None
+            raise SolveError(
+                "marginal covariances are undefined: the readings do not determine "
+                f"{_variable_named_in(str(exc), problem)} (too few or degenerate readings, "
+                "or gauge cameras on one vertical)"
+            ) from None
         stages["marginals"] = stages.get("marginals", 0.0) + time.perf_counter() - t0
     nodes: dict[str, NodeEstimate] = {}
     for nid, key in problem.node_keys.items():
