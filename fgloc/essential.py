@@ -44,15 +44,27 @@ def estimate_essential(b1: FloatArray, b2: FloatArray) -> FloatArray:
     return u @ np.diag([1.0, 1.0, 0.0]) @ wt
 
 
-def check_not_coplanar(b1: FloatArray, b2: FloatArray, threshold: float = 0.2) -> None:
-    """Raise if the epipolar system's null space is not one-dimensional (coplanar nodes,
-    or all nodes on a line with the cameras): the essential matrix is then ambiguous."""
-    rows = np.einsum("mi,mj->mij", b2, b1).reshape(-1, 9)
-    s = np.linalg.svd(rows, compute_uv=False)
-    if len(s) < 9 or s[-1] / max(s[-2], 1e-300) > threshold:
+def check_not_coplanar(b1: FloatArray, b2: FloatArray, sigma: float) -> None:
+    """Raise if one plane explains the pairs as well as free 3d points (model selection).
+
+    Coplanar nodes make the essential matrix ambiguous. A bearing homography fits
+    such pairs to within the reading noise, while nodes with real relief leave
+    parallax far above it: the median two-way transfer error decides (3 sigma).
+    """
+    from fgloc.homography import estimate_bearing_homography  # local: homography imports this module's error
+
+    H = estimate_bearing_homography(b1, b2)
+    err = np.minimum(_angle(b1 @ H.T, b2), _angle(b2 @ np.linalg.inv(H).T, b1))
+    if np.median(err) < 3.0 * sigma:
         raise DegenerateGeometryError(
             "the shared nodes are (nearly) coplanar: a 3d survey needs nodes off one plane (use planar mode)"
         )
+
+
+def _angle(a: FloatArray, b: FloatArray) -> FloatArray:
+    a = a / np.linalg.norm(a, axis=1, keepdims=True)
+    b = b / np.linalg.norm(b, axis=1, keepdims=True)
+    return np.arctan2(np.linalg.norm(np.cross(a, b), axis=1), np.einsum("mi,mi->m", a, b))
 
 
 def triangulate_pair(pose: RelativePose, b1: FloatArray, b2: FloatArray) -> tuple[FloatArray, FloatArray]:

@@ -67,7 +67,7 @@ def _pair(bs: BearingSet, a: int, b: int, rng: np.random.Generator) -> tuple[dic
         lambda E: epipolar_angles(E, b1, b2),
         threshold=max(PAIR_THRESHOLD_SIGMAS * bs.sigma, MIN_THRESHOLD), rng=rng,
     )
-    check_not_coplanar(b1[inliers], b2[inliers])
+    check_not_coplanar(b1[inliers], b2[inliers], bs.sigma)
     pose, _ = decompose_essential(E, b1[inliers], b2[inliers])
     rel = RelativePose(pose.rotation, pose.translation)
     cam_a = CameraPose(np.zeros(3), np.eye(3))
