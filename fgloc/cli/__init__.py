@@ -18,9 +18,11 @@ for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
 from fgloc.cli import demo, score, simulate, solve  # noqa: E402
+from fgloc.cli import survey  # noqa: E402
 from fgloc.model import FglocError  # noqa: E402
 
 COMMANDS: list[ModuleType] = [simulate, solve, score, demo]
+COMMANDS.append(survey)
 
 
 def build_parser() -> argparse.ArgumentParser:
