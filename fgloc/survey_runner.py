@@ -17,7 +17,7 @@ head is reopened (``open_head``) up to ``retry.reconnects`` times; a camera that
 still fails is journaled ``not_found`` with the error for that node and tried
 again on the next one.
 
-Live estimates: after each node (once at least four nodes are seen by two
+Live estimates: after each node (once at least five nodes are seen by two
 cameras) an :class:`Estimator` solves the journal so far; the default is the
 batch joint solve. An incremental (iSAM2) estimator can be passed instead.
 """
@@ -36,6 +36,12 @@ from fgloc.led_search import LedLocator, PinholePixelModel
 from fgloc.model import FglocError, Result, Survey
 from fgloc.rig import LedController, PanTiltHead
 from fgloc.rig_config import RigConfig
+
+
+# Planar, two cameras: 8 camera unknowns after the gauge + 2 per node against 4 readings per
+# node, so four nodes are exactly determined (and degenerate in practice); five is the first
+# redundant case.
+MIN_SHARED_NODES = 5
 
 
 class Estimator(Protocol):
@@ -268,16 +274,17 @@ class SurveyRunner:
         return sum(1 for cams in cams_per_node.values() if len(cams) >= 2)
 
     def estimate(self) -> LiveEstimate | None:
-        """Solve the journal so far (None when fewer than four nodes are seen by two cameras)."""
-        if self.estimator is None or self._shared_nodes() < 4:
+        """Solve the journal so far (None until MIN_SHARED_NODES nodes are seen by two cameras)."""
+        if self.estimator is None or self._shared_nodes() < MIN_SHARED_NODES:
             return None
         survey = journal_to_survey(self.state)
         t0 = time.perf_counter()
         try:
             result = self.estimator.update(survey)
         except FglocError as exc:
-            self.stats.estimate_errors.append(str(exc))
-            self.log(f"live estimate failed: {exc}")
+            message = " ".join(str(exc).split())  # GTSAM's messages span lines
+            self.stats.estimate_errors.append(message)
+            self.log(f"live estimate failed: {message[:200]}")
             return None
         live = LiveEstimate(len(self.state.done), survey, result, time.perf_counter() - t0)
         self.latest = live
