@@ -1,0 +1,240 @@
+"""Simulated twin of a PTZ camera: renders the frame a head at (pan, tilt, zoom) would see.
+
+The truth source for tests and ``fgloc survey --simulate``. Model:
+
+* The camera base sits at ``pose`` (:class:`fgloc.model.CameraPose`, base -> world).
+  The optical centre lies on the pan and tilt axes; the head rotation and the
+  optical frame are those of :mod:`fgloc.pixel_angles`.
+* Pinhole + OpenCV distortion from :class:`fgloc.intrinsics.CameraIntrinsics`
+  (``intrinsics.at_zoom`` for other zooms: focal length x1 ... x10).
+* Background: smooth random texture fixed to directions in the base frame (it
+  moves across the image when the head turns), plus static bright lights
+  (``LedScene.distractors``, always on, may saturate).
+* Lit LEDs: an integrated (pixel-area) Gaussian spot of ``led_flux`` DN in
+  total and ``led_sigma_px`` width, centred exactly at the LED's distorted
+  projection, so the centroid truth is exact.
+* Sensor noise: Gaussian, variance ``read_noise^2 + shot_gain * signal`` (DN),
+  seeded; then rounding and clipping to uint8.
+
+Grayscale uint8 frames. Everything is numpy; the background of a view is
+cached, and each frame only renders small patches around spots.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import OrderedDict
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from fgloc.geometry import world_to_base
+from fgloc.intrinsics import CameraIntrinsics
+from fgloc.model import CameraPose
+from fgloc.pixel_angles import base_to_pixel, in_image, optical_to_base, pixel_to_ray
+
+_erf = np.frompyfunc(math.erf, 1, 1)
+
+
+@dataclass
+class LedScene:
+    """World points: node LEDs (``positions``, id -> (3,)), which are lit (``lit``, mutable),
+    and static bright lights that are always on (``distractors``, (K, 3) world points)."""
+
+    positions: dict[str, np.ndarray]
+    lit: set[str] = field(default_factory=set)
+    distractors: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+
+
+class SimulatedLedController:
+    """:class:`fgloc.rig.LedController` twin: switches LEDs in a :class:`LedScene`."""
+
+    def __init__(self, scene: LedScene) -> None:
+        self.scene = scene
+
+    def set_led(self, node_id: str, on: bool) -> bool:
+        """Switch ``node_id``'s LED; False (no acknowledgement) for an unknown node."""
+        if node_id not in self.scene.positions:
+            return False
+        (self.scene.lit.add if on else self.scene.lit.discard)(node_id)
+        return True
+
+
+@dataclass(frozen=True)
+class RenderSettings:
+    """Photometry of the rendered frames (DN = uint8 grey levels, sizes in pixels)."""
+
+    led_flux: float = 1500.0  #: total LED spot signal (DN summed over pixels)
+    led_sigma_px: float = 1.2  #: LED spot (PSF) standard deviation
+    background_mean: float = 50.0  #: mean background level
+    background_contrast: float = 20.0  #: texture amplitude (std-ish)
+    texture_seed: int = 7  #: seed of the background texture (fixed to the world)
+    distractor_flux: float = 6000.0  #: total signal of a static bright light (saturates)
+    distractor_sigma_px: float = 2.5  #: size of a static bright light
+    read_noise: float = 1.5  #: read noise sigma (DN)
+    shot_gain: float = 0.05  #: shot noise variance per DN of signal
+
+
+def _integrated_gaussian_1d(centre: float, sigma: float, lo: int, hi: int) -> np.ndarray:
+    """Fraction of a unit 1-D Gaussian falling in each pixel lo..hi-1 (pixel k spans k +- 0.5)."""
+    edges = (np.arange(lo, hi + 1, dtype=float) - 0.5 - centre) / (sigma * math.sqrt(2.0))
+    cdf = 0.5 * (1.0 + _erf(edges).astype(float))
+    return np.diff(cdf)
+
+
+def add_spot(image: np.ndarray, u: float, v: float, flux: float, sigma: float) -> None:
+    """Add an integrated Gaussian spot (total ``flux`` DN) centred at pixel (u, v), in place."""
+    h, w = image.shape
+    half = int(math.ceil(5.0 * sigma)) + 1
+    c0, c1 = max(int(math.floor(u)) - half, 0), min(int(math.floor(u)) + half + 2, w)
+    r0, r1 = max(int(math.floor(v)) - half, 0), min(int(math.floor(v)) + half + 2, h)
+    if c0 >= c1 or r0 >= r1:
+        return
+    gx = _integrated_gaussian_1d(u, sigma, c0, c1)
+    gy = _integrated_gaussian_1d(v, sigma, r0, r1)
+    image[r0:r1, c0:c1] += flux * np.outer(gy, gx)
+
+
+class RenderedCamera:
+    """Renders frames of one camera base looking at an :class:`LedScene`."""
+
+    def __init__(self, pose: CameraPose, scene: LedScene, settings: RenderSettings | None = None) -> None:
+        self.pose = pose
+        self.scene = scene
+        self.settings = settings or RenderSettings()
+        rng = np.random.default_rng(self.settings.texture_seed)
+        # Random plane waves on the direction sphere: periods of ~1 to ~6 degrees.
+        freqs = rng.uniform(10.0, 60.0, size=8)
+        dirs = rng.normal(size=(8, 3))
+        self._waves = dirs / np.linalg.norm(dirs, axis=1, keepdims=True) * freqs[:, None]
+        self._phases = rng.uniform(0.0, 2.0 * np.pi, size=8)
+        self._rays: dict[CameraIntrinsics, np.ndarray] = {}
+        self._backgrounds: OrderedDict[tuple, np.ndarray] = OrderedDict()
+
+    # ----- truth -------------------------------------------------------------------------
+    def base_directions(self, points: np.ndarray) -> np.ndarray:
+        """World point(s) (..., 3) as base-frame vectors from the camera."""
+        return world_to_base(self.pose.rotation, self.pose.position, points)
+
+    def led_pixels(self, intrinsics: CameraIntrinsics, pan: float, tilt: float, margin: float = 0.0) -> dict[str, tuple[float, float]]:
+        """True pixel (u, v) of every node LED (lit or not) in the image at least ``margin`` px inside."""
+        if not self.scene.positions:
+            return {}
+        ids = list(self.scene.positions)
+        pts = np.array([self.scene.positions[i] for i in ids], dtype=float)
+        uv, front = base_to_pixel(intrinsics, self.base_directions(pts), pan, tilt)
+        ok = front & in_image(intrinsics, uv, margin)
+        return {i: (float(uv[k, 0]), float(uv[k, 1])) for k, i in enumerate(ids) if ok[k]}
+
+    # ----- rendering ---------------------------------------------------------------------
+    def _pixel_rays(self, intr: CameraIntrinsics) -> np.ndarray:
+        rays = self._rays.get(intr)
+        if rays is None:
+            jj, ii = np.meshgrid(np.arange(intr.width, dtype=float), np.arange(intr.height, dtype=float))
+            rays = pixel_to_ray(intr, np.stack([jj, ii], axis=-1)).astype(np.float32)
+            self._rays[intr] = rays
+        return rays
+
+    def background(self, intr: CameraIntrinsics, pan: float, tilt: float) -> np.ndarray:
+        """Noise-free background (float32 DN, distractors included) for a view; cached."""
+        key = (intr, round(pan, 12), round(tilt, 12))
+        bg = self._backgrounds.get(key)
+        if bg is not None:
+            self._backgrounds.move_to_end(key)
+            return bg
+        s = self.settings
+        d = self._pixel_rays(intr) @ optical_to_base(pan, tilt).T.astype(np.float32)
+        phase = d @ self._waves.T.astype(np.float32) + self._phases.astype(np.float32)
+        tex = np.sin(phase).sum(axis=-1) * (s.background_contrast / 2.0)
+        bg = (s.background_mean + tex).astype(np.float32)
+        np.clip(bg, 0.0, None, out=bg)
+        if len(self.scene.distractors):
+            uv, front = base_to_pixel(intr, self.base_directions(self.scene.distractors), pan, tilt)
+            for k in np.flatnonzero(front & in_image(intr, uv, -10.0)):
+                add_spot(bg, float(uv[k, 0]), float(uv[k, 1]), s.distractor_flux, s.distractor_sigma_px)
+        self._backgrounds[key] = bg
+        while len(self._backgrounds) > 4:
+            self._backgrounds.popitem(last=False)
+        return bg
+
+    def render(self, intr: CameraIntrinsics, pan: float, tilt: float, rng: np.random.Generator) -> np.ndarray:
+        """A noisy uint8 (H, W) frame with the head at (pan, tilt) radians through ``intr``."""
+        s = self.settings
+        img = self.background(intr, pan, tilt).copy()
+        lit = [i for i in sorted(self.scene.lit) if i in self.scene.positions]
+        if lit:
+            pts = np.array([self.scene.positions[i] for i in lit], dtype=float)
+            uv, front = base_to_pixel(intr, self.base_directions(pts), pan, tilt)
+            for k in np.flatnonzero(front & in_image(intr, uv, -10.0)):
+                add_spot(img, float(uv[k, 0]), float(uv[k, 1]), s.led_flux, s.led_sigma_px)
+        noise_sd = np.sqrt(s.read_noise**2 + s.shot_gain * img)
+        img += noise_sd * rng.standard_normal(img.shape, dtype=np.float32)
+        return np.clip(np.rint(img), 0, 255).astype(np.uint8)
+
+
+class SimulatedHead:
+    """:class:`fgloc.rig.PanTiltHead` twin, in process: angles are stored, ``grab_frame`` renders.
+
+    ``angle_step`` (radians, e.g. ``math.radians(1 / 14.4)`` for the EVI-D100) quantises
+    where the head actually goes; ``position()`` reads back the quantised angles exactly.
+    The frame is rendered through ``intrinsics.at_zoom(zoom())``.
+    """
+
+    def __init__(
+        self,
+        pose: CameraPose,
+        scene: LedScene,
+        intrinsics: CameraIntrinsics,
+        seed: int = 0,
+        angle_step: float | None = None,
+        settings: RenderSettings | None = None,
+    ) -> None:
+        self.camera = RenderedCamera(pose, scene, settings)
+        self.intrinsics = intrinsics
+        self.angle_step = angle_step
+        self.rng = np.random.default_rng(seed)
+        self._pan = 0.0
+        self._tilt = 0.0
+        self._zoom = intrinsics.zoom
+        self.moves = 0
+
+    @property
+    def scene(self) -> LedScene:
+        return self.camera.scene
+
+    def _quantise(self, angle: float) -> float:
+        if not self.angle_step:
+            return float(angle)
+        return float(round(angle / self.angle_step) * self.angle_step)
+
+    def move_to(self, pan: float, tilt: float) -> None:
+        self._pan, self._tilt = self._quantise(pan), self._quantise(tilt)
+        self.moves += 1
+
+    def position(self) -> tuple[float, float]:
+        return (self._pan, self._tilt)
+
+    def set_zoom(self, zoom: float) -> None:
+        self._zoom = float(min(max(zoom, 0.0), 1.0))
+
+    def zoom(self) -> float:
+        return self._zoom
+
+    def stop(self) -> None:
+        pass
+
+    def home(self) -> None:
+        self.move_to(0.0, 0.0)
+
+    def current_intrinsics(self) -> CameraIntrinsics:
+        """True intrinsics at the current zoom."""
+        if self._zoom == self.intrinsics.zoom:
+            return self.intrinsics
+        return self.intrinsics.at_zoom(self._zoom)
+
+    def grab_frame(self) -> np.ndarray:
+        return self.camera.render(self.current_intrinsics(), self._pan, self._tilt, self.rng)
+
+    def visible_leds(self, margin: float = 0.0) -> dict[str, tuple[float, float]]:
+        """Truth: pixel of every node LED in the current view (lit or not)."""
+        return self.camera.led_pixels(self.current_intrinsics(), self._pan, self._tilt, margin)
