@@ -101,6 +101,31 @@ def build_scene(rig: RigConfig) -> SimScene:
     return SimScene(list(ids), cameras, list(rig.node_ids), nodes, visible, apparent, set(sim.dead_nodes))
 
 
+def render_frame(scene: SimScene, index: int, pixels: PinholePixelModel, pan: float, tilt: float) -> np.ndarray:
+    """What camera ``index`` sees with its head at (pan, tilt): a Gaussian spot per lit LED."""
+    k = pixels.intrinsics
+    frame = np.zeros((k.height, k.width), dtype=np.uint8)
+    with scene.lock:
+        lit = [scene.node_ids.index(n) for n in scene.lit]
+    for j in lit:
+        if not scene.visible[index, j]:
+            continue
+        led_pan, led_tilt = scene.apparent[index, j]
+        px = pixels.bearing_to_pixel(pan, tilt, pan_tilt_bearing(led_pan, led_tilt))
+        if px is None:
+            continue
+        x, y = px
+        r = 8
+        x0, x1 = max(int(x) - r, 0), min(int(x) + r + 1, k.width)
+        y0, y1 = max(int(y) - r, 0), min(int(y) + r + 1, k.height)
+        if x0 >= x1 or y0 >= y1:
+            continue
+        ys, xs = np.mgrid[y0:y1, x0:x1]
+        blob = 250.0 * np.exp(-((xs - x) ** 2 + (ys - y) ** 2) / (2 * BLOB_SIGMA_PX**2))
+        frame[y0:y1, x0:x1] = np.maximum(frame[y0:y1, x0:x1], np.round(blob).astype(np.uint8))
+    return frame
+
+
 class SceneHead:
     """A simulated pan-tilt head (implements :class:`fgloc.rig.PanTiltHead`)."""
 
@@ -149,27 +174,7 @@ class SceneHead:
 
     def grab_frame(self) -> np.ndarray:
         self._command()
-        k = self.pixels.intrinsics
-        frame = np.zeros((k.height, k.width), dtype=np.uint8)
-        with self.scene.lock:
-            lit = [self.scene.node_ids.index(n) for n in self.scene.lit]
-        for j in lit:
-            if not self.scene.visible[self.index, j]:
-                continue
-            pan, tilt = self.scene.apparent[self.index, j]
-            px = self.pixels.bearing_to_pixel(self.pan, self.tilt, pan_tilt_bearing(pan, tilt))
-            if px is None:
-                continue
-            x, y = px
-            r = 8
-            x0, x1 = max(int(x) - r, 0), min(int(x) + r + 1, k.width)
-            y0, y1 = max(int(y) - r, 0), min(int(y) + r + 1, k.height)
-            if x0 >= x1 or y0 >= y1:
-                continue
-            ys, xs = np.mgrid[y0:y1, x0:x1]
-            blob = 250.0 * np.exp(-((xs - x) ** 2 + (ys - y) ** 2) / (2 * BLOB_SIGMA_PX**2))
-            frame[y0:y1, x0:x1] = np.maximum(frame[y0:y1, x0:x1], np.round(blob).astype(np.uint8))
-        return frame
+        return render_frame(self.scene, self.index, self.pixels, self.pan, self.tilt)
 
     def close(self) -> None:
         self.closed = True

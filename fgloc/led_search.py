@@ -158,7 +158,19 @@ class LedLocator:
         self.cells = search_cells(search, pixel_model.field_of_view())
         self.stats = MeasureStats()
 
+    def clamp(self, pan: float, tilt: float) -> tuple[float, float]:
+        """The nearest head position inside the search range (pan wrapped first)."""
+        s = self.search
+        if s.pan_max - s.pan_min < 2 * math.pi - 1e-9:
+            pan = s.pan_min + (pan - s.pan_min) % (2 * math.pi)
+            if pan > s.pan_max:  # in the gap: go to the nearer limit
+                over = pan - s.pan_max
+                under = s.pan_min + 2 * math.pi - pan
+                pan = s.pan_max if over <= under else s.pan_min
+        return pan, min(max(tilt, s.tilt_min), s.tilt_max)
+
     def _look(self, call: Callable[[Callable[[PanTiltHead], object]], object], pan: float, tilt: float) -> Spot | None:
+        pan, tilt = self.clamp(pan, tilt)
         call(lambda h: h.move_to(pan, tilt))
         self.stats.moves += 1
         if self.search.settle_s > 0:
@@ -170,7 +182,12 @@ class LedLocator:
     def locate(
         self, call: Callable[[Callable[[PanTiltHead], object]], object], start: tuple[float, float]
     ) -> tuple[float, float] | None:
-        """(pan, tilt) of the lit LED, or None when the whole pattern shows none."""
+        """(pan, tilt) of the lit LED, or None when the whole pattern shows none.
+
+        Moves never leave the search range: an LED beyond it is measured from the
+        frame at the range's edge (pixel-offset method).
+        """
+        start = self.clamp(*start)
         spot = self._look(call, *start)
         if spot is None:
             for cell in nearest_first(self.cells, start):
@@ -188,10 +205,14 @@ class LedLocator:
             if math.hypot(spot.x - k.cx, spot.y - k.cy) <= self.search.centre_tolerance_px:
                 break
             target = self.pixels.pixel_to_pan_tilt(pan, tilt, spot.x, spot.y)
+            edge = self.clamp(*target)
+            at_edge = abs(math.remainder(edge[0] - target[0], 2 * math.pi)) > 1e-9 or abs(edge[1] - target[1]) > 1e-9
             found = self._look(call, *target)
             if found is None:
                 return None
             spot = found
+            if at_edge:  # the LED lies beyond the range: measure it off-centre from the edge
+                break
         pan, tilt = call(lambda h: h.position())
         if self.search.method == "centre":
             return float(pan), float(tilt)

@@ -22,6 +22,7 @@ CAMERA_DRIVERS = ("visca-serial", "visca-ip", "sony-cgi", "simulated")
 MOTE_DRIVERS = ("tinyos-serial", "serial-forwarder", "simulated")
 MOUNTINGS = ("upright", "ceiling")
 MEASURE_METHODS = ("centre", "pixel-offset")
+SIMULATION_TWINS = ("inprocess", "visca")
 
 
 class RigConfigError(FglocError):
@@ -106,6 +107,9 @@ class SimulationConfig:
     Rates are per reply; ``disconnect_after`` is the number of head commands
     after which camera ``disconnect_camera`` drops its link once (0 = never);
     ``time_scale`` multiplies simulated motion and LED latency (0 = instant).
+    ``twin`` picks the simulated cameras: ``inprocess`` (protocol-level, fast,
+    deterministic) or ``visca`` (the real VISCA serial driver against a pty twin
+    per camera; camera ``model`` and ``mounting`` must be known to drivers.ptz_units).
     """
 
     seed: int = 0
@@ -117,6 +121,7 @@ class SimulationConfig:
     disconnect_after: int = 0
     disconnect_camera: str = ""
     time_scale: float = 0.0
+    twin: str = "inprocess"
 
 
 @dataclass(frozen=True)
@@ -312,6 +317,7 @@ def parse_rig(data: Any, path: str = "rig.json", base: Path | None = None) -> Ri
         disconnect_after=int(f.number(sim.get("disconnect_after", 0), "simulation.disconnect_after", 0, 1e9, True)),
         disconnect_camera=dcam or ids[0],
         time_scale=f.number(sim.get("time_scale", 0.0), "simulation.time_scale", 0, 10),
+        twin=f.string(sim.get("twin", "inprocess"), "simulation.twin", SIMULATION_TWINS),
     )
     return RigConfig(
         path=path,

@@ -34,10 +34,16 @@ class OpenedRig:
     open_head: Callable[[str], PanTiltHead]
     leds: LedController
     simulated: object | None = None  # the simulated rig, when simulating
+    close: Callable[[], None] = lambda: None
 
 
 def open_simulated(rig: RigConfig) -> OpenedRig:
-    """The rig's in-process simulated twin (scene built from ``rig.simulation``)."""
+    """The rig's simulated twin (scene built from ``rig.simulation``, cameras per ``twin``)."""
+    if rig.simulation.twin == "visca":
+        from drivers.twin_rig import ViscaTwinRig
+
+        twins = ViscaTwinRig(rig)
+        return OpenedRig(open_head=twins.open_head, leds=twins.leds, simulated=twins, close=twins.close)
     from drivers.inprocess_rig import InProcessRig
 
     sim = InProcessRig(rig)
@@ -93,14 +99,19 @@ def run_survey(
     opened: OpenedRig | None = None,
 ) -> tuple[Survey, SurveyRunner]:
     """Run (or resume) a survey and write ``survey.json``; returns it and the runner."""
+    own = opened is None
     opened = opened or (open_simulated(rig) if simulate else open_hardware(rig))
-    writer, state = start_journal(rig, out_dir, resume, opened.simulated)
     try:
-        runner = SurveyRunner(rig, opened.open_head, opened.leds, writer, state, estimator=estimator,
-                              live_every=live_every, on_estimate=on_estimate, on_progress=on_progress, log=log)
-        survey = runner.run()
+        writer, state = start_journal(rig, out_dir, resume, opened.simulated)
+        try:
+            runner = SurveyRunner(rig, opened.open_head, opened.leds, writer, state, estimator=estimator,
+                                  live_every=live_every, on_estimate=on_estimate, on_progress=on_progress, log=log)
+            survey = runner.run()
+        finally:
+            writer.close()
     finally:
-        writer.close()
+        if own:
+            opened.close()
     write_survey(survey, Path(out_dir) / SURVEY_NAME)
     if runner.latest is not None:
         write_result(runner.latest.result, Path(out_dir) / ESTIMATE_NAME)
