@@ -309,7 +309,10 @@ class PacketSplitter:
     """Split a VISCA byte stream into packets ``(hdr) ... FF``.
 
     Bytes before a header (bit 7 set) are discarded; packets longer than 16 bytes
-    are discarded. Both are counted in ``dropped_bytes`` / ``dropped_packets``.
+    are discarded. No byte inside a reply has bit 7 set (data are nibbles, kinds
+    are 0x3y-0x6y), so a header byte in the middle of a packet means its
+    terminator was lost: the partial packet is dropped and a new one starts there.
+    Drops are counted in ``dropped_bytes`` / ``dropped_packets``.
     """
 
     def __init__(self) -> None:
@@ -326,6 +329,10 @@ class PacketSplitter:
                 else:
                     self.dropped_bytes += 1
                 continue
+            if b & 0x80 and b != TERMINATOR:  # a new header: the previous packet lost its FF
+                self.dropped_packets += 1
+                self.dropped_bytes += len(self._buf)
+                self._buf.clear()
             self._buf.append(b)
             if b == TERMINATOR:
                 out.append(bytes(self._buf))
@@ -476,11 +483,14 @@ class ViscaSession:
     """One VISCA camera behind a link: sends commands one at a time and matches replies by socket."""
 
     def __init__(self, link: ViscaLink, address: int = 1, timeouts: Timeouts | None = None,
-                 reconnects: int = 1, on_reconnect: Callable[[], None] | None = None) -> None:
+                 reconnects: int = 3, on_reconnect: Callable[[], None] | None = None,
+                 reconnect_wait: float = 0.2) -> None:
         self.link = link
         self.address = address
         self.timeouts = timeouts or Timeouts()
         self.reconnects = reconnects
+        self.reconnect_wait = reconnect_wait
+        self.network_changed = False  # set on an unsolicited Network Change; the head re-initialises
         self.stats = SessionStats()
         self._lock = threading.RLock()
         self._on_reconnect = on_reconnect
@@ -522,7 +532,7 @@ class ViscaSession:
                     attempts += 1
                     self.stats.reconnects += 1
                     log.warning("VISCA link lost; reconnecting (%d/%d)", attempts, self.reconnects)
-                    time.sleep(0.05)
+                    time.sleep(self.reconnect_wait)
                     try:
                         self.link.reopen()
                     except ViscaDisconnected:
@@ -553,6 +563,7 @@ class ViscaSession:
                 continue
             if reply.kind is ReplyKind.NETWORK_CHANGE:
                 self.stats.network_changes += 1
+                self.network_changed = True
                 log.warning("camera %d reported a network change", reply.sender)
                 continue
             if reply.sender not in (0, self.address):
@@ -732,15 +743,29 @@ class ViscaHead:
     # -- setup
     def initialize(self, address_set: bool = True) -> None:
         """Address Set (serial only) then IF_Clear, as every known driver does at start-up."""
+        self._uses_address_set = address_set
         if address_set:
             self.session.address_set()
         self.session.if_clear()
+        self.session.network_changed = False
+
+    _uses_address_set = False
 
     def _reinit(self) -> None:
+        """After a reconnect or a Network Change: Address Set (serial) + IF_Clear (protocols.md 1.10 item 6)."""
+        self.session.network_changed = False
+        self._last_counts = None
         try:
+            if self._uses_address_set:
+                self.session._address_set()
             self.session._if_clear()
         except ViscaError as exc:
-            log.warning("IF_Clear after reconnect failed: %s", exc)
+            log.warning("re-initialising the camera failed: %s", exc)
+
+    def _ready(self) -> None:
+        if self.session.network_changed:
+            log.warning("camera reported a network change; re-running Address Set and IF_Clear")
+            self._reinit()
 
     # -- counts level
     def _speeds(self) -> tuple[int, int]:
@@ -751,6 +776,7 @@ class ViscaHead:
 
     def move_to_counts(self, pan: int, tilt: int) -> None:
         """Absolute move in device counts; blocks until the camera reports completion."""
+        self._ready()
         m = self.model
         if not (m.pan_min <= pan <= m.pan_max and m.tilt_min <= tilt <= m.tilt_max):
             raise PositionOutOfRangeError(
@@ -781,6 +807,7 @@ class ViscaHead:
 
     def position_counts(self) -> tuple[int, int]:
         """Read-back (pan, tilt) in device counts (confirmed by two equal reads when enabled)."""
+        self._ready()
         prev = self.read_counts_once()
         if not self.settings.confirm_reads:
             self._last_counts = prev

@@ -98,6 +98,9 @@ def test_splitter_resyncs_on_garbage_and_overlong_packets() -> None:
     out = s.feed(H("00 12 90 41 FF 05") + H("90") + bytes([0x01] * 20) + H("90 51 FF"))
     assert out == [H("90 41 FF"), H("90 51 FF")]
     assert s.dropped_bytes >= 3 and s.dropped_packets == 1
+    # a lost terminator does not swallow the next packet
+    assert s.feed(H("90 50 0F 0A") + H("90 41 FF")) == [H("90 41 FF")]
+    assert s.dropped_packets == 2
 
 
 # ---------------------------------------------------------------- driver against the pty twin
@@ -238,3 +241,36 @@ def test_grab_frame_uses_the_twin_renderer() -> None:
     with ViscaSerialTwin(emulator) as twin, _head(twin, frames=emulator.frame_source()) as head:
         head.move_to_counts(77, 0)
         assert head.grab_frame().shape == (4, 6) and head.grab_frame()[0, 0] == 77
+
+
+def test_network_change_triggers_address_set_and_if_clear() -> None:
+    """An unsolicited ``90 38 FF`` (protocols.md 1.10 item 6): the head re-initialises before its next command."""
+    with ViscaSerialTwin() as twin, _head(twin) as head:
+        head.move_to_counts(20, 20)
+        n_before = len(twin.emulator.log)
+        twin.inject_raw(bytes.fromhex("90 38 FF"))
+        head.move_to_counts(30, 30)  # the change is seen while waiting for this move's replies
+        assert head.position_counts() == (30, 30)
+        after = twin.emulator.log[n_before:]
+        assert cmd_address_set() in after and cmd_if_clear(1) in after
+        assert head.session.stats.network_changes == 1
+
+
+def test_line_noise_one_percent_of_bytes() -> None:
+    """1 % of all reply bytes corrupted (the issue's acceptance level): 40 moves land exactly, reads agree."""
+    with ViscaSerialTwin(faults=FaultConfig(byte_error_rate=0.01, drop_rate=0.05, seed=21)) as twin, \
+            _head(twin, timeouts=Timeouts(0.05, 0.05, 0.1, retries=6)) as head:
+        for k in range(40):
+            target = ((k * 73) % 2800 - 1400, (k * 37) % 700 - 350)
+            head.move_to_counts(*target)
+            assert head.position_counts() == target
+        assert twin.faults.counts["byte_error"] > 5 and twin.faults.counts["drop"] > 5
+
+
+def test_heads_satisfy_the_rig_protocol() -> None:
+    from drivers.sony_cgi import SonyCgiClient, SonyCgiHead
+    from fgloc.rig import PanTiltHead
+
+    with ViscaSerialTwin() as twin, _head(twin) as head:
+        assert isinstance(head, PanTiltHead)
+    assert isinstance(SonyCgiHead(SonyCgiClient("http://127.0.0.1:1")), PanTiltHead)

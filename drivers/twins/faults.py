@@ -4,6 +4,8 @@ A twin asks the injector, per request and per reply, whether to misbehave:
 
 * ``drop``      the reply is never sent (a lost byte stream / UDP datagram);
 * ``garble``    one byte of the reply is replaced by a random different byte;
+* ``byte_error_rate``  independently of the above, every outgoing byte is replaced by a
+  random different byte with this probability (line noise: "1 % garbled bytes");
 * ``error``     the request is answered with an error reply instead of executing;
 * ``slow``      a completion (VISCA) or an ACK (TinyOS) is delayed by ``slow_seconds``;
 * ``disconnect`` after ``disconnect_after`` requests the link goes away (pty closed,
@@ -33,6 +35,7 @@ class FaultConfig:
     error_rate: float = 0.0
     slow_rate: float = 0.0
     slow_seconds: float = 0.5
+    byte_error_rate: float = 0.0
     error_codes: tuple[int, ...] = (0x41,)
     disconnect_after: int | None = None
     reconnect_after: float | None = None
@@ -41,7 +44,7 @@ class FaultConfig:
     error_script: list[str] = field(default_factory=list)
 
     def __post_init__(self) -> None:
-        for name in ("drop_rate", "garble_rate", "error_rate", "slow_rate"):
+        for name in ("drop_rate", "garble_rate", "error_rate", "slow_rate", "byte_error_rate"):
             v = getattr(self, name)
             if not 0.0 <= v <= 1.0:
                 raise ValueError(f"{name} must be in [0, 1], got {v}")
@@ -104,6 +107,23 @@ class FaultInjector:
             if new >= data[i]:
                 new += 1
             return data[:i] + bytes([new]) + data[i + 1:]
+
+    def line_noise(self, data: bytes) -> bytes:
+        """``data`` with each byte replaced (by a different random byte) with ``byte_error_rate``."""
+        rate = self.config.byte_error_rate
+        if rate <= 0.0 or not data:
+            return data
+        with self._lock:
+            out = bytearray(data)
+            hit = 0
+            for i, b in enumerate(out):
+                if self._rng.random() < rate:
+                    new = self._rng.randrange(255)
+                    out[i] = new + 1 if new >= b else new
+                    hit += 1
+            if hit:
+                self.counts["byte_error"] += hit
+            return bytes(out)
 
     def request_error(self) -> int | None:
         """An error code to answer this request with, or None to execute it."""

@@ -164,7 +164,7 @@ class SonyCgiTwin:
             return
         if fate == "garble":
             reply = self.faults.garble(reply)
-        self._send(h, 200, reply.hex().upper().encode("ascii"))
+        self._send(h, 200, self.faults.line_noise(reply).hex().upper().encode("ascii"))
 
     def _ptzf(self, h, params: dict[str, str]) -> None:
         m = self.emulator.model

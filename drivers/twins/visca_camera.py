@@ -301,7 +301,7 @@ def apply_reply_faults(faults: FaultInjector, emulator: ViscaCameraEmulator, req
             reply = faults.garble(reply)
         if fate == "slow":
             delay += faults.config.slow_seconds
-        out.append((now + delay, reply))
+        out.append((now + delay, faults.line_noise(reply)))
     return out
 
 
@@ -324,6 +324,10 @@ class ViscaSerialTwin:
     def port(self) -> str:
         """Serial device path for pyserial (a symlink to the current pty slave)."""
         return self._pty.path
+
+    def inject_raw(self, data: bytes) -> None:
+        """Write arbitrary bytes to the driver (line noise, an unsolicited Network Change)."""
+        self._pty.write(data)
 
     def disconnect(self, reconnect_after: float | None = None) -> None:
         """Pull the cable now; plug it back after ``reconnect_after`` seconds (never if None)."""

@@ -19,10 +19,12 @@ for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
 
 from fgloc.cli import calibrate  # noqa: E402
 from fgloc.cli import demo, score, simulate, solve  # noqa: E402
+from fgloc.cli import motes, ptz  # noqa: E402
 from fgloc.cli import survey  # noqa: E402
 from fgloc.model import FglocError  # noqa: E402
 
 COMMANDS: list[ModuleType] = [simulate, solve, score, demo]
+COMMANDS += [ptz, motes]
 COMMANDS.append(survey)
 COMMANDS.append(calibrate)
 

@@ -1,0 +1,92 @@
+"""Open rig hardware from a port string: the one place that maps ``--port`` to a driver.
+
+* ``/dev/ttyUSB0`` (any path / ``COM3``) -> VISCA over RS-232 (:mod:`drivers.visca`)
+  for heads, TinyOS serial BaseStation (:mod:`drivers.tinyos_serial`) for motes;
+* ``udp://HOST[:PORT]``  -> VISCA over IP (:mod:`drivers.visca_ip`), port 52381 by default;
+* ``http://[USER:PASSWORD@]HOST[:PORT]`` -> Sony CGI (:mod:`drivers.sony_cgi`); credentials
+  may instead come from ``FGLOC_CAMERA_USER`` / ``FGLOC_CAMERA_PASSWORD``;
+* ``tcp://HOST[:PORT]``  -> SerialForwarder (motes only), port 9002 by default.
+
+The camera model defaults per transport (serial: EVI-D100, udp: VISCA-IP, http:
+SNC-RZ25N); the mounting defaults to ``desk``.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+from drivers.ptz_units import EVI_D100, SNC_RZ25N, VISCA_IP_GENERIC, CameraModel, PanTiltUnits, camera_model, mounting
+from drivers.visca import Timeouts
+from fgloc.model import FglocError
+
+
+@dataclass(frozen=True)
+class HeadOptions:
+    """What a caller may choose when opening a head (all optional)."""
+
+    camera_model: str | None = None
+    mount: str = "desk"
+    address: int = 1
+    timeout: float = 0.3  # ACK / inquiry / HTTP timeout, seconds
+    retries: int = 3
+    completion_margin: float = 1.0  # added to the nominal move time before a Completion counts as lost
+    video: str | None = None  # cv2.VideoCapture source for grab_frame
+
+
+def transport_of(port: str) -> str:
+    """``serial``, ``udp``, ``http`` or ``tcp`` for a port string."""
+    low = port.lower()
+    for scheme in ("udp", "http", "https", "tcp"):
+        if low.startswith(scheme + "://"):
+            return "http" if scheme == "https" else scheme
+    if "://" in port:
+        raise FglocError(f"--port {port.split('://')[0]}://...: unknown scheme (use a serial device, udp://, http://"
+                         " or tcp://)")
+    return "serial"
+
+
+def default_model(transport: str) -> CameraModel:
+    return {"serial": EVI_D100, "udp": VISCA_IP_GENERIC, "http": SNC_RZ25N}[transport]
+
+
+def open_head(port: str, options: HeadOptions | None = None, frames=None):
+    """A ``fgloc.rig.PanTiltHead`` for ``port`` (initialised and answering), see the module doc."""
+    o = options or HeadOptions()
+    transport = transport_of(port)
+    if transport == "tcp":
+        raise FglocError(f"--port {port}: tcp:// is for a mote SerialForwarder, not a camera")
+    model = camera_model(o.camera_model) if o.camera_model else default_model(transport)
+    units = PanTiltUnits(model, mounting(o.mount))
+    if frames is None and o.video:
+        from drivers.frames import open_frame_source
+
+        frames = open_frame_source(o.video)
+    timeouts = Timeouts(ack=o.timeout, inquiry=o.timeout, completion_margin=o.completion_margin, retries=o.retries)
+    if transport == "serial":
+        from drivers.visca import open_serial_head
+
+        return open_serial_head(port, units, o.address, timeouts, frames)
+    if transport == "udp":
+        from drivers.visca_ip import open_ip_head
+
+        return open_ip_head(port, None, units, timeouts, frames)
+    from drivers.sony_cgi import Credentials, open_cgi_head, split_url
+
+    _, url_creds = split_url(port)
+    creds = url_creds
+    if creds is None and os.environ.get("FGLOC_CAMERA_USER"):
+        creds = Credentials(os.environ["FGLOC_CAMERA_USER"], os.environ.get("FGLOC_CAMERA_PASSWORD", ""))
+    return open_cgi_head(port, units, creds, timeout=max(o.timeout, 0.5), retries=o.retries, frames=frames)
+
+
+def open_leds(port: str, address_map: Mapping[str, int] | None = None, timeout: float = 0.25, retries: int = 5,
+              report_timeout: float = 0.5, attempts: int = 3):
+    """A ``fgloc.rig.LedController`` (:class:`drivers.tinyos_serial.MoteNetwork`) for a serial port or tcp://."""
+    from drivers.tinyos_serial import open_mote_network
+
+    transport = transport_of(port)
+    if transport not in ("serial", "tcp"):
+        raise FglocError(f"--port {port}: motes need a serial device or tcp://HOST:PORT (SerialForwarder)")
+    return open_mote_network(port, address_map, timeout, retries, report_timeout, attempts)

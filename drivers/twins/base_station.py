@@ -1,0 +1,283 @@
+"""A simulated MicaZ BaseStation + motes: on a pty (HDLC frames) and as a SerialForwarder (TCP).
+
+:class:`MoteFieldEmulator` is the radio side: nodes that execute the LED command
+(:data:`drivers.tinyos_serial.AM_LED_COMMAND`) and answer with an LED report after
+``radio_delay`` seconds. Nodes listed in ``silent`` never answer (a dead mote or
+one out of radio range); ``led_on`` holds every node's LED state and ``on_led`` is
+called on each change, so a simulated scene can light the LED in rendered frames.
+
+:class:`BaseStationSerialTwin` speaks the serial protocol on a pty: it ACKs every
+0x44 frame whose CRC is right (as SerialP does, before the application sees it),
+ignores frames with a bad CRC, and sends reports as 0x45 frames.
+:class:`SerialForwarderTwin` is a SerialForwarder on 127.0.0.1 (``U `` handshake,
+length-prefixed packets). Both take a :class:`~drivers.twins.faults.FaultConfig`:
+``drop`` loses an outgoing ACK/report, ``garble`` corrupts one byte of it, ``error``
+answers with an unknown-protocol (0xFF) frame (serial) or drops the command (SF),
+``slow`` delays it, ``disconnect`` closes the pty / TCP connection.
+"""
+
+from __future__ import annotations
+
+import socket
+import threading
+import time
+from collections.abc import Callable, Iterable
+
+from drivers.tinyos_serial import (
+    AM_LED_COMMAND, LED_OFF, LED_ON, PROTO_PACKET_ACK, PROTO_PACKET_NOACK, PROTO_UNKNOWN, SF_HELLO, AmPacket,
+    Deframer, MoteProtocolError, ack_frame, data_frame, frame, led_report, parse_body,
+)
+from drivers.twins.faults import FaultConfig, FaultInjector
+from drivers.twins.pty_port import PtyPort
+from drivers.twins.visca_camera import ScheduledReplies
+
+
+class MoteFieldEmulator:
+    """The motes behind the base station: AM packet in -> [(delay s, AM packet out)]."""
+
+    def __init__(self, nodes: Iterable[int] | None = None, silent: Iterable[int] = (), radio_delay: float = 0.0,
+                 on_led: Callable[[int, bool], None] | None = None) -> None:
+        self.nodes = None if nodes is None else set(nodes)
+        self.silent = set(silent)
+        self.radio_delay = radio_delay
+        self.on_led = on_led
+        self.led_on: dict[int, bool] = {}
+        self.received: list[AmPacket] = []
+        self._lock = threading.Lock()
+
+    def handle(self, packet: AmPacket) -> list[tuple[float, AmPacket]]:
+        with self._lock:
+            self.received.append(packet)
+            if packet.am_type != AM_LED_COMMAND or len(packet.payload) != 2 or packet.payload[0] not in (LED_OFF,
+                                                                                                         LED_ON):
+                return []
+            node = packet.dest
+            if (self.nodes is not None and node not in self.nodes) or node in self.silent:
+                return []
+            on = packet.payload[0] == LED_ON
+            changed = self.led_on.get(node) != on
+            self.led_on[node] = on
+        if changed and self.on_led is not None:
+            self.on_led(node, on)
+        return [(self.radio_delay, led_report(node, on, packet.group))]
+
+
+class BaseStationSerialTwin:
+    """Base station on a pty at the byte level; open :attr:`port` with pyserial. Context manager."""
+
+    def __init__(self, field: MoteFieldEmulator | None = None, faults: FaultConfig | None = None) -> None:
+        self.field = field or MoteFieldEmulator()
+        self.faults = FaultInjector(faults)
+        self.deframer = Deframer()
+        self._pty = PtyPort("basestation")
+        self._out = ScheduledReplies()
+        self._stop = threading.Event()
+        self._reconnect_at: float | None = None
+        self._thread = threading.Thread(target=self._serve, name="basestation-twin", daemon=True)
+        self._thread.start()
+
+    @property
+    def port(self) -> str:
+        return self._pty.path
+
+    def inject_raw(self, data: bytes) -> None:
+        """Write arbitrary bytes to the driver (line noise, truncated frames)."""
+        self._pty.write(data)
+
+    def disconnect(self, reconnect_after: float | None = None) -> None:
+        self._pty.disconnect()
+        self._out.clear()
+        self.deframer = Deframer(self.deframer.stats)
+        self._reconnect_at = None if reconnect_after is None else time.monotonic() + reconnect_after
+
+    def _emit(self, due: float, data: bytes, can_be_slow: bool = True) -> None:
+        fate = self.faults.reply_fate(can_be_slow=can_be_slow)
+        if fate == "drop":
+            return
+        if fate == "garble":
+            data = data[:1] + self.faults.garble(data[1:-1]) + data[-1:]
+        if fate == "slow":
+            due += self.faults.config.slow_seconds
+        self._out.put(due, self.faults.line_noise(data))
+
+    def _serve(self) -> None:
+        while not self._stop.is_set():
+            now = time.monotonic()
+            if not self._pty.connected:
+                if self._reconnect_at is not None and now >= self._reconnect_at:
+                    self._reconnect_at = None
+                    self._pty.reconnect()
+                else:
+                    self._stop.wait(0.01)
+                    continue
+            due = self._out.next_due()
+            data = self._pty.read(0.02 if due is None else min(0.02, max(0.0, due - now)))
+            if data:
+                for body in self.deframer.feed(data):
+                    self._on_body(body)
+            for out in self._out.pop_due(time.monotonic()):
+                self._pty.write(out)
+
+    def _on_body(self, body: bytes) -> None:
+        try:
+            f = parse_body(body)
+        except MoteProtocolError:
+            return
+        if f.protocol not in (PROTO_PACKET_ACK, PROTO_PACKET_NOACK):
+            self._out.put(time.monotonic(), frame(bytes([PROTO_UNKNOWN, f.protocol])))
+            return
+        if self.faults.count_request():
+            self.disconnect(self.faults.config.reconnect_after)
+            return
+        now = time.monotonic()
+        if self.faults.request_error() is not None:
+            self._out.put(now, frame(bytes([PROTO_UNKNOWN, f.protocol])))
+            return
+        if f.protocol == PROTO_PACKET_ACK:
+            self._emit(now, ack_frame(f.seq))
+        for delay, packet in self.field.handle(f.packet):
+            self._emit(now + delay, data_frame(packet, None))
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=2.0)
+        self._pty.close()
+
+    def __enter__(self) -> BaseStationSerialTwin:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+class SerialForwarderTwin:
+    """A TinyOS 2 SerialForwarder on ``127.0.0.1:port`` in front of a :class:`MoteFieldEmulator`."""
+
+    def __init__(self, field: MoteFieldEmulator | None = None, faults: FaultConfig | None = None,
+                 port: int = 0, hello: bytes = SF_HELLO) -> None:
+        self.field = field or MoteFieldEmulator()
+        self.faults = FaultInjector(faults)
+        self.hello = hello
+        self._server = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+        self._server.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        self._server.bind(("127.0.0.1", port))
+        self._server.listen(4)
+        self._server.settimeout(0.05)
+        self.port = self._server.getsockname()[1]
+        self._stop = threading.Event()
+        self._clients: list[socket.socket] = []
+        self._lock = threading.Lock()
+        self._down_until: float | None = None
+        self.malformed = 0
+        self._thread = threading.Thread(target=self._accept, name="sf-twin", daemon=True)
+        self._thread.start()
+
+    @property
+    def url(self) -> str:
+        return f"tcp://127.0.0.1:{self.port}"
+
+    def disconnect(self, reconnect_after: float | None = None) -> None:
+        """Drop every client; refuse new ones for ``reconnect_after`` s (forever if None)."""
+        with self._lock:
+            for c in self._clients:
+                try:
+                    c.shutdown(socket.SHUT_RDWR)
+                except OSError:
+                    pass
+                c.close()
+            self._clients.clear()
+            self._down_until = float("inf") if reconnect_after is None else time.monotonic() + reconnect_after
+
+    def _accept(self) -> None:
+        while not self._stop.is_set():
+            try:
+                client, _ = self._server.accept()
+            except (TimeoutError, OSError):
+                continue
+            if self._down_until is not None and time.monotonic() < self._down_until:
+                client.close()
+                continue
+            with self._lock:
+                self._clients.append(client)
+            threading.Thread(target=self._serve, args=(client,), daemon=True).start()
+
+    def _send(self, client: socket.socket, packet: AmPacket) -> None:
+        data = packet.pack()
+        fate = self.faults.reply_fate(can_be_slow=True)
+        if fate == "drop":
+            return
+        if fate == "garble":
+            data = self.faults.garble(data)
+        if fate == "slow":
+            time.sleep(self.faults.config.slow_seconds)
+        data = self.faults.line_noise(data)  # TCP itself never corrupts; this models a bad radio packet
+        try:
+            client.sendall(bytes([len(data)]) + data)
+        except OSError:
+            pass
+
+    def _serve(self, client: socket.socket) -> None:
+        try:
+            client.settimeout(1.0)
+            client.sendall(self.hello)
+            peer = b""
+            while len(peer) < 2:
+                chunk = client.recv(2 - len(peer))
+                if not chunk:
+                    return
+                peer += chunk
+            if peer[:1] != b"U":
+                return
+            client.settimeout(0.05)
+            buf = bytearray()
+            while not self._stop.is_set():
+                try:
+                    chunk = client.recv(4096)
+                except TimeoutError:
+                    continue
+                if not chunk:
+                    return
+                buf += chunk
+                while buf and len(buf) >= 1 + buf[0]:
+                    n = buf[0]
+                    data = bytes(buf[1:1 + n])
+                    del buf[:1 + n]
+                    if n == 0:
+                        self.malformed += 1
+                        continue
+                    try:
+                        packet = AmPacket.unpack(data)
+                    except MoteProtocolError:
+                        self.malformed += 1
+                        continue
+                    if self.faults.count_request():
+                        self.disconnect(self.faults.config.reconnect_after)
+                        return
+                    if self.faults.request_error() is not None:
+                        continue
+                    for delay, reply in self.field.handle(packet):
+                        if delay:
+                            time.sleep(delay)
+                        self._send(client, reply)
+        except OSError:
+            return
+        finally:
+            with self._lock:
+                if client in self._clients:
+                    self._clients.remove(client)
+            try:
+                client.close()
+            except OSError:
+                pass
+
+    def close(self) -> None:
+        self._stop.set()
+        self.disconnect(None)
+        self._thread.join(timeout=2.0)
+        self._server.close()
+
+    def __enter__(self) -> SerialForwarderTwin:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
