@@ -67,9 +67,10 @@ class RenderSettings:
     led_flux: float = 1500.0  #: total LED spot signal (DN summed over pixels)
     led_sigma_px: float = 1.2  #: LED spot (PSF) standard deviation
     background_mean: float = 50.0  #: mean background level
+    black_level: float = 12.0  #: darkest background level (sensor black offset)
     background_contrast: float = 20.0  #: texture amplitude (std-ish)
     texture_seed: int = 7  #: seed of the background texture (fixed to the world)
-    distractor_flux: float = 6000.0  #: total signal of a static bright light (saturates)
+    distractor_flux: float = 20000.0  #: total signal of a static bright light (saturates its core)
     distractor_sigma_px: float = 2.5  #: size of a static bright light
     read_noise: float = 1.5  #: read noise sigma (DN)
     shot_gain: float = 0.05  #: shot noise variance per DN of signal
@@ -95,6 +96,23 @@ def add_spot(image: np.ndarray, u: float, v: float, flux: float, sigma: float) -
     image[r0:r1, c0:c1] += flux * np.outer(gy, gx)
 
 
+_RAY_CACHE: OrderedDict[CameraIntrinsics, np.ndarray] = OrderedDict()
+
+
+def _pixel_rays(intr: CameraIntrinsics) -> np.ndarray:
+    """Unit optical rays (H, W, 3) float32 of every pixel; cached for the last few models."""
+    rays = _RAY_CACHE.get(intr)
+    if rays is None:
+        jj, ii = np.meshgrid(np.arange(intr.width, dtype=float), np.arange(intr.height, dtype=float))
+        rays = pixel_to_ray(intr, np.stack([jj, ii], axis=-1)).astype(np.float32)
+        _RAY_CACHE[intr] = rays
+        while len(_RAY_CACHE) > 4:
+            _RAY_CACHE.popitem(last=False)
+    else:
+        _RAY_CACHE.move_to_end(intr)
+    return rays
+
+
 class RenderedCamera:
     """Renders frames of one camera base looking at an :class:`LedScene`."""
 
@@ -108,7 +126,6 @@ class RenderedCamera:
         dirs = rng.normal(size=(8, 3))
         self._waves = dirs / np.linalg.norm(dirs, axis=1, keepdims=True) * freqs[:, None]
         self._phases = rng.uniform(0.0, 2.0 * np.pi, size=8)
-        self._rays: dict[CameraIntrinsics, np.ndarray] = {}
         self._backgrounds: OrderedDict[tuple, np.ndarray] = OrderedDict()
 
     # ----- truth -------------------------------------------------------------------------
@@ -128,12 +145,7 @@ class RenderedCamera:
 
     # ----- rendering ---------------------------------------------------------------------
     def _pixel_rays(self, intr: CameraIntrinsics) -> np.ndarray:
-        rays = self._rays.get(intr)
-        if rays is None:
-            jj, ii = np.meshgrid(np.arange(intr.width, dtype=float), np.arange(intr.height, dtype=float))
-            rays = pixel_to_ray(intr, np.stack([jj, ii], axis=-1)).astype(np.float32)
-            self._rays[intr] = rays
-        return rays
+        return _pixel_rays(intr)
 
     def background(self, intr: CameraIntrinsics, pan: float, tilt: float) -> np.ndarray:
         """Noise-free background (float32 DN, distractors included) for a view; cached."""
@@ -147,7 +159,7 @@ class RenderedCamera:
         phase = d @ self._waves.T.astype(np.float32) + self._phases.astype(np.float32)
         tex = np.sin(phase).sum(axis=-1) * (s.background_contrast / 2.0)
         bg = (s.background_mean + tex).astype(np.float32)
-        np.clip(bg, 0.0, None, out=bg)
+        np.maximum(bg, s.black_level, out=bg)
         if len(self.scene.distractors):
             uv, front = base_to_pixel(intr, self.base_directions(self.scene.distractors), pan, tilt)
             for k in np.flatnonzero(front & in_image(intr, uv, -10.0)):

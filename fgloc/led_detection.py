@@ -6,9 +6,9 @@ Method:
    and static bright spots cancel; only what changed remains.
 2. Noise: the median difference (a global ambient change) is removed. The
    difference's noise grows with brightness (shot noise), so a robust sigma
-   (1.4826 x MAD) is measured per band of the LED-off frame's intensity and the
-   sensor model ``sigma^2 = a + b * off`` is fitted to it; it extrapolates to
-   bright static lights too few to measure alone. A pixel is a candidate when
+   (1.4826 x MAD) is measured per band of the LED-off frame's intensity,
+   interpolated between bands and extrapolated with the fitted shot-noise slope
+   to bright static lights too few to measure alone. A pixel is a candidate when
    ``diff > threshold_sigma * sigma(off)``. Saturated LED-off pixels are ignored.
 3. 8-connected components of candidate pixels. Blobs are rejected when they
    are too small (noise), too large (a light switched, a person walked by),
@@ -58,7 +58,7 @@ class DetectorConfig:
     max_area: int = 400  #: most candidate pixels in a blob
     max_elongation: float = 3.0  #: largest ratio of the blob's principal standard deviations
     min_fill: float = 0.3  #: smallest ratio of blob area to its bounding-box area
-    window_margin: int = 1  #: centroid window half-size = blob radius + this (>= 3 in all)
+    window_sigmas: float = 2.5  #: centroid window half-size in spot standard deviations
     noise_floor: float = 0.4  #: lower bound for the noise sigma (uint8 quantisation ~0.29 DN)
     noise_bands: int = 8  #: intensity bands for the noise model
     saturation: float = 254.5  #: LED-off pixels at or above this (DN) are ignored
@@ -124,38 +124,43 @@ def noise_model(diff: np.ndarray, off: np.ndarray, config: DetectorConfig) -> tu
     """Robust offset (DN) and per-pixel noise sigma (DN) of ``diff`` given the LED-off intensity.
 
     The offset is the median difference (a global ambient change between the two frames).
-    Sigma follows the sensor model ``sigma^2 = a + b * off`` (read noise plus shot noise),
-    fitted with non-negative a, b to 1.4826 x MAD per band of ``off``, so it extrapolates to
-    bright static spots that are too few to be measured on their own.
+    Sigma is 1.4826 x MAD measured per band of (3x3-smoothed) ``off`` intensity, made
+    non-decreasing and interpolated between band centres, held constant below the darkest
+    band, and extrapolated above the brightest band with the shot-noise slope
+    ``d sigma^2 / d off`` fitted across the bands, so it covers bright static lights too
+    few to be measured on their own.
     """
     step = max(1, int(math.sqrt(diff.size / 20_000)))  # ~20k samples suffice for medians
+    level = cv2.blur(off, (3, 3))
     d = diff[::step, ::step].ravel()
-    o = off[::step, ::step].ravel()
+    o = level[::step, ::step].ravel()
     offset = float(np.median(d))
     d = d - offset
     edges = np.unique(np.quantile(o, np.linspace(0.0, 1.0, config.noise_bands + 1)))
-    centres, variances, weights = [], [], []
     band = np.clip(np.searchsorted(edges, o, side="right") - 1, 0, max(edges.size - 2, 0))
+    centres, sigmas, weights = [], [], []
     for b in range(max(edges.size - 1, 1)):
         sel = band == b
         if np.count_nonzero(sel) < 50:
             continue
-        s = 1.4826 * float(np.median(np.abs(d[sel])))
         centres.append(float(np.median(o[sel])))
-        variances.append(s * s)
+        sigmas.append(max(1.4826 * float(np.median(np.abs(d[sel]))), config.noise_floor))
         weights.append(float(np.count_nonzero(sel)))
-    floor2 = config.noise_floor**2
-    if len(centres) >= 2 and np.ptp(centres) > 1.0:
-        A = np.stack([np.ones(len(centres)), np.array(centres)], axis=1) * np.sqrt(weights)[:, None]
-        coef, *_ = np.linalg.lstsq(A, np.array(variances) * np.sqrt(weights), rcond=None)
-        a, b = float(coef[0]), max(float(coef[1]), 0.0)
-        if a < floor2:  # refit the slope with the intercept pinned at the floor
-            a = floor2
-            x = np.array(centres)
-            b = max(float(np.sum(np.array(weights) * x * (np.array(variances) - a)) / np.sum(np.array(weights) * x * x)), 0.0)
-    else:
-        a, b = max(float(np.mean(variances)) if variances else floor2, floor2), 0.0
-    sigma = np.sqrt(np.maximum(a + b * off, floor2)).astype(np.float32)
+    if not centres:
+        sig = max(1.4826 * float(np.median(np.abs(d))), config.noise_floor)
+        return offset, np.full(diff.shape, sig, dtype=np.float32)
+    c = np.array(centres)
+    sg = np.maximum.accumulate(np.array(sigmas))
+    slope = 0.0
+    if c.size >= 2 and np.ptp(c) > 1.0:
+        w = np.array(weights)
+        cm = np.average(c, weights=w)
+        vm = np.average(sg**2, weights=w)
+        slope = max(float(np.sum(w * (c - cm) * (sg**2 - vm)) / np.sum(w * (c - cm) ** 2)), 0.0)
+    sigma = np.interp(level, c, sg).astype(np.float32)
+    above = level > c[-1]
+    if slope > 0.0 and np.any(above):
+        sigma[above] = np.sqrt(sg[-1] ** 2 + slope * (level[above] - c[-1]))
     return offset, sigma
 
 
@@ -216,7 +221,12 @@ def detect_led(on: np.ndarray, off: np.ndarray, config: DetectorConfig | None = 
         if reason is not None:
             rejected.append(RejectedBlob(u=mu, v=mv, area=area, reason=reason))
             continue
-        half = max(int(math.ceil(math.sqrt(area / math.pi))) + cfg.window_margin, 3)
+        # Spot width from flux and peak (a Gaussian has flux = 2 pi sigma^2 peak), measured in a
+        # generous window; the centroid window then spans +- window_sigmas spot widths.
+        peak = float(diff[y + ys, x + xs].max())
+        _, _, wide_flux, _, _ = _centroid(diff, mu, mv, int(math.ceil(math.sqrt(area / math.pi))) + 3)
+        spot_sigma = math.sqrt(max(wide_flux, peak) / (2.0 * math.pi * peak))
+        half = max(int(math.ceil(cfg.window_sigmas * spot_sigma)), 2)
         u, v = mu, mv
         for _ in range(3):
             u, v, total, jj, ii = _centroid(diff, u, v, half)
@@ -232,7 +242,7 @@ def detect_led(on: np.ndarray, off: np.ndarray, config: DetectorConfig | None = 
         # Confidence: 1 for a strong, precise blob, falling as the flux approaches the noise.
         confidence = float(1.0 - math.exp(-((snr / (4.0 * cfg.threshold_sigma)) ** 2)))
         candidates.append(
-            LedDetection(u=u, v=v, sigma_px=sigma_px, area=area, peak=float(diff[y + ys, x + xs].max()),
+            LedDetection(u=u, v=v, sigma_px=sigma_px, area=area, peak=peak,
                          flux=total, snr=snr, confidence=confidence)
         )
     dark_sigma = float(sigma_map.min())

@@ -77,8 +77,11 @@ def undistort_normalized(intr: CameraIntrinsics, xy_distorted: ArrayLike, iterat
         err = distort_normalized(intr, p) - target
         if np.max(np.abs(err), initial=0.0) < 1e-15:
             break
-        jac = _distortion_jacobian(intr, p[..., 0], p[..., 1])
-        p = p - np.linalg.solve(jac, err[..., None])[..., 0]
+        j = _distortion_jacobian(intr, p[..., 0], p[..., 1])
+        det = j[..., 0, 0] * j[..., 1, 1] - j[..., 0, 1] * j[..., 1, 0]  # explicit 2x2 solve
+        du = (j[..., 1, 1] * err[..., 0] - j[..., 0, 1] * err[..., 1]) / det
+        dv = (j[..., 0, 0] * err[..., 1] - j[..., 1, 0] * err[..., 0]) / det
+        p = p - np.stack([du, dv], axis=-1)
     return p
 
 

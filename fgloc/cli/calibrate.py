@@ -32,6 +32,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     board = BoardSpec.parse(args.board, args.square)
+    if not 0.0 <= args.zoom <= 1.0:
+        raise CalibrationError(f"--zoom: must lie in [0, 1], got {args.zoom!r}")
     images = []
     for name in args.images:
         image = cv2.imread(name, cv2.IMREAD_GRAYSCALE)
