@@ -6,11 +6,12 @@ opened with the real driver, :func:`drivers.visca.open_serial_head`, through
 pyserial. The emulator renders frames from the same scene as the in-process rig
 (:func:`drivers.inprocess_rig.render_frame`), converting its head counts to spec
 angles with the camera's :class:`~drivers.ptz_units.PanTiltUnits` (model and
-mounting from rig.json). The LED controller is still the in-process one (no
-TinyOS twin yet), with dropped acknowledgements at the rig's drop rate.
+mounting from rig.json). The LEDs go through the real TinyOS serial driver
+(:func:`drivers.tinyos_serial.open_mote_network`) to a base-station pty twin whose
+motes light the scene's LEDs; dead nodes stay silent.
 
-Faults per camera: ``drop_rate`` and ``garble_rate`` per reply (seeded by the
-rig seed and the camera), and for ``disconnect_camera`` one disconnect after
+Faults per camera and on the base station: ``drop_rate`` and ``garble_rate``
+per reply (seeded by the rig seed and the link), and for ``disconnect_camera`` one disconnect after
 ``disconnect_after`` requests, the port coming back ``reconnect_after`` seconds later. ``speedup`` compresses
 time: heads move ``speedup`` times faster than the model's speed table.
 """
@@ -20,7 +21,9 @@ from __future__ import annotations
 import zlib
 from dataclasses import replace
 
-from drivers.inprocess_rig import SceneLeds, build_scene, render_frame
+from drivers.inprocess_rig import build_scene, render_frame
+from drivers.tinyos_serial import open_mote_network
+from drivers.twins.base_station import BaseStationSerialTwin, MoteFieldEmulator
 from drivers.ptz_units import PanTiltUnits, camera_model, mounting
 from drivers.twins.faults import FaultConfig
 from drivers.twins.visca_camera import HeadPose, ViscaCameraEmulator, ViscaSerialTwin
@@ -39,7 +42,8 @@ class ViscaTwinRig:
         # dropped replies; the retry logic is the driver's own.
         self.timeouts = timeouts or Timeouts(ack=0.03, inquiry=0.04, completion_margin=0.05)
         self.scene = build_scene(rig)
-        self.leds = SceneLeds(self.scene, rig)
+        self.base_station: BaseStationSerialTwin | None = None
+        self.leds = None
         self.units: dict[str, PanTiltUnits] = {}
         self.twins: dict[str, ViscaSerialTwin] = {}
         sim = rig.simulation
@@ -68,6 +72,20 @@ class ViscaTwinRig:
                 emulator = ViscaCameraEmulator(units.model, address=cam.address, renderer=renderer, time_scale=1.0)
                 self.units[cam.id] = units
                 self.twins[cam.id] = ViscaSerialTwin(emulator, faults)
+            # Motes: node k of node_ids is mote address k + 1.
+            self.addresses = {n: k + 1 for k, n in enumerate(rig.node_ids)}
+            node_of = {a: n for n, a in self.addresses.items()}
+
+            def on_led(address: int, on: bool) -> None:
+                with self.scene.lock:
+                    (self.scene.lit.add if on else self.scene.lit.discard)(node_of[address])
+
+            field = MoteFieldEmulator(nodes=self.addresses.values(),
+                                      silent={self.addresses[n] for n in sim.dead_nodes}, on_led=on_led)
+            self.base_station = BaseStationSerialTwin(field, FaultConfig(
+                drop_rate=sim.drop_rate, garble_rate=sim.garble_rate, seed=zlib.crc32(f"{sim.seed}/motes".encode())))
+            self.leds = open_mote_network(self.base_station.port, self.addresses, ack_timeout=0.03, retries=5,
+                                          report_timeout=0.05, attempts=3)
         except BaseException:
             self.close()
             raise
@@ -82,14 +100,22 @@ class ViscaTwinRig:
     def injected(self) -> dict[str, int]:
         """Faults injected so far, summed over cameras."""
         total: dict[str, int] = {}
-        for twin in self.twins.values():
-            for k, v in twin.faults.counts.items():
+        injectors = [t.faults for t in self.twins.values()]
+        if self.base_station is not None:
+            injectors.append(self.base_station.faults)
+        for faults in injectors:
+            for k, v in faults.counts.items():
                 total[k] = total.get(k, 0) + v
         return total
 
     def close(self) -> None:
+        close = getattr(self.leds, "close", None)
+        if callable(close):
+            close()
         for twin in self.twins.values():
             twin.close()
+        if self.base_station is not None:
+            self.base_station.close()
 
     def __enter__(self) -> "ViscaTwinRig":
         return self

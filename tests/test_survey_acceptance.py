@@ -123,8 +123,9 @@ def test_faulty_100_node_survey_matches_the_fault_free_one(tmp_path):
     """Acceptance (b), over real bytes: each camera is the VISCA serial driver (drivers/visca.py)
     talking to a pty twin (drivers/twins/visca_camera.py) that drops 5% of its replies, garbles
     1% (one random byte), and for cam1 disconnects once after 500 requests (the port returns
-    0.2 s later). The twin is time-compressed (heads 100x faster, driver timeouts shortened).
-    The LED controller is the in-process one (no TinyOS twin yet) dropping 5% of its acks.
+    0.2 s later). The LEDs go through the real TinyOS serial driver (drivers/tinyos_serial.py) to
+    a base-station pty twin with the same drop and garble rates; node n042 never answers.
+    The twins are time-compressed (heads 100x faster, driver timeouts shortened).
 
     Checks: every visible (camera, node) pair is observed exactly once, and the solve on the
     faulty run's survey.json matches the fault-free run's within noise: each node moves by
