@@ -83,12 +83,22 @@ def _pan_matrix(pan: float) -> FloatArray:
 
 @dataclass(frozen=True)
 class PinholePixelModel:
-    """Exact pinhole conversion between pixels and head-frame bearings (no distortion)."""
+    """Exact conversion between pixels and base-frame bearings for a head at (pan, tilt).
+
+    Pinhole in closed form; with distortion coefficients, pixels are undistorted by
+    :func:`fgloc.pixel_angles.pixel_to_pan_tilt` (same frames). ``bearing_to_pixel``
+    (used by the simulated rig) is pinhole only.
+    """
 
     intrinsics: Intrinsics
 
     def pixel_to_pan_tilt(self, pan: float, tilt: float, x: float, y: float) -> tuple[float, float]:
         k = self.intrinsics
+        if any((k.k1, k.k2, k.p1, k.p2, k.k3)):  # undistort: the camera pipeline's exact conversion
+            from fgloc.pixel_angles import pixel_to_pan_tilt
+
+            p, t = pixel_to_pan_tilt(k, np.array([x, y]), pan, tilt)
+            return float(p), float(t)
         ray = np.array([1.0, -(x - k.cx) / k.fx, -(y - k.cy) / k.fy])
         d = _pan_matrix(pan) @ _elevation_matrix(tilt) @ ray
         return math.atan2(d[1], d[0]), math.atan2(d[2], math.hypot(d[0], d[1]))

@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from fgloc.intrinsics import CameraIntrinsics, read_intrinsics
 from fgloc.journal import rig_hash
 from fgloc.model import FglocError, Gauge, NodeMode
 
@@ -29,16 +30,8 @@ class RigConfigError(FglocError):
     """A rig.json that does not describe a usable rig."""
 
 
-@dataclass(frozen=True)
-class Intrinsics:
-    """Pinhole intrinsics in pixels (image x right, y down), at the camera's survey zoom."""
-
-    fx: float
-    fy: float
-    cx: float
-    cy: float
-    width: int
-    height: int
+# Pinhole + OpenCV distortion in pixels at the camera's survey zoom (docs/camera-model.md).
+Intrinsics = CameraIntrinsics
 
 
 @dataclass(frozen=True)
@@ -57,14 +50,19 @@ class CameraConfig:
     intrinsics: Intrinsics
     zoom: float
     address: int = 1
+    video: str | None = None  # cv2.VideoCapture source for frames: device index ("0") or stream URL
 
 
 @dataclass(frozen=True)
 class MotesConfig:
-    """The mote base station: driver kind and port (serial device or ``tcp://HOST:PORT``)."""
+    """The mote base station: driver kind and port (serial device or ``tcp://HOST:PORT``).
+
+    ``addresses`` maps node ids to mote addresses (16-bit); None means the ids are the addresses.
+    """
 
     driver: str
     port: str
+    addresses: dict[str, int] | None = None
 
 
 @dataclass(frozen=True)
@@ -182,23 +180,25 @@ class _Fields:
         return float(value)
 
 
-def _intrinsics(f: _Fields, value: Any, name: str, base: Path) -> Intrinsics:
+def _intrinsics(f: _Fields, value: Any, name: str, base: Path) -> CameraIntrinsics:
+    """Inline ``{fx, fy, cx, cy, width, height[, k1, k2, p1, p2, k3]}`` or a camera.json path."""
     if isinstance(value, str):
         ipath = (base / value) if not os.path.isabs(value) else Path(value)
+        if not ipath.exists():
+            raise f.fail(name, f"intrinsics file not found: {str(ipath)!r}")
         try:
-            value = json.loads(ipath.read_text(encoding="utf-8"))
-        except FileNotFoundError:
-            raise f.fail(name, f"intrinsics file not found: {str(ipath)!r}") from None
-        except (OSError, json.JSONDecodeError) as exc:
-            raise f.fail(name, f"cannot read intrinsics file {str(ipath)!r}: {exc}") from None
+            return read_intrinsics(ipath)
+        except FglocError as exc:
+            raise f.fail(name, str(exc)) from None
     o = f.obj(value, name)
-    return Intrinsics(
+    return CameraIntrinsics(
         fx=f.number(f.req(o, "fx", f"{name}."), f"{name}.fx", lo=1e-6),
         fy=f.number(f.req(o, "fy", f"{name}."), f"{name}.fy", lo=1e-6),
         cx=f.number(f.req(o, "cx", f"{name}."), f"{name}.cx"),
         cy=f.number(f.req(o, "cy", f"{name}."), f"{name}.cy"),
         width=int(f.number(f.req(o, "width", f"{name}."), f"{name}.width", lo=8, integer=True)),
         height=int(f.number(f.req(o, "height", f"{name}."), f"{name}.height", lo=8, integer=True)),
+        **{k: f.number(o[k], f"{name}.{k}") for k in ("k1", "k2", "p1", "p2", "k3") if k in o},
     )
 
 
@@ -236,7 +236,12 @@ def parse_rig(data: Any, path: str = "rig.json", base: Path | None = None) -> Ri
             intrinsics=_intrinsics(f, f.req(o, "intrinsics", f"{w}."), f"{w}.intrinsics", base),
             zoom=f.number(o.get("zoom", 0.0), f"{w}.zoom", lo=0.0, hi=1.0),
             address=int(f.number(o.get("address", 1), f"{w}.address", lo=1, hi=7, integer=True)),
+            video=None if o.get("video") is None else str(f.string(str(o["video"]), f"{w}.video")),
         ))
+        scheme = {"visca-serial": "", "visca-ip": "udp://", "sony-cgi": "http"}.get(driver)
+        if scheme is not None and (port.startswith(scheme) if scheme else "://" not in port) is False:
+            want = {"": "a serial device path", "udp://": "udp://HOST[:PORT]", "http": "http://HOST"}[scheme]
+            raise f.fail(f"{w}.port", f"driver {driver} needs {want}, got {port!r}")
     ids = [c.id for c in cameras]
 
     g = f.obj(top.get("gauge", {"origin": ids[0], "baseline": ids[1]}), "gauge")
@@ -250,10 +255,15 @@ def parse_rig(data: Any, path: str = "rig.json", base: Path | None = None) -> Ri
 
     m = f.obj(f.req(top, "motes", ""), "motes")
     mdriver = f.string(f.req(m, "driver", "motes."), "motes.driver", MOTE_DRIVERS)
+    addresses = None
+    if "addresses" in m:
+        amap = f.obj(m["addresses"], "motes.addresses")
+        addresses = {str(k): int(f.number(v, f"motes.addresses.{k}", 0, 0xFFFE, True)) for k, v in amap.items()}
     motes = MotesConfig(
         driver=mdriver,
         port=f.string(m.get("port", "sim"), "motes.port") if mdriver == "simulated"
         else f.string(f.req(m, "port", "motes."), "motes.port"),
+        addresses=addresses,
     )
 
     nodes_raw = f.req(top, "node_ids", "")

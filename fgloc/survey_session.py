@@ -51,11 +51,20 @@ def open_simulated(rig: RigConfig) -> OpenedRig:
 
 
 def open_hardware(rig: RigConfig) -> OpenedRig:
-    """The rig's real drivers, chosen per camera by ``driver`` in rig.json."""
-    raise FglocError(
-        f"{rig.path}: cameras: hardware drivers ({', '.join(sorted({c.driver for c in rig.cameras}))}) "
-        "are not available in this build; use --simulate"
-    )
+    """The rig's real drivers (``drivers.connect``): heads by port, frames from ``video``, motes."""
+    from drivers.connect import HeadOptions, open_head, open_leds
+
+    if any(c.driver == "simulated" for c in rig.cameras) or rig.motes.driver == "simulated":
+        raise FglocError(f"{rig.path}: cameras: a rig with simulated devices runs only with --simulate")
+    by_id = {c.id: c for c in rig.cameras}
+
+    def open_camera(camera_id: str) -> PanTiltHead:
+        cam = by_id[camera_id]
+        return open_head(cam.port, HeadOptions(camera_model=cam.model, mount=cam.mounting, address=cam.address,
+                                               video=cam.video))
+
+    leds = open_leds(rig.motes.port, rig.motes.addresses)
+    return OpenedRig(open_head=open_camera, leds=leds, close=getattr(leds, "close", lambda: None))
 
 
 def start_journal(rig: RigConfig, out_dir: str | os.PathLike[str], resume: bool, simulated: object | None = None):

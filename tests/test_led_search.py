@@ -98,3 +98,25 @@ def test_locator_finds_the_lit_led(method, tol):
         assert abs(err[0]) < tol / max(math.cos(want[1]), 0.05) and abs(err[1]) < tol
         checked += 1
     assert checked >= 5
+
+
+def test_pinhole_model_agrees_with_the_camera_pipeline():
+    """Two independent implementations of the same frames (this module and fgloc.pixel_angles)."""
+    from fgloc.pixel_angles import pixel_to_pan_tilt
+
+    k = Intrinsics(fx=440.0, fy=430.0, cx=161.0, cy=118.0, width=320, height=240)
+    m = PinholePixelModel(k)
+    rng = np.random.default_rng(3)
+    for _ in range(30):
+        pan, tilt, x, y = rng.uniform(-3, 3), rng.uniform(-1.3, 1.3), rng.uniform(0, 320), rng.uniform(0, 240)
+        want = pixel_to_pan_tilt(k, np.array([x, y]), pan, tilt)
+        assert m.pixel_to_pan_tilt(pan, tilt, x, y) == pytest.approx((float(want[0]), float(want[1])), abs=1e-12)
+
+
+def test_moves_are_clamped_to_the_search_range():
+    search = SearchConfig(pan_min=math.radians(-170), pan_max=math.radians(170),
+                          tilt_min=math.radians(-80), tilt_max=math.radians(20))
+    loc = LedLocator(search, PinholePixelModel(Intrinsics(440, 440, 160, 120, 320, 240)))
+    assert loc.clamp(math.radians(175), 0.0) == pytest.approx((math.radians(170), 0.0))
+    assert loc.clamp(math.radians(-176), -1.5) == pytest.approx((math.radians(-170), math.radians(-80)))
+    assert loc.clamp(0.3, 0.1) == pytest.approx((0.3, 0.1))

@@ -37,12 +37,19 @@ def test_hash_changes_with_content():
     assert parse_rig(_example()).hash == a.hash
 
 
-def test_intrinsics_from_a_file(tmp_path):
+def test_intrinsics_from_a_camera_json(tmp_path):
+    """A calibrated camera.json (docs/camera-model.md) with distortion is read as is."""
+    from fgloc.intrinsics import CameraIntrinsics, write_intrinsics
+
     data = _example()
-    (tmp_path / "k.json").write_text(json.dumps(data["cameras"][0]["intrinsics"]))
-    data["cameras"][0]["intrinsics"] = "k.json"
+    write_intrinsics(CameraIntrinsics(450.0, 451.0, 160.5, 119.5, 320, 240, k1=-0.1), tmp_path / "cam0.json")
+    data["cameras"][0]["intrinsics"] = "cam0.json"
     (tmp_path / "rig.json").write_text(json.dumps(data))
-    assert load_rig(tmp_path / "rig.json").cameras[0].intrinsics.fx == 440.0
+    k = load_rig(tmp_path / "rig.json").cameras[0].intrinsics
+    assert (k.fx, k.fy, k.k1) == (450.0, 451.0, -0.1)
+    (tmp_path / "cam0.json").write_text('{"format": "nope"}')
+    with pytest.raises(RigConfigError, match=r"rig.json: cameras\[0\]\.intrinsics: .*cam0.json: format"):
+        load_rig(tmp_path / "rig.json")
 
 
 def _mutate(path: str, value):
@@ -106,3 +113,11 @@ def test_cli_reports_bad_rig_in_one_line(tmp_path, capsys):
     assert main(["survey", "--rig", str(tmp_path / "rig.json"), "-o", str(tmp_path / "out"), "--simulate"]) == 2
     err = capsys.readouterr().err
     assert err.startswith("fgloc: error: ") and "not valid JSON" in err and err.count("\n") == 1
+
+
+def test_driver_and_port_must_agree(tmp_path):
+    data = _example()
+    data["cameras"][0] |= {"driver": "visca-ip", "port": "/dev/ttyUSB0"}
+    (tmp_path / "rig.json").write_text(json.dumps(data))
+    with pytest.raises(RigConfigError, match=r"cameras\[0\]\.port: driver visca-ip needs udp://HOST\[:PORT\], got '/dev/ttyUSB0'"):
+        load_rig(tmp_path / "rig.json")

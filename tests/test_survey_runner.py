@@ -152,3 +152,62 @@ def test_journal_survey_reads_a_directory(tmp_path):
     rig = small_rig(4, occlusion=0.0, dead_nodes=[])
     survey, _ = run_survey(rig, tmp_path, opened=opened(rig)[0])
     assert journal_survey(tmp_path).observations == survey.observations
+
+
+def test_open_hardware_reaches_every_transport_through_rig_json(tmp_path):
+    """rig.json port strings for VISCA serial, VISCA-IP, Sony CGI and a TinyOS base station open
+    the real drivers (here against the issue-7a twins) and answer."""
+    from drivers.twins.rig import TwinCamera, TwinRig
+    from fgloc.survey_session import open_hardware
+
+    cams = [TwinCamera("cam0", "serial"), TwinCamera("cam1", "udp", model="VISCA-IP"),
+            TwinCamera("cam2", "http", model="SNC-RZ25N")]
+    with TwinRig(cams) as twins:
+        data = json.loads(EXAMPLE.read_text())
+        k = data["cameras"][0]["intrinsics"]
+        drivers = {"cam0": "visca-serial", "cam1": "visca-ip", "cam2": "sony-cgi"}
+        data["cameras"] = [{"id": c.camera_id, "driver": drivers[c.camera_id], "port": twins.ports[c.camera_id],
+                            "model": c.model, "intrinsics": k} for c in cams]
+        data["motes"] = {"driver": "tinyos-serial", "port": twins.mote_port, "addresses": {"n000": 5}}
+        data["node_ids"] = ["n000"]
+        del data["simulation"]
+        rig = parse_rig(data, "rig.json", EXAMPLE.parent)
+        opened_rig = open_hardware(rig)
+        try:
+            for cid in rig.camera_ids:
+                head = opened_rig.open_head(cid)
+                head.move_to(0.2, 0.1)
+                pan, tilt = head.position()
+                assert abs(pan - 0.2) < 0.01 and abs(tilt - 0.1) < 0.01
+                head.close()
+            assert opened_rig.leds.set_led("n000", True)
+            assert twins.field.led_on.get(5) is True
+        finally:
+            opened_rig.close()
+
+
+def test_cli_survey_over_the_visca_twins_and_resume(tmp_path, capsys):
+    """fgloc survey --simulate with simulation.twin = visca: real VISCA and TinyOS bytes end to end."""
+    from fgloc.cli import main
+    from tests.test_survey_acceptance import visca_rig
+
+    rig = visca_rig(tmp_path / "rig.json", 8, occlusion=0.0)
+    out = tmp_path / "out"
+    assert main(["survey", "--rig", str(rig), "-o", str(out), "--simulate", "--quiet"]) == 0
+    text = capsys.readouterr().out
+    assert "estimate after 8 nodes: 8 localized" in text and "16 observations" in text
+    survey = read_survey_file(out / "survey.json")
+    assert len(survey.observations) == 16 and survey.truth is not None
+
+    assert main(["survey", "--rig", str(rig), "-o", str(out), "--simulate", "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "journal already exists (use --resume" in err and err.count("\n") == 1
+    assert main(["survey", "--rig", str(rig), "-o", str(out), "--simulate", "--resume", "--quiet"]) == 0
+    assert "(8 nodes already done" in capsys.readouterr().out
+    assert read_survey_file(out / "survey.json").observations == survey.observations
+
+
+def read_survey_file(path):
+    from fgloc.files import read_survey
+
+    return read_survey(path)
