@@ -3,7 +3,8 @@
 Per node: ``node_started`` is journaled, the LED is lit (retried; a node that
 never acknowledges is journaled ``led_failed``), every camera that has no final
 outcome for the node yet locates it in parallel (one thread per camera) and
-journals each reading or a ``not_found``; then the LED goes off and
+journals each reading the moment it is taken (fsynced, from the camera's
+thread) or a ``not_found``; then the LED goes off and
 ``node_done`` is journaled. Nothing is ever rewritten: resuming replays the
 journal and redoes only what has no record, so no reading is lost or duplicated
 wherever the process was killed.
@@ -155,19 +156,20 @@ class CameraWorker:
                     time.sleep(self.retry.backoff_s * (attempt + 1))
         raise CameraFailed(f"{type(last).__name__}: {last}")
 
-    def measure(self, node: str, indices: list[int], start: tuple[float, float] | None) -> list[tuple[int, float, float]] | str:
-        """Readings (index, pan, tilt) of the lit node, or the reason none was taken."""
-        readings: list[tuple[int, float, float]] = []
+    def measure(self, node: str, indices: list[int], start: tuple[float, float] | None,
+                record: Callable[[int, float, float], None]) -> str | None:
+        """Take the readings ``indices`` of the lit node, handing each to ``record(index, pan, tilt)``
+        the moment it is taken; returns None, or the reason the camera gave up."""
         try:
             for index in indices:
                 found = self.locator.locate(self.call, start or self.home)
                 if found is None:
                     return "not in view anywhere in the search pattern"
-                readings.append((index, found[0], found[1]))
+                record(index, found[0], found[1])
                 start = found
         except CameraFailed as exc:
             return f"camera error: {exc}"
-        return readings
+        return None
 
     def close(self) -> None:
         close = getattr(self.head, "close", None)
@@ -205,13 +207,16 @@ class SurveyRunner:
         self.stats = RunnerStats()
         self.workers = {c: CameraWorker(c, (lambda c=c: open_head(c)), rig, self.stats, log) for c in rig.camera_ids}
         self.latest: LiveEstimate | None = None
+        self._state_lock = threading.Lock()
         self._node_seconds: list[float] = []
 
     # -- journal helpers: every record also updates the in-memory state the same way replay would
     def _record_observation(self, obs: JournalObservation) -> None:
-        self.journal.observation(obs)
-        self.state.observations.setdefault(obs.key, obs)
-        self.stats.observations += 1
+        """Journal one reading at once (called from the camera threads)."""
+        with self._state_lock:
+            self.journal.observation(obs)
+            self.state.observations.setdefault(obs.key, obs)
+            self.stats.observations += 1
 
     def _set_led(self, node: str, on: bool) -> bool:
         for attempt in range(self.rig.retry.led_attempts):
@@ -244,23 +249,26 @@ class SurveyRunner:
             else:
                 if self.rig.search.led_wait_s > 0:
                     time.sleep(self.rig.search.led_wait_s)
-                pending = {}
+                jobs = []  # decided before any camera starts recording into the state
                 for cam in self.rig.camera_ids:
                     if st.camera_finished(node, cam, self.rig.repeats):
                         continue
                     have = {o.index for o in st.observations_of(node, cam)}
                     indices = [k for k in range(self.rig.repeats) if k not in have]
-                    pending[cam] = pool.submit(self.workers[cam].measure, node, indices, self._start_for(cam))
+                    jobs.append((cam, indices, self._start_for(cam)))
+                pending = {
+                    cam: pool.submit(self.workers[cam].measure, node, indices, start,
+                                     lambda index, pan, tilt, cam=cam: self._record_observation(
+                                         JournalObservation(node, cam, index, pan, tilt)))
+                    for cam, indices, start in jobs
+                }
                 for cam, future in pending.items():
-                    outcome = future.result()
-                    if isinstance(outcome, str):
-                        self.journal.not_found(node, cam, outcome)
-                        st.not_found[(node, cam)] = outcome
+                    reason = future.result()
+                    if reason is not None:
+                        self.journal.not_found(node, cam, reason)
+                        st.not_found[(node, cam)] = reason
                         self.stats.not_found += 1
-                        self.log(f"{node}: not found by {cam}: {outcome}")
-                    else:
-                        for index, pan, tilt in outcome:
-                            self._record_observation(JournalObservation(node, cam, index, pan, tilt))
+                        self.log(f"{node}: not found by {cam}: {reason}")
                 if not self._set_led(node, False):
                     self.journal.append({"type": "led_off_failed", "node": node})
                     self.log(f"{node}: LED did not acknowledge switching off")
