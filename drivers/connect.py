@@ -20,6 +20,7 @@ from dataclasses import dataclass
 from drivers.ptz_units import EVI_D100, SNC_RZ25N, VISCA_IP_GENERIC, CameraModel, PanTiltUnits, camera_model, mounting
 from drivers.visca import Timeouts
 from fgloc.model import FglocError
+from fgloc.rig import LedController, PanTiltHead
 
 
 @dataclass(frozen=True)
@@ -32,6 +33,7 @@ class HeadOptions:
     timeout: float = 0.3  # ACK / inquiry / HTTP timeout, seconds
     retries: int = 3
     completion_margin: float = 1.0  # added to the nominal move time before a Completion counts as lost
+    http_timeout: float | None = None  # per HTTP request; None: max(timeout, 2 s)
     video: str | None = None  # cv2.VideoCapture source for grab_frame
 
 
@@ -51,7 +53,7 @@ def default_model(transport: str) -> CameraModel:
     return {"serial": EVI_D100, "udp": VISCA_IP_GENERIC, "http": SNC_RZ25N}[transport]
 
 
-def open_head(port: str, options: HeadOptions | None = None, frames=None):
+def open_head(port: str, options: HeadOptions | None = None, frames: object | None = None) -> PanTiltHead:
     """A ``fgloc.rig.PanTiltHead`` for ``port`` (initialised and answering), see the module doc."""
     o = options or HeadOptions()
     transport = transport_of(port)
@@ -78,11 +80,13 @@ def open_head(port: str, options: HeadOptions | None = None, frames=None):
     creds = url_creds
     if creds is None and os.environ.get("FGLOC_CAMERA_USER"):
         creds = Credentials(os.environ["FGLOC_CAMERA_USER"], os.environ.get("FGLOC_CAMERA_PASSWORD", ""))
-    return open_cgi_head(port, units, creds, timeout=max(o.timeout, 0.5), retries=o.retries, frames=frames)
+    # an old network camera answers HTTP far slower than VISCA: at least 2 s per request by default
+    http_timeout = o.http_timeout if o.http_timeout is not None else max(o.timeout, 2.0)
+    return open_cgi_head(port, units, creds, timeout=http_timeout, retries=o.retries, frames=frames)
 
 
 def open_leds(port: str, address_map: Mapping[str, int] | None = None, timeout: float = 0.25, retries: int = 5,
-              report_timeout: float = 0.5, attempts: int = 3):
+              report_timeout: float = 0.5, attempts: int = 3) -> LedController:
     """A ``fgloc.rig.LedController`` (:class:`drivers.tinyos_serial.MoteNetwork`) for a serial port or tcp://."""
     from drivers.tinyos_serial import open_mote_network
 

@@ -34,7 +34,7 @@ import numpy as np
 
 from drivers.ptz_units import SNC_RZ25N, PanTiltUnits, PositionOutOfRangeError
 from drivers.visca import (
-    ReplyKind, ViscaDisconnected, ViscaError, ViscaProtocolError, ViscaTimeout, cmd_home, cmd_pan_tilt_position_inquiry,
+    Reply, ReplyKind, ViscaDisconnected, ViscaError, ViscaProtocolError, ViscaTimeout, cmd_home, cmd_pan_tilt_position_inquiry,
     cmd_pan_tilt_stop, cmd_zoom_position_inquiry, decode_pan_tilt, decode_zoom, error_for, parse_reply,
 )
 
@@ -168,7 +168,7 @@ class SonyCgiClient:
         return self.request("/oneshotimage.jpg")
 
 
-def _parse_hex_reply(body: bytes):
+def _parse_hex_reply(body: bytes) -> Reply:
     text = body.decode("ascii", "replace").strip().replace(" ", "")
     try:
         packet = bytes.fromhex(text)

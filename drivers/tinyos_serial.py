@@ -40,8 +40,12 @@ import threading
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 from fgloc.model import FglocError
+
+if TYPE_CHECKING:
+    import serial
 
 log = logging.getLogger(__name__)
 
@@ -322,7 +326,7 @@ class SerialMoteLink(_ReaderLink):
         self._serial = self._open()
         self._start_reader()
 
-    def _open(self):
+    def _open(self) -> serial.Serial:
         import serial
 
         try:

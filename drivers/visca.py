@@ -27,14 +27,18 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from enum import Enum
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol, TypeVar
 
 import numpy as np
 
-from drivers.ptz_units import EVI_D100, PanTiltUnits, PositionOutOfRangeError
+from drivers.ptz_units import EVI_D100, CameraModel, PanTiltUnits, PositionOutOfRangeError
 from fgloc.model import FglocError
 
+if TYPE_CHECKING:
+    import serial
+
 log = logging.getLogger(__name__)
+_T = TypeVar("_T")
 
 TERMINATOR = 0xFF
 BROADCAST = 0x88
@@ -218,6 +222,16 @@ def cmd_zoom_position_inquiry(address: int = 1) -> bytes:
     return _packet(address, 0x09, 0x04, 0x47)
 
 
+def cmd_focus_auto(address: int = 1) -> bytes:
+    """CAM_Focus Auto ``8x 01 04 38 02 FF``."""
+    return _packet(address, 0x01, 0x04, 0x38, 0x02)
+
+
+def cmd_focus_manual(address: int = 1) -> bytes:
+    """CAM_Focus Manual ``8x 01 04 38 03 FF`` (lock focus while measuring, protocols.md 1.6)."""
+    return _packet(address, 0x01, 0x04, 0x38, 0x03)
+
+
 def cmd_cancel(address: int, socket: int) -> bytes:
     """Command cancel ``8x 2y FF``."""
     return _packet(address, 0x20 | (socket & 0x0F))
@@ -380,7 +394,7 @@ class SerialLink:
         self._pending: list[bytes] = []
         self._serial = self._open()
 
-    def _open(self):  # -> serial.Serial
+    def _open(self) -> serial.Serial:
         import serial
 
         try:
@@ -520,7 +534,7 @@ class ViscaSession:
         return self._with_reconnect(self._address_set)
 
     # -- internals
-    def _with_reconnect(self, op):
+    def _with_reconnect(self, op: Callable[[], _T]) -> _T:
         with self._lock:
             attempts = 0
             while True:
@@ -733,7 +747,7 @@ class ViscaHead:
         self._last_counts: tuple[int, int] | None = None
 
     @property
-    def model(self):
+    def model(self) -> CameraModel:
         return self.units.model
 
     @property
@@ -841,6 +855,11 @@ class ViscaHead:
 
     def zoom(self) -> float:
         return self.units.zoom_from_counts(self.zoom_counts())
+
+    def set_autofocus(self, on: bool) -> None:
+        """Auto focus on, or manual (focus held where it is) while measuring."""
+        packet = cmd_focus_auto(self.address) if on else cmd_focus_manual(self.address)
+        self.session.command(packet, name="focus auto" if on else "focus manual")
 
     def stop(self) -> None:
         ps, ts = self._speeds()

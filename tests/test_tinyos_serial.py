@@ -249,3 +249,15 @@ def test_nothing_listening() -> None:
     with pytest.raises(MoteDisconnected, match="cannot open serial port"):
         open_mote_network("/nonexistent/tty")
     assert AM_LED_COMMAND == 0x89
+
+
+def test_driver_acks_a_packet_with_ack_from_the_mote_side() -> None:
+    """protocols.md 3.9: a 0x44 from the mote side (legal, unusual) is answered with 0x43 seq and delivered."""
+    with BaseStationSerialTwin() as twin, _serial_net(twin) as net:
+        twin.inject_raw(data_frame(led_report(4, True), seq=7))
+        packet = net.link.receive(1.0)
+        assert packet == led_report(4, True)
+        deadline = time.monotonic() + 1.0
+        while not twin.acks_received and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert twin.acks_received == [7] and net.link.stats.acks_sent == 1

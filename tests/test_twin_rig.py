@@ -64,3 +64,14 @@ def test_two_cameras_with_faults_and_a_disconnect() -> None:
                 assert head.position() == pytest.approx(target, abs=math.radians(0.5 / 14.4))
             assert leds.set_led(f"n{k}", False)
         assert rig.twins["cam1"].faults.counts["disconnect"] == 1
+
+
+def test_node_ids_map_to_addresses_and_back() -> None:
+    lit: set[str] = set()
+    with TwinRig([TwinCamera("cam0")], node_ids=["n001", "n002", "n017"], silent_nodes=["n002"],
+                 on_led=lambda n, on: (lit.add if on else lit.discard)(n)) as rig:
+        leds = rig.open_leds()
+        assert leds.set_led("n017", True) and lit == {"n017"}
+        assert leds.set_led("n002", True) is False  # silent
+        assert leds.set_led("n099", True) is False  # no such mote
+        assert leds.set_led("n017", False) and lit == set()

@@ -12,7 +12,7 @@ from drivers.twins.faults import FaultConfig
 from drivers.twins.visca_camera import ViscaCameraEmulator, ViscaSerialTwin
 from drivers.visca import (
     CommandBufferFull, CommandNotExecutable, HeadSettings, PacketSplitter, ReplyKind, Timeouts, ViscaDisconnected,
-    ViscaProtocolError, ViscaSyntaxError, ViscaTimeout, cmd_address_set, cmd_cancel, cmd_home, cmd_if_clear,
+    ViscaProtocolError, ViscaSyntaxError, ViscaTimeout, cmd_address_set, cmd_cancel, cmd_focus_auto, cmd_focus_manual, cmd_home, cmd_if_clear,
     cmd_if_clear_broadcast, cmd_pan_tilt_absolute, cmd_pan_tilt_position_inquiry, cmd_pan_tilt_stop, cmd_zoom_direct,
     cmd_zoom_position_inquiry, decode_nibbles, decode_pan_tilt, encode_nibbles, error_for, open_serial_head,
     parse_reply,
@@ -52,6 +52,7 @@ def test_zoom_direct_and_other_commands() -> None:
     assert cmd_home(1) == H("81 01 06 04 FF")
     assert cmd_pan_tilt_stop(1) == H("81 01 06 01 18 14 03 03 FF")
     assert cmd_cancel(1, 2) == H("81 22 FF")
+    assert cmd_focus_manual(1) == H("81 01 04 38 03 FF") and cmd_focus_auto(1) == H("81 01 04 38 02 FF")
     assert cmd_pan_tilt_absolute(2, 0, 0)[0] == 0x82
 
 
@@ -274,3 +275,27 @@ def test_heads_satisfy_the_rig_protocol() -> None:
     with ViscaSerialTwin() as twin, _head(twin) as head:
         assert isinstance(head, PanTiltHead)
     assert isinstance(SonyCgiHead(SonyCgiClient("http://127.0.0.1:1")), PanTiltHead)
+
+
+def test_every_d100_count_round_trips_through_the_wire_format() -> None:
+    """Full pan and tilt ranges: command encoding -> emulator decoding -> inquiry reply -> driver decoding."""
+    emulator = ViscaCameraEmulator(EVI_D100)
+    for pan in range(EVI_D100.pan_min, EVI_D100.pan_max + 1):
+        tilt = (pan * 7) % 721 - 360
+        emulator.handle(cmd_pan_tilt_absolute(1, pan, tilt))
+        (_, reply, _), = emulator.handle(cmd_pan_tilt_position_inquiry(1))
+        assert decode_pan_tilt(parse_reply(reply).data) == (pan, tilt)
+    # one past the limits is refused by the camera with a syntax error
+    (_, reply, _), = emulator.handle(cmd_pan_tilt_absolute(1, EVI_D100.pan_max + 1, 0))
+    assert parse_reply(reply).error_code == 0x02
+
+
+def test_at_9600_baud_the_default_timeouts_hold() -> None:
+    """With D100 wire time emulated (9600 bit/s, protocols.md 1.5), the default timeouts need no retries."""
+    with ViscaSerialTwin(baudrate=9600) as twin, open_serial_head(twin.port) as head:
+        for target in [(100, 10), (-1440, -360), (1440, 360)]:
+            head.move_to_counts(*target)
+            assert head.position_counts() == target
+        head.set_autofocus(False)
+        assert twin.emulator.autofocus is False
+        assert head.session.stats.retries == 0 and head.session.stats.timeouts == 0

@@ -24,7 +24,7 @@ import time
 from collections.abc import Callable, Iterable
 
 from drivers.tinyos_serial import (
-    AM_LED_COMMAND, LED_OFF, LED_ON, PROTO_PACKET_ACK, PROTO_PACKET_NOACK, PROTO_UNKNOWN, SF_HELLO, AmPacket,
+    AM_LED_COMMAND, LED_OFF, LED_ON, PROTO_ACK, PROTO_PACKET_ACK, PROTO_PACKET_NOACK, PROTO_UNKNOWN, SF_HELLO, AmPacket,
     Deframer, MoteProtocolError, ack_frame, data_frame, frame, led_report, parse_body,
 )
 from drivers.twins.faults import FaultConfig, FaultInjector
@@ -69,6 +69,7 @@ class BaseStationSerialTwin:
         self.field = field or MoteFieldEmulator()
         self.faults = FaultInjector(faults)
         self.deframer = Deframer()
+        self.acks_received: list[int] = []
         self._pty = PtyPort("basestation")
         self._out = ScheduledReplies()
         self._stop = threading.Event()
@@ -122,6 +123,9 @@ class BaseStationSerialTwin:
         try:
             f = parse_body(body)
         except MoteProtocolError:
+            return
+        if f.protocol == PROTO_ACK:  # the PC acknowledging a 0x44 frame we sent
+            self.acks_received.append(f.seq)
             return
         if f.protocol not in (PROTO_PACKET_ACK, PROTO_PACKET_NOACK):
             self._out.put(time.monotonic(), frame(bytes([PROTO_UNKNOWN, f.protocol])))

@@ -7,7 +7,13 @@ loop. A scene plugs in with two hooks in the **spec convention** (no counts):
   with its head at spec (pan, tilt) radians and zoom fraction; the twin converts
   its device counts through the camera's :class:`~drivers.ptz_units.PanTiltUnits`
   (model and mounting), so the scene never deals with signs or counts;
-* ``on_led(node_address, on)``: called when a mote's LED changes.
+* ``on_led(node, on)``: called when a mote's LED changes; ``node`` is the fgloc node id
+  when ``node_ids`` is given (mote address = the id's trailing number, and only those
+  motes exist), else the 16-bit mote address. ``silent_nodes`` never answer.
+
+With issue 6's renderer: ``render=lambda cid, pan, tilt, zoom: rendered[cid].render(
+intrinsics[cid].at_zoom(zoom), pan, tilt, rng)`` and ``on_led=lambda n, on:
+(scene.lit.add if on else scene.lit.discard)(n)``.
 
 Example::
 
@@ -25,6 +31,9 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from drivers.ptz_units import PanTiltUnits, camera_model, mounting
+from drivers.frames import FrameSource
+from drivers.tinyos_serial import MoteNetwork, node_address
+from fgloc.rig import PanTiltHead
 from drivers.twins.base_station import BaseStationSerialTwin, MoteFieldEmulator, SerialForwarderTwin
 from drivers.twins.faults import FaultConfig
 from drivers.twins.sony_cgi_camera import SonyCgiTwin
@@ -54,8 +63,8 @@ class TwinRig:
     def __init__(self, cameras: Iterable[TwinCamera], render: SpecRenderer | None = None,
                  on_led: Callable[[int, bool], None] | None = None, motes: str = "serial",
                  faults: FaultConfig | None = None, camera_faults: Mapping[str, FaultConfig] | None = None,
-                 mote_faults: FaultConfig | None = None, silent_nodes: Iterable[int] = (),
-                 time_scale: float = 0.0) -> None:
+                 mote_faults: FaultConfig | None = None, silent_nodes: Iterable[int | str] = (),
+                 time_scale: float = 0.0, node_ids: Iterable[str] | None = None) -> None:
         self.cameras = {c.camera_id: c for c in cameras}
         self._render = render
         self.twins: dict[str, ViscaSerialTwin | ViscaIpTwin | SonyCgiTwin] = {}
@@ -80,7 +89,14 @@ class TwinRig:
                 else:
                     raise ValueError(f"unknown transport {cam.transport!r}")
                 self.twins[cam.camera_id] = twin
-            self.field = MoteFieldEmulator(silent=silent_nodes, on_led=on_led)
+            self.node_ids = None if node_ids is None else list(node_ids)
+            by_address = None if self.node_ids is None else {node_address(n): n for n in self.node_ids}
+            led_hook = on_led
+            if on_led is not None and by_address is not None:
+                def led_hook(address: int, on: bool) -> None:
+                    on_led(by_address[address], on)
+            self.field = MoteFieldEmulator(nodes=None if by_address is None else set(by_address),
+                                           silent={node_address(n) for n in silent_nodes}, on_led=led_hook)
             mf = mote_faults if mote_faults is not None else faults
             if mf is not None:
                 mf = replace(mf, seed=mf.seed + 999, script=list(mf.script), error_script=list(mf.error_script))
@@ -107,23 +123,26 @@ class TwinRig:
 
         return renderer
 
-    def frame_source(self, camera_id: str):
+    def frame_source(self, camera_id: str) -> FrameSource:
         """The scene's view from ``camera_id``'s current (device-reported) pose."""
         return self.twins[camera_id].emulator.frame_source()
 
-    def open_head(self, camera_id: str, timeout: float = 0.1, retries: int = 5, completion_margin: float = 0.2):
+    def open_head(self, camera_id: str, timeout: float = 0.1, retries: int = 5,
+                  completion_margin: float = 0.2) -> PanTiltHead:
         """The real driver for ``camera_id`` on its twin (frames from the scene when a renderer is set)."""
         from drivers.connect import HeadOptions, open_head
 
         cam = self.cameras[camera_id]
         frames = self.frame_source(camera_id) if self._render else None
         head = open_head(self.ports[camera_id], HeadOptions(cam.model, cam.mount, timeout=timeout, retries=retries,
-                                                                completion_margin=completion_margin),
+                                                                completion_margin=completion_margin,
+                                                                http_timeout=max(3 * timeout, 0.2)),
                          frames=frames)
         self._opened.append(head)
         return head
 
-    def open_leds(self, timeout: float = 0.05, retries: int = 8, report_timeout: float = 0.1, attempts: int = 5):
+    def open_leds(self, timeout: float = 0.05, retries: int = 8, report_timeout: float = 0.1,
+                  attempts: int = 5) -> MoteNetwork:
         """The real MoteNetwork on the base-station twin."""
         from drivers.connect import open_leds
 

@@ -29,6 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from drivers.frames import CallableFrameSource
 from drivers.ptz_units import EVI_D100, CameraModel
 from drivers.twins.faults import FaultConfig, FaultInjector
 from drivers.twins.pty_port import PtyPort
@@ -90,6 +91,7 @@ class ViscaCameraEmulator:
         self.tilt = _Axis(0, 0)
         self.zoom = _Axis(0, 0)
         self.sockets: dict[int, float] = {}  # socket -> completion time
+        self.autofocus = True
         self._lock = threading.RLock()
         self.log: list[bytes] = []  # every request packet received, in order
 
@@ -112,18 +114,9 @@ class ViscaCameraEmulator:
             raise RuntimeError("this simulated camera has no renderer")
         return self.renderer(self.pose())
 
-    def frame_source(self):
+    def frame_source(self) -> CallableFrameSource:
         """A FrameSource (``read() -> ndarray``) rendering the current pose."""
-        emulator = self
-
-        class _Frames:
-            def read(self) -> np.ndarray:
-                return emulator.frame()
-
-            def close(self) -> None:
-                pass
-
-        return _Frames()
+        return CallableFrameSource(self.frame)
 
     # -- replies
     def _hdr(self) -> int:
@@ -222,6 +215,9 @@ class ViscaCameraEmulator:
             seconds = self.time_scale * self.zoom_seconds * abs(z - self.zoom.at(now)) / max(m.zoom_max, 1)
             self.zoom.go(z, now, seconds)
             return self._run(now, seconds)
+        if body in (b"\x01\x04\x38\x02", b"\x01\x04\x38\x03"):  # focus auto / manual
+            self.autofocus = body[3] == 0x02
+            return self._run(now, 0.0)
         if body == b"\x01\x04\x07\x00":
             self.zoom.freeze(now)
             return self._run(now, 0.0)
@@ -268,6 +264,12 @@ class ScheduledReplies:
         with self._lock:
             heapq.heappush(self._heap, (due, next(self._seq), payload))
 
+    def pop_one(self, now: float) -> bytes | None:
+        with self._lock:
+            if self._heap and self._heap[0][0] <= now:
+                return heapq.heappop(self._heap)[2]
+            return None
+
     def pop_due(self, now: float) -> list[bytes]:
         out = []
         with self._lock:
@@ -305,12 +307,53 @@ def apply_reply_faults(faults: FaultInjector, emulator: ViscaCameraEmulator, req
     return out
 
 
+class WireTime:
+    """Serial wire time at ``baudrate`` (10 bit times per byte, 8N1); None = instantaneous pty."""
+
+    def __init__(self, baudrate: int | None) -> None:
+        self.byte_seconds = 0.0 if not baudrate else 10.0 / baudrate
+        self._tx_free = 0.0
+
+    def rx(self, packet: bytes) -> float:
+        """Seconds until the last byte of ``packet`` (sent by the driver just now) has arrived."""
+        return len(packet) * self.byte_seconds
+
+    def can_send(self, now: float) -> bool:
+        return now >= self._tx_free
+
+    def sent(self, data: bytes, now: float) -> None:
+        self._tx_free = max(now, self._tx_free) + len(data) * self.byte_seconds
+
+    def wait(self, now: float, default: float) -> float:
+        return max(0.0, min(default, self._tx_free - now)) if now < self._tx_free else default
+
+
+def write_paced(port: PtyPort, out: ScheduledReplies, wire: WireTime) -> None:
+    """Write every due reply, one at a time, respecting the line's transmit time."""
+    while True:
+        now = time.monotonic()
+        if not wire.can_send(now):
+            return
+        data = out.pop_one(now)
+        if data is None:
+            return
+        port.write(data)
+        wire.sent(data, now)
+
+
 class ViscaSerialTwin:
-    """The emulator on a pseudo-terminal; open :attr:`port` with pyserial. Use as a context manager."""
+    """The emulator on a pseudo-terminal; open :attr:`port` with pyserial. Use as a context manager.
+
+    ``baudrate`` (e.g. 9600 for a D100) adds the wire time of both directions
+    (a request is handled once its last byte would have arrived; replies leave
+    one after another at line speed); None keeps the pty instantaneous.
+    """
 
     def __init__(self, emulator: ViscaCameraEmulator | None = None, faults: FaultConfig | None = None,
-                 model: CameraModel = EVI_D100, time_scale: float = 0.0, renderer: Renderer | None = None) -> None:
+                 model: CameraModel = EVI_D100, time_scale: float = 0.0, renderer: Renderer | None = None,
+                 baudrate: int | None = None) -> None:
         self.emulator = emulator or ViscaCameraEmulator(model, time_scale=time_scale, renderer=renderer)
+        self.wire = WireTime(baudrate)
         self.faults = FaultInjector(faults)
         self._pty = PtyPort("visca")
         self._out = ScheduledReplies()
@@ -348,16 +391,16 @@ class ViscaSerialTwin:
                     continue
             due = self._out.next_due()
             wait = 0.02 if due is None else min(0.02, max(0.0, due - now))
-            data = self._pty.read(wait)
+            data = self._pty.read(self.wire.wait(now, wait))
             if data:
                 for packet in self._splitter.feed(data):
                     if self.faults.count_request():
                         self.disconnect(self.faults.config.reconnect_after)
                         break
-                    for due_at, reply in apply_reply_faults(self.faults, self.emulator, packet, time.monotonic()):
+                    arrived = time.monotonic() + self.wire.rx(packet)
+                    for due_at, reply in apply_reply_faults(self.faults, self.emulator, packet, arrived):
                         self._out.put(due_at, reply)
-            for reply in self._out.pop_due(time.monotonic()):
-                self._pty.write(reply)
+            write_paced(self._pty, self._out, self.wire)
 
     def close(self) -> None:
         self._stop.set()

@@ -21,7 +21,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--mount", default="desk", choices=["desk", "upright", "ceiling"],
                    help="head mounting; ceiling flips pan and tilt (default desk)")
     p.add_argument("--address", type=int, default=1, help="VISCA camera address on the serial chain (default 1)")
-    p.add_argument("--timeout", type=float, default=0.3, help="reply timeout in seconds (default 0.3)")
+    p.add_argument("--timeout", type=float, default=0.3,
+                   help="VISCA reply timeout in seconds (default 0.3; HTTP requests use at least 2 s)")
     p.add_argument("--retries", type=int, default=3, help="resends after a timeout (default 3)")
     act = p.add_subparsers(dest="action", required=True, metavar="ACTION")
     act.add_parser("position", help="print pan and tilt in degrees")
