@@ -23,12 +23,13 @@ cached, and each frame only renders small patches around spots.
 from __future__ import annotations
 
 import math
+import threading
 from collections import OrderedDict
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from fgloc.geometry import world_to_base
+from fgloc.geometry import pan_tilt_bearing, world_to_base
 from fgloc.intrinsics import CameraIntrinsics
 from fgloc.model import CameraPose
 from fgloc.pixel_angles import base_to_pixel, in_image, optical_to_base, pixel_to_ray
@@ -99,17 +100,23 @@ def add_spot(image: np.ndarray, u: float, v: float, flux: float, sigma: float) -
 _RAY_CACHE: OrderedDict[CameraIntrinsics, np.ndarray] = OrderedDict()
 
 
+_RAY_LOCK = threading.Lock()
+
+
 def _pixel_rays(intr: CameraIntrinsics) -> np.ndarray:
-    """Unit optical rays (H, W, 3) float32 of every pixel; cached for the last few models."""
-    rays = _RAY_CACHE.get(intr)
-    if rays is None:
-        jj, ii = np.meshgrid(np.arange(intr.width, dtype=float), np.arange(intr.height, dtype=float))
-        rays = pixel_to_ray(intr, np.stack([jj, ii], axis=-1)).astype(np.float32)
+    """Unit optical rays (H, W, 3) float32 of every pixel; cached for the last few models.
+    Thread-safe (survey code runs one thread per camera)."""
+    with _RAY_LOCK:
+        rays = _RAY_CACHE.get(intr)
+        if rays is not None:
+            _RAY_CACHE.move_to_end(intr)
+            return rays
+    jj, ii = np.meshgrid(np.arange(intr.width, dtype=float), np.arange(intr.height, dtype=float))
+    rays = pixel_to_ray(intr, np.stack([jj, ii], axis=-1)).astype(np.float32)
+    with _RAY_LOCK:
         _RAY_CACHE[intr] = rays
         while len(_RAY_CACHE) > 4:
             _RAY_CACHE.popitem(last=False)
-    else:
-        _RAY_CACHE.move_to_end(intr)
     return rays
 
 
@@ -127,19 +134,28 @@ class RenderedCamera:
         self._waves = dirs / np.linalg.norm(dirs, axis=1, keepdims=True) * freqs[:, None]
         self._phases = rng.uniform(0.0, 2.0 * np.pi, size=8)
         self._backgrounds: OrderedDict[tuple, np.ndarray] = OrderedDict()
+        self._lock = threading.Lock()
 
     # ----- truth -------------------------------------------------------------------------
-    def base_directions(self, points: np.ndarray) -> np.ndarray:
-        """World point(s) (..., 3) as base-frame vectors from the camera."""
-        return world_to_base(self.pose.rotation, self.pose.position, points)
+    def base_directions(self, points: np.ndarray, pan: float = 0.0, tilt: float = 0.0, pupil_shift: float = 0.0) -> np.ndarray:
+        """World point(s) (..., 3) as base-frame vectors from the optical centre.
 
-    def led_pixels(self, intrinsics: CameraIntrinsics, pan: float, tilt: float, margin: float = 0.0) -> dict[str, tuple[float, float]]:
+        The optical centre is the base position moved ``pupil_shift`` (survey units) forward
+        along the optical axis of the head at (pan, tilt); 0 means on the rotation axes."""
+        q = world_to_base(self.pose.rotation, self.pose.position, points)
+        if pupil_shift:
+            q = q - pupil_shift * pan_tilt_bearing(pan, tilt)
+        return q
+
+    def led_pixels(
+        self, intrinsics: CameraIntrinsics, pan: float, tilt: float, margin: float = 0.0, pupil_shift: float = 0.0
+    ) -> dict[str, tuple[float, float]]:
         """True pixel (u, v) of every node LED (lit or not) in the image at least ``margin`` px inside."""
         if not self.scene.positions:
             return {}
         ids = list(self.scene.positions)
         pts = np.array([self.scene.positions[i] for i in ids], dtype=float)
-        uv, front = base_to_pixel(intrinsics, self.base_directions(pts), pan, tilt)
+        uv, front = base_to_pixel(intrinsics, self.base_directions(pts, pan, tilt, pupil_shift), pan, tilt)
         ok = front & in_image(intrinsics, uv, margin)
         return {i: (float(uv[k, 0]), float(uv[k, 1])) for k, i in enumerate(ids) if ok[k]}
 
@@ -150,10 +166,11 @@ class RenderedCamera:
     def background(self, intr: CameraIntrinsics, pan: float, tilt: float) -> np.ndarray:
         """Noise-free background (float32 DN, distractors included) for a view; cached."""
         key = (intr, round(pan, 12), round(tilt, 12))
-        bg = self._backgrounds.get(key)
-        if bg is not None:
-            self._backgrounds.move_to_end(key)
-            return bg
+        with self._lock:
+            bg = self._backgrounds.get(key)
+            if bg is not None:
+                self._backgrounds.move_to_end(key)
+                return bg
         s = self.settings
         d = self._pixel_rays(intr) @ optical_to_base(pan, tilt).T.astype(np.float32)
         phase = d @ self._waves.T.astype(np.float32) + self._phases.astype(np.float32)
@@ -164,19 +181,23 @@ class RenderedCamera:
             uv, front = base_to_pixel(intr, self.base_directions(self.scene.distractors), pan, tilt)
             for k in np.flatnonzero(front & in_image(intr, uv, -10.0)):
                 add_spot(bg, float(uv[k, 0]), float(uv[k, 1]), s.distractor_flux, s.distractor_sigma_px)
-        self._backgrounds[key] = bg
-        while len(self._backgrounds) > 4:
-            self._backgrounds.popitem(last=False)
+        with self._lock:
+            self._backgrounds[key] = bg
+            while len(self._backgrounds) > 4:
+                self._backgrounds.popitem(last=False)
         return bg
 
-    def render(self, intr: CameraIntrinsics, pan: float, tilt: float, rng: np.random.Generator) -> np.ndarray:
-        """A noisy uint8 (H, W) frame with the head at (pan, tilt) radians through ``intr``."""
+    def render(
+        self, intr: CameraIntrinsics, pan: float, tilt: float, rng: np.random.Generator, pupil_shift: float = 0.0
+    ) -> np.ndarray:
+        """A noisy uint8 (H, W) frame with the head at (pan, tilt) radians through ``intr``
+        (optical centre ``pupil_shift`` forward of the rotation axes, see ``base_directions``)."""
         s = self.settings
         img = self.background(intr, pan, tilt).copy()
-        lit = [i for i in sorted(self.scene.lit) if i in self.scene.positions]
+        lit = [i for i in sorted(set(self.scene.lit)) if i in self.scene.positions]
         if lit:
             pts = np.array([self.scene.positions[i] for i in lit], dtype=float)
-            uv, front = base_to_pixel(intr, self.base_directions(pts), pan, tilt)
+            uv, front = base_to_pixel(intr, self.base_directions(pts, pan, tilt, pupil_shift), pan, tilt)
             for k in np.flatnonzero(front & in_image(intr, uv, -10.0)):
                 add_spot(img, float(uv[k, 0]), float(uv[k, 1]), s.led_flux, s.led_sigma_px)
         noise_sd = np.sqrt(s.read_noise**2 + s.shot_gain * img)
@@ -189,7 +210,9 @@ class SimulatedHead:
 
     ``angle_step`` (radians, e.g. ``math.radians(1 / 14.4)`` for the EVI-D100) quantises
     where the head actually goes; ``position()`` reads back the quantised angles exactly.
-    The frame is rendered through ``intrinsics.at_zoom(zoom())``.
+    The frame is rendered through ``intrinsics.at_zoom(zoom())``. ``pupil_shift_at_tele``
+    (survey units) moves the optical centre forward along the optical axis in proportion to
+    zoom, 0 at the widest zoom: the effect that makes only the widest zoom trustworthy.
     """
 
     def __init__(
@@ -200,8 +223,10 @@ class SimulatedHead:
         seed: int = 0,
         angle_step: float | None = None,
         settings: RenderSettings | None = None,
+        pupil_shift_at_tele: float = 0.0,
     ) -> None:
         self.camera = RenderedCamera(pose, scene, settings)
+        self.pupil_shift_at_tele = pupil_shift_at_tele
         self.intrinsics = intrinsics
         self.angle_step = angle_step
         self.rng = np.random.default_rng(seed)
@@ -245,8 +270,37 @@ class SimulatedHead:
         return self.intrinsics.at_zoom(self._zoom)
 
     def grab_frame(self) -> np.ndarray:
-        return self.camera.render(self.current_intrinsics(), self._pan, self._tilt, self.rng)
+        return self.camera.render(self.current_intrinsics(), self._pan, self._tilt, self.rng, self.pupil_shift())
 
     def visible_leds(self, margin: float = 0.0) -> dict[str, tuple[float, float]]:
         """Truth: pixel of every node LED in the current view (lit or not)."""
-        return self.camera.led_pixels(self.current_intrinsics(), self._pan, self._tilt, margin)
+        return self.camera.led_pixels(self.current_intrinsics(), self._pan, self._tilt, margin, self.pupil_shift())
+
+    def pupil_shift(self) -> float:
+        """Current optical-centre offset along the optical axis (survey units), 0 at the widest zoom."""
+        return self.pupil_shift_at_tele * self._zoom
+
+
+def simulated_rig(
+    cameras: dict[str, CameraPose],
+    nodes: dict[str, np.ndarray],
+    intrinsics: CameraIntrinsics,
+    seed: int = 0,
+    angle_step: float | None = None,
+    settings: RenderSettings | None = None,
+    distractors: np.ndarray | None = None,
+) -> tuple[dict[str, SimulatedHead], SimulatedLedController]:
+    """Heads for every camera pose (camera i seeded ``seed + i``) looking at one shared
+    :class:`LedScene` of ``nodes``, and the LED controller that switches them.
+
+    E.g. ``simulated_rig(survey.truth.cameras, survey.truth.nodes, intrinsics)``.
+    """
+    scene = LedScene(
+        positions={k: np.asarray(v, dtype=float) for k, v in nodes.items()},
+        distractors=np.zeros((0, 3)) if distractors is None else np.asarray(distractors, dtype=float),
+    )
+    heads = {
+        cam_id: SimulatedHead(pose, scene, intrinsics, seed=seed + i, angle_step=angle_step, settings=settings)
+        for i, (cam_id, pose) in enumerate(cameras.items())
+    }
+    return heads, SimulatedLedController(scene)

@@ -86,8 +86,7 @@ class CameraIntrinsics:
         """Idealised model at another zoom: focal lengths scale linearly from 1x (zoom 0) to
         ``max_magnification`` (zoom 1), relative to this model's own zoom. Distortion is kept.
         Used by the simulator; real cameras must be calibrated at each zoom used."""
-        mag = lambda z: 1.0 + (max_magnification - 1.0) * z  # noqa: E731
-        s = mag(zoom) / mag(self.zoom)
+        s = (1.0 + (max_magnification - 1.0) * zoom) / (1.0 + (max_magnification - 1.0) * self.zoom)
         return replace(self, fx=self.fx * s, fy=self.fy * s, zoom=zoom, rms_px=None, images=())
 
 
@@ -142,6 +141,9 @@ def read_intrinsics(path: str | os.PathLike[str]) -> CameraIntrinsics:
         if not 0.0 <= zoom <= 1.0:
             raise fail("zoom", f"must lie in [0, 1], got {zoom!r}")
         values = {k: r.number(r.get(data, k, ""), k, positive=k in ("fx", "fy")) for k in ("fx", "fy", "cx", "cy")}
+        for key, limit in (("cx", size[0]), ("cy", size[1])):
+            if not -0.5 <= values[key] <= limit - 0.5:
+                raise fail(key, f"principal point must lie inside the image (0 .. {limit - 1}), got {values[key]!r}")
         dist_obj = r.obj(r.get(data, "distortion", ""), "distortion")
         dist = {k: r.number(dist_obj.get(k, 0.0), f"distortion.{k}") for k in ("k1", "k2", "p1", "p2", "k3")}
         rms = data.get("rms_px")

@@ -12,7 +12,8 @@ Method:
    ``diff > threshold_sigma * sigma(off)``. Saturated LED-off pixels are ignored.
 3. 8-connected components of candidate pixels. Blobs are rejected when they
    are too small (noise), too large (a light switched, a person walked by),
-   too elongated (motion, edges) or too weak at their peak.
+   too elongated (motion, edges), too weak at their peak, or cut by the image
+   border (their centroid would be biased).
 4. Centroid: intensity-weighted mean of the *unclipped* difference in a square
    window centred on the blob, iterated twice (unbiased for a symmetric spot;
    zero-mean noise adds no bias). Pixel convention as OpenCV: the centre of
@@ -62,6 +63,7 @@ class DetectorConfig:
     noise_floor: float = 0.4  #: lower bound for the noise sigma (uint8 quantisation ~0.29 DN)
     noise_bands: int = 8  #: intensity bands for the noise model
     saturation: float = 254.5  #: LED-off pixels at or above this (DN) are ignored
+    max_blobs: int = 50  #: more changed regions than this means the view changed: nothing is reported
 
 
 @dataclass(frozen=True)
@@ -196,6 +198,12 @@ def detect_led(on: np.ndarray, off: np.ndarray, config: DetectorConfig | None = 
     n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
     candidates: list[LedDetection] = []
     rejected: list[RejectedBlob] = []
+    dark_sigma = float(sigma_map.min())
+    sizeable = int(np.count_nonzero(stats[1:, cv2.CC_STAT_AREA] >= cfg.min_area))
+    if sizeable > cfg.max_blobs:
+        why = f"{sizeable} changed regions > {cfg.max_blobs}: the scene or the camera moved between the frames"
+        blob = RejectedBlob(u=math.nan, v=math.nan, area=int(mask.sum()), reason=why)
+        return DetectionResult(DetectionStatus.NOT_FOUND, None, (), (blob,), dark_sigma)
     for k in range(1, n):
         x, y, bw, bh, area = (int(s) for s in stats[k])
         ys, xs = np.nonzero(labels[y : y + bh, x : x + bw] == k)
@@ -230,6 +238,9 @@ def detect_led(on: np.ndarray, off: np.ndarray, config: DetectorConfig | None = 
         u, v = mu, mv
         for _ in range(3):
             u, v, total, jj, ii = _centroid(diff, u, v, half)
+        if len(jj) < 2 * half + 1 or len(ii) < 2 * half + 1:
+            rejected.append(RejectedBlob(u=u, v=v, area=area, reason="spot cut by the image border"))
+            continue
         cu, cv = int(round(u)), int(round(v))
         win_sigma = sigma_map[max(cv - half, 0) : cv + half + 1, max(cu - half, 0) : cu + half + 1]
         s = float(np.mean(win_sigma))
@@ -245,7 +256,6 @@ def detect_led(on: np.ndarray, off: np.ndarray, config: DetectorConfig | None = 
             LedDetection(u=u, v=v, sigma_px=sigma_px, area=area, peak=peak,
                          flux=total, snr=snr, confidence=confidence)
         )
-    dark_sigma = float(sigma_map.min())
     if len(candidates) == 1:
         return DetectionResult(DetectionStatus.FOUND, candidates[0], tuple(candidates), tuple(rejected), dark_sigma)
     status = DetectionStatus.NOT_FOUND if not candidates else DetectionStatus.AMBIGUOUS

@@ -42,6 +42,20 @@ class LedControlError(FglocError):
     """The base station did not acknowledge an LED command."""
 
 
+class FrameSizeError(FglocError):
+    """Frames whose size differs from the image size the intrinsics were calibrated at."""
+
+
+def check_frame_size(frame: np.ndarray, intrinsics: CameraIntrinsics) -> None:
+    """Raise FrameSizeError unless ``frame`` is intrinsics.width x intrinsics.height."""
+    h, w = np.asarray(frame).shape[:2]
+    if (w, h) != (intrinsics.width, intrinsics.height):
+        raise FrameSizeError(
+            f"frame: size {w}x{h} differs from the calibrated image size {intrinsics.width}x{intrinsics.height}; "
+            "calibrate at the frame grabber's resolution"
+        )
+
+
 def check_zoom(head_zoom: float, intrinsics: CameraIntrinsics) -> list[str]:
     """Warn (ZoomWarning) and return the problems when measuring at ``head_zoom`` with ``intrinsics``.
 
@@ -104,6 +118,7 @@ def measure_led(
 ) -> LedMeasurement:
     """Pixel-offset mode: node (pan, tilt) from a frame pair grabbed at the head's current pose."""
     check_zoom(head.zoom(), intrinsics)
+    check_frame_size(led_on_frame, intrinsics)
     head_pan, head_tilt = head.position()
     return measurement_from_detection(detect_led(led_on_frame, led_off_frame, config), head_pan, head_tilt, intrinsics)
 
@@ -158,9 +173,11 @@ def centre_on_led(
     Each step detects the LED, computes its exact (pan, tilt) from the read-back head
     angles and points the head there. Stops unconverged when the LED is lost or
     ambiguous, after ``max_moves`` moves, or when a move leaves the head where it was
-    (its angle step is coarser than the tolerance).
+    (its angle step is coarser than the tolerance). Raises FrameSizeError when the head's
+    frames do not match the intrinsics' image size.
     """
     check_zoom(head.zoom(), intrinsics)
+    check_frame_size(head.grab_frame(), intrinsics)
     cx, cy = intrinsics.principal_point
     moves = 0
     last: LedMeasurement | None = None

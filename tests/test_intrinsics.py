@@ -35,6 +35,7 @@ def _write(tmp_path, mutate):
         (lambda d: d.pop("fx"), "fx"),
         (lambda d: d.update(fx=-3.0), "fx"),
         (lambda d: d.update(cy="a"), "cy"),
+        (lambda d: d.update(cx=700.0), "cx"),
         (lambda d: d.update(zoom=1.5), "zoom"),
         (lambda d: d.update(image_size=[640]), "image_size"),
         (lambda d: d.update(format="fgloc-survey"), "format"),

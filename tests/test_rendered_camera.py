@@ -105,3 +105,23 @@ def test_background_is_fixed_to_the_world():
     centre0 = bg0[200:280, 300:340]
     centre1 = bg1[200:280, 300 - shift_px : 340 - shift_px]
     assert np.abs(centre0 - centre1).mean() < 0.1 * np.abs(centre0 - bg0[200:280, 300 - shift_px : 340 - shift_px]).mean()
+
+
+def test_simulated_rig_shares_one_scene_between_cameras():
+    """Two cameras of a simulated rig see the same LED switched by one controller, each where
+    the spec geometry puts it."""
+    from drivers.rendered_camera import simulated_rig
+
+    node = np.array([3.0, 1.0, 0.0])
+    cams = {"cam0": POSE, "cam1": CameraPose(position=np.array([4.0, -3.0, 1.5]), rotation=base_rotation(1.9))}
+    heads, leds = simulated_rig(cams, {"n0": node}, INTR, seed=3)
+    assert heads["cam0"].scene is heads["cam1"].scene
+    for cam_id, head in heads.items():
+        head.move_to(*project_pan_tilt(cams[cam_id].rotation, cams[cam_id].position, node))
+        off = head.grab_frame().astype(float)
+        leds.set_led("n0", True)
+        on = head.grab_frame().astype(float)
+        leds.set_led("n0", False)
+        v, u = np.unravel_index(np.argmax(on - off), on.shape)
+        assert abs(u - INTR.cx) <= 1 and abs(v - INTR.cy) <= 1
+    assert not np.array_equal(heads["cam0"].grab_frame(), heads["cam1"].grab_frame())

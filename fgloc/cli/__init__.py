@@ -17,16 +17,14 @@ from types import ModuleType
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
-from fgloc.cli import calibrate  # noqa: E402
-from fgloc.cli import demo, score, simulate, solve  # noqa: E402
+from fgloc.cli import calibrate, demo, score, simulate, solve  # noqa: E402
 from fgloc.cli import motes, ptz  # noqa: E402
 from fgloc.cli import survey  # noqa: E402
 from fgloc.model import FglocError  # noqa: E402
 
-COMMANDS: list[ModuleType] = [simulate, solve, score, demo]
+COMMANDS: list[ModuleType] = [simulate, solve, score, demo, calibrate]
 COMMANDS += [ptz, motes]
 COMMANDS.append(survey)
-COMMANDS.append(calibrate)
 
 
 def build_parser() -> argparse.ArgumentParser:
