@@ -167,6 +167,24 @@ class LedLocator:
         self.find_spot = spot_finder or brightest_spot(search.threshold)
         self.cells = search_cells(search, pixel_model.field_of_view())
         self.stats = MeasureStats()
+        # For on-off detection: blink(grab) -> (LED-on frame, LED-off frame); set per node by the runner.
+        self.blink: Callable[[Callable[[], np.ndarray]], tuple[np.ndarray, np.ndarray]] | None = None
+
+    def detect(self, call: Callable[[Callable[[PanTiltHead], object]], object]) -> Spot | None:
+        """The lit LED in the current view (one frame, or an on/off pair), or None."""
+        grab = lambda: call(lambda h: h.grab_frame())  # noqa: E731
+        if self.search.detection == "on-off":
+            from fgloc.led_detection import detect_led
+
+            if self.blink is None:
+                raise ValueError("on-off detection needs a blink function")
+            on, off = self.blink(grab)  # type: ignore[arg-type]
+            result = detect_led(on, off)
+            if not result.found or result.detection is None:
+                return None
+            d = result.detection
+            return Spot(d.u, d.v, d.peak)
+        return self.find_spot(grab())  # type: ignore[arg-type]
 
     def clamp(self, pan: float, tilt: float) -> tuple[float, float]:
         """The nearest head position inside the search range (pan wrapped first)."""
@@ -186,8 +204,7 @@ class LedLocator:
         if self.search.settle_s > 0:
             time.sleep(self.search.settle_s)
         self.stats.frames += 1
-        frame = call(lambda h: h.grab_frame())
-        return self.find_spot(frame)  # type: ignore[arg-type]
+        return self.detect(call)
 
     def locate(
         self, call: Callable[[Callable[[PanTiltHead], object]], object], start: tuple[float, float]

@@ -23,6 +23,7 @@ CAMERA_DRIVERS = ("visca-serial", "visca-ip", "sony-cgi", "simulated")
 MOTE_DRIVERS = ("tinyos-serial", "serial-forwarder", "simulated")
 MOUNTINGS = ("upright", "ceiling")
 MEASURE_METHODS = ("centre", "pixel-offset")
+DETECTIONS = ("single", "on-off")
 SIMULATION_TWINS = ("inprocess", "visca")
 
 
@@ -73,6 +74,9 @@ class SearchConfig:
     cells ``overlap`` times the field of view apart, visited nearest-first from
     where the camera last saw a node. Centring stops when the LED is within
     ``centre_tolerance_px`` of the principal point or after ``max_centre_steps``.
+    ``detection`` is ``single`` (brightest spot of one frame above ``threshold``: dark
+    scenes) or ``on-off`` (an LED-off and an LED-on frame per look, differenced by
+    :func:`fgloc.led_detection.detect_led`: robust to background and static lights).
     """
 
     pan_min: float = -math.pi
@@ -86,6 +90,7 @@ class SearchConfig:
     led_wait_s: float = 0.0
     method: str = "pixel-offset"
     threshold: int = 64
+    detection: str = "single"
 
 
 @dataclass(frozen=True)
@@ -292,6 +297,7 @@ def parse_rig(data: Any, path: str = "rig.json", base: Path | None = None) -> Ri
         led_wait_s=f.number(s.get("led_wait_s", d.led_wait_s), "search.led_wait_s", 0, 60),
         method=f.string(s.get("method", d.method), "search.method", MEASURE_METHODS),
         threshold=int(f.number(s.get("threshold", d.threshold), "search.threshold", 1, 255, True)),
+        detection=f.string(s.get("detection", d.detection), "search.detection", DETECTIONS),
     )
     if search.pan_min >= search.pan_max:
         raise f.fail("search.pan_max_deg", f"must exceed pan_min_deg, got {math.degrees(search.pan_max):g}")

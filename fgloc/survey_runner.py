@@ -157,9 +157,12 @@ class CameraWorker:
         raise CameraFailed(f"{type(last).__name__}: {last}")
 
     def measure(self, node: str, indices: list[int], start: tuple[float, float] | None,
-                record: Callable[[int, float, float], None]) -> str | None:
+                record: Callable[[int, float, float], None],
+                blink: Callable[[Callable[[], object]], tuple] | None = None) -> str | None:
         """Take the readings ``indices`` of the lit node, handing each to ``record(index, pan, tilt)``
-        the moment it is taken; returns None, or the reason the camera gave up."""
+        the moment it is taken; returns None, or the reason the camera gave up. ``blink`` grabs
+        an (LED-on, LED-off) frame pair for on-off detection."""
+        self.locator.blink = blink  # type: ignore[assignment]
         try:
             for index in indices:
                 found = self.locator.locate(self.call, start or self.home)
@@ -208,6 +211,7 @@ class SurveyRunner:
         self.workers = {c: CameraWorker(c, (lambda c=c: open_head(c)), rig, self.stats, log) for c in rig.camera_ids}
         self.latest: LiveEstimate | None = None
         self._state_lock = threading.Lock()
+        self._led_lock = threading.Lock()
         self._node_seconds: list[float] = []
 
     # -- journal helpers: every record also updates the in-memory state the same way replay would
@@ -228,6 +232,16 @@ class SurveyRunner:
             self.stats.led_retries += 1
             time.sleep(self.rig.retry.backoff_s * (attempt + 1))
         return False
+
+    def _blink(self, node: str, grab: Callable[[], object]) -> tuple[object, object]:
+        """(LED-on, LED-off) frames of one camera; cameras take turns so no frame sees a blink."""
+        with self._led_lock:
+            try:
+                self._set_led(node, False)
+                off = grab()
+            finally:
+                self._set_led(node, True)
+            return grab(), off
 
     def _start_for(self, camera: str) -> tuple[float, float] | None:
         last = self.state.last_observation(camera)
@@ -256,10 +270,11 @@ class SurveyRunner:
                     have = {o.index for o in st.observations_of(node, cam)}
                     indices = [k for k in range(self.rig.repeats) if k not in have]
                     jobs.append((cam, indices, self._start_for(cam)))
+                blink = (lambda grab: self._blink(node, grab)) if self.rig.search.detection == "on-off" else None
                 pending = {
                     cam: pool.submit(self.workers[cam].measure, node, indices, start,
                                      lambda index, pan, tilt, cam=cam: self._record_observation(
-                                         JournalObservation(node, cam, index, pan, tilt)))
+                                         JournalObservation(node, cam, index, pan, tilt)), blink)
                     for cam, indices, start in jobs
                 }
                 for cam, future in pending.items():
