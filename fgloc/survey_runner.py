@@ -48,7 +48,8 @@ MIN_SHARED_NODES = 5
 class Estimator(Protocol):
     """Turns the survey recorded so far into current estimates."""
 
-    def update(self, survey: Survey) -> Result:
+    def update(self, survey: Survey) -> Result | None:
+        """Estimates for ``survey`` (the journal so far), or None when there are none yet."""
         ...
 
 
@@ -62,6 +63,44 @@ class BatchEstimator:
         from fgloc.joint_solver import SolverOptions, solve_survey  # gtsam only when asked
 
         return solve_survey(survey, SolverOptions(compute_marginals=self.compute_marginals))
+
+
+class IncrementalEstimator:
+    """Live estimates from an incremental (iSAM2) localizer, fed each reading exactly once.
+
+    ``factory(camera_ids, gauge, sigma)`` builds the localizer (default:
+    ``fgloc.incremental.IncrementalLocalizer``); it must offer
+    ``add_observations(list[Observation])`` and ``estimate() -> Result``. Each update
+    passes only the readings the localizer has not seen: the survey's observations only
+    ever grow, so within each (node, camera) group the first ones were fed before.
+    """
+
+    def __init__(self, factory: Callable[..., object] | None = None) -> None:
+        self.factory = factory
+        self.localizer: object | None = None
+        self._fed: dict[tuple[str, str], int] = {}
+
+    def update(self, survey: Survey) -> Result:
+        if self.localizer is None:
+            factory = self.factory
+            if factory is None:
+                from fgloc.incremental import IncrementalLocalizer  # type: ignore[import-not-found]
+
+                factory = IncrementalLocalizer
+            self.localizer = factory(list(survey.camera_ids), survey.gauge, survey.sigma)
+        seen: dict[tuple[str, str], int] = {}
+        new = []
+        for o in survey.observations:
+            k = (o.node, o.camera)
+            seen[k] = seen.get(k, 0) + 1
+            if seen[k] > self._fed.get(k, 0):
+                new.append(o)
+        self._fed = seen
+        if new:
+            self.localizer.add_observations(new)  # type: ignore[attr-defined]
+        if not getattr(self.localizer, "bootstrapped", True):
+            return None  # still buffering readings until its first batch solve
+        return self.localizer.estimate()  # type: ignore[attr-defined]
 
 
 @dataclass(frozen=True)
@@ -308,6 +347,8 @@ class SurveyRunner:
             message = " ".join(str(exc).split())  # GTSAM's messages span lines
             self.stats.estimate_errors.append(message)
             self.log(f"live estimate failed: {message[:200]}")
+            return None
+        if result is None:
             return None
         live = LiveEstimate(len(self.state.done), survey, result, time.perf_counter() - t0)
         self.latest = live

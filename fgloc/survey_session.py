@@ -11,7 +11,7 @@ besides the CLI that opens drivers. Output directory layout:
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Callable
 
@@ -123,7 +123,10 @@ def run_survey(
             opened.close()
     write_survey(survey, Path(out_dir) / SURVEY_NAME)
     if runner.latest is not None:
-        write_result(runner.latest.result, Path(out_dir) / ESTIMATE_NAME)
+        try:
+            write_result(runner.latest.result, Path(out_dir) / ESTIMATE_NAME)
+        except ValueError:  # non-finite solver statistics (e.g. an incremental solver's NaN costs)
+            write_result(replace(runner.latest.result, stats=None), Path(out_dir) / ESTIMATE_NAME)
     return survey, runner
 
 

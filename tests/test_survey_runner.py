@@ -247,3 +247,39 @@ def test_on_off_detection_on_rendered_frames_with_background_and_a_static_light(
         pan, tilt = project_pan_tilt(pose.rotation, pose.position, truth.nodes[o.node][None, :])
         assert abs(math.remainder(o.pan - float(pan[0]), 2 * math.pi)) < 3e-4
         assert abs(o.tilt - float(tilt[0])) < 3e-4
+
+
+class FakeLocalizer:
+    """Records what an incremental localizer is fed; estimates by batch-solving all of it."""
+
+    instances = []
+
+    def __init__(self, camera_ids, gauge, sigma):
+        self.args = (camera_ids, gauge, sigma)
+        self.fed = []
+        FakeLocalizer.instances.append(self)
+
+    def add_observations(self, observations):
+        self.fed.append(list(observations))
+
+    def estimate(self):
+        from fgloc.joint_solver import solve_survey
+        from fgloc.model import NodeMode, Survey
+
+        obs = [o for batch in self.fed for o in batch]
+        nodes = sorted({o.node for o in obs})
+        return solve_survey(Survey(NodeMode.PLANAR, self.args[1], self.args[2], self.args[0], nodes, obs))
+
+
+def test_incremental_estimator_feeds_each_reading_once(tmp_path):
+    from fgloc.survey_runner import IncrementalEstimator
+
+    FakeLocalizer.instances.clear()
+    rig = small_rig(8, occlusion=0.0, dead_nodes=[])
+    est = IncrementalEstimator(FakeLocalizer)
+    survey, runner = run_survey(rig, tmp_path, opened=opened(rig)[0], estimator=est)
+    (loc,) = FakeLocalizer.instances
+    fed = [o for batch in loc.fed for o in batch]
+    assert sorted(fed, key=repr) == sorted(survey.observations, key=repr)  # each exactly once
+    assert [len(b) for b in loc.fed] == [10, 2, 2, 2]  # first estimate at 5 shared nodes, then per node
+    assert runner.latest is not None and set(runner.latest.result.nodes) == set(rig.node_ids)

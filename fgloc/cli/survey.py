@@ -7,7 +7,7 @@ import sys
 import time
 
 from fgloc.rig_config import load_rig
-from fgloc.survey_runner import BatchEstimator, LiveEstimate, Progress, format_estimate, format_progress
+from fgloc.survey_runner import BatchEstimator, IncrementalEstimator, LiveEstimate, Progress, format_estimate, format_progress
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -19,6 +19,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--live-every", type=int, default=1, metavar="N",
                    help="solve and print estimates after every N nodes (default 1)")
     p.add_argument("--no-live", action="store_true", help="no live estimates")
+    p.add_argument("--estimator", choices=("batch", "incremental"), default="batch",
+                   help="live estimates by re-solving everything (batch, default) or iSAM2 (incremental)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(run=run)
 
@@ -62,7 +64,8 @@ def run(args: argparse.Namespace) -> int:
 
     survey, runner = run_survey(
         rig, args.output, simulate=args.simulate, resume=args.resume,
-        estimator=None if args.no_live else BatchEstimator(),
+        estimator=None if args.no_live else (IncrementalEstimator() if args.estimator == "incremental"
+                                             else BatchEstimator()),
         live_every=args.live_every, on_estimate=show, on_progress=progress, log=log,
     )
     s = runner.stats
