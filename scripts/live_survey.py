@@ -8,8 +8,8 @@ An example to start from, written only against fgloc's public API:
 
 Everything is journaled to my-survey/journal.jsonl as it happens; kill it at any
 moment and rerun with --resume. The per-node callbacks below are where to hook
-your own display (``--rerun`` passes each live estimate to ``fgloc.viz`` when
-that module provides ``log_live_estimate``).
+your own display; ``--rerun FILE.rrd`` logs every live estimate on the ``survey``
+timeline with ``fgloc.viz.SurveyLogger`` (open the file with ``rerun FILE.rrd``).
 """
 
 from __future__ import annotations
@@ -30,17 +30,20 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--simulate", action="store_true")
     p.add_argument("--resume", action="store_true")
     p.add_argument("--every", type=int, default=5, help="solve after every N nodes (default 5)")
-    p.add_argument("--rerun", action="store_true", help="log live estimates with fgloc.viz")
+    p.add_argument("--rerun", metavar="FILE.rrd", help="log live estimates to a Rerun recording (fgloc.viz)")
     args = p.parse_args(argv)
 
     hooks = []
+    recording = None
     if args.rerun:
         try:
             from fgloc import viz  # type: ignore[attr-defined]
-            hooks.append(viz.log_live_estimate)
-        except (ImportError, AttributeError):
-            print("live_survey: --rerun needs fgloc.viz.log_live_estimate, not in this build", file=sys.stderr)
+        except ImportError:
+            print("live_survey: --rerun needs fgloc.viz, not in this build", file=sys.stderr)
             return 2
+        recording = viz.open_recording(args.rerun)
+        logger = viz.SurveyLogger(recording)
+        hooks.append(lambda live: logger.log_estimates(len(live.survey.observations), live.result, live.survey))
 
     def on_estimate(live: LiveEstimate) -> None:
         print(format_estimate(live, limit=3), flush=True)
@@ -59,6 +62,9 @@ def main(argv: list[str] | None = None) -> int:
     except FglocError as exc:
         print(f"live_survey: error: {exc}", file=sys.stderr)
         return 2
+    finally:
+        if recording is not None:
+            viz.close_recording(recording)
     print(f"survey complete: {len(survey.observations)} observations of {len(survey.node_ids)} nodes "
           f"-> {args.output}/survey.json")
     return 0
