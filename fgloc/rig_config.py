@@ -260,6 +260,10 @@ def parse_rig(data: Any, path: str = "rig.json", base: Path | None = None) -> Ri
 
     m = f.obj(f.req(top, "motes", ""), "motes")
     mdriver = f.string(f.req(m, "driver", "motes."), "motes.driver", MOTE_DRIVERS)
+    if mdriver == "serial-forwarder" and not str(m.get("port", "")).startswith("tcp://"):
+        raise f.fail("motes.port", f"driver serial-forwarder needs tcp://HOST[:PORT], got {m.get('port')!r}")
+    if mdriver == "tinyos-serial" and "://" in str(m.get("port", "")):
+        raise f.fail("motes.port", f"driver tinyos-serial needs a serial device path, got {m.get('port')!r}")
     addresses = None
     if "addresses" in m:
         amap = f.obj(m["addresses"], "motes.addresses")

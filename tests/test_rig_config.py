@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import copy
 import json
 import math
 from pathlib import Path
@@ -120,4 +119,12 @@ def test_driver_and_port_must_agree(tmp_path):
     data["cameras"][0] |= {"driver": "visca-ip", "port": "/dev/ttyUSB0"}
     (tmp_path / "rig.json").write_text(json.dumps(data))
     with pytest.raises(RigConfigError, match=r"cameras\[0\]\.port: driver visca-ip needs udp://HOST\[:PORT\], got '/dev/ttyUSB0'"):
+        load_rig(tmp_path / "rig.json")
+
+
+def test_mote_driver_and_port_must_agree(tmp_path):
+    data = _example()
+    data["motes"] = {"driver": "serial-forwarder", "port": "/dev/ttyUSB1"}
+    (tmp_path / "rig.json").write_text(json.dumps(data))
+    with pytest.raises(RigConfigError, match=r"motes\.port: driver serial-forwarder needs tcp://"):
         load_rig(tmp_path / "rig.json")

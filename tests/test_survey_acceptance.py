@@ -22,7 +22,7 @@ import pytest
 from drivers.inprocess_rig import InProcessRig
 from fgloc.files import read_survey
 from fgloc.journal import read_journal
-from fgloc.rig_config import load_rig, parse_rig
+from fgloc.rig_config import load_rig
 from fgloc.survey_session import OpenedRig, run_survey
 from tests.test_rig_config import EXAMPLE
 

@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 import math
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -13,7 +12,7 @@ import pytest
 from drivers.inprocess_rig import InProcessRig
 from fgloc.journal import read_journal
 from fgloc.model import FglocError
-from fgloc.rig_config import load_rig, parse_rig
+from fgloc.rig_config import parse_rig
 from fgloc.survey_runner import Progress, format_progress
 from fgloc.survey_session import OpenedRig, journal_survey, run_survey
 from tests.test_rig_config import EXAMPLE
