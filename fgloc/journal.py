@@ -111,11 +111,29 @@ class JournalState:
     records: int = 0
     torn_tail_bytes: int = 0
     duplicates_ignored: int = 0
+    # Indexes kept by add_observation (constant-time lookups for long surveys).
+    _by_pair: dict[tuple[str, str], list[JournalObservation]] = field(default_factory=dict, repr=False)
+    _last: dict[str, JournalObservation] = field(default_factory=dict, repr=False)
+    _cameras_of: dict[str, set[str]] = field(default_factory=dict, repr=False)
+
+    def add_observation(self, obs: JournalObservation) -> bool:
+        """Record a reading unless its key is known (replay is idempotent); True when added."""
+        if obs.key in self.observations:
+            self.duplicates_ignored += 1
+            return False
+        self.observations[obs.key] = obs
+        self._by_pair.setdefault((obs.node, obs.camera), []).append(obs)
+        self._last[obs.camera] = obs
+        self._cameras_of.setdefault(obs.node, set()).add(obs.camera)
+        return True
 
     def observations_of(self, node: str, camera: str) -> list[JournalObservation]:
         """This camera's readings of this node, by index."""
-        found = [o for (n, c, _), o in self.observations.items() if n == node and c == camera]
-        return sorted(found, key=lambda o: o.index)
+        return sorted(self._by_pair.get((node, camera), []), key=lambda o: o.index)
+
+    def nodes_seen_by(self, n_cameras: int) -> int:
+        """How many nodes have readings from at least ``n_cameras`` cameras."""
+        return sum(1 for cams in self._cameras_of.values() if len(cams) >= n_cameras)
 
     def camera_finished(self, node: str, camera: str, repeats: int) -> bool:
         """True when the camera has a final outcome for the node (all readings or gave up)."""
@@ -123,11 +141,7 @@ class JournalState:
 
     def last_observation(self, camera: str) -> JournalObservation | None:
         """The camera's most recent reading in journal order (None before the first)."""
-        last = None
-        for o in self.observations.values():
-            if o.camera == camera:
-                last = o
-        return last
+        return self._last.get(camera)
 
     def ordered_observations(self) -> list[JournalObservation]:
         """Canonical order: node as in ``node_ids``, then camera as in ``camera_ids``, then index.
@@ -196,12 +210,8 @@ class _Parser:
             sigma = rec.get("sigma")
             if sigma is not None and not (_finite(sigma) and sigma > 0):
                 raise self.fail(line, f"observation.sigma: expected a number > 0, got {sigma!r}")
-            obs = JournalObservation(node, rec["camera"], index, float(rec["pan"]), float(rec["tilt"]),
-                                     None if sigma is None else float(sigma))
-            if obs.key in state.observations:
-                state.duplicates_ignored += 1
-            else:
-                state.observations[obs.key] = obs
+            state.add_observation(JournalObservation(node, rec["camera"], index, float(rec["pan"]),
+                                                     float(rec["tilt"]), None if sigma is None else float(sigma)))
         elif kind == "not_found":
             state.not_found.setdefault((node, rec["camera"]), str(rec.get("reason", "")))
         elif kind == "led_failed":

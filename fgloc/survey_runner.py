@@ -258,7 +258,7 @@ class SurveyRunner:
         """Journal one reading at once (called from the camera threads)."""
         with self._state_lock:
             self.journal.observation(obs)
-            self.state.observations.setdefault(obs.key, obs)
+            self.state.add_observation(obs)
             self.stats.observations += 1
 
     def _set_led(self, node: str, on: bool) -> bool:
@@ -329,15 +329,9 @@ class SurveyRunner:
         self.journal.node_done(node)
         st.done.add(node)
 
-    def _shared_nodes(self) -> int:
-        cams_per_node: dict[str, set[str]] = {}
-        for (node, cam, _) in self.state.observations:
-            cams_per_node.setdefault(node, set()).add(cam)
-        return sum(1 for cams in cams_per_node.values() if len(cams) >= 2)
-
     def estimate(self) -> LiveEstimate | None:
         """Solve the journal so far (None until MIN_SHARED_NODES nodes are seen by two cameras)."""
-        if self.estimator is None or self._shared_nodes() < MIN_SHARED_NODES:
+        if self.estimator is None or self.state.nodes_seen_by(2) < MIN_SHARED_NODES:
             return None
         survey = journal_to_survey(self.state)
         t0 = time.perf_counter()
