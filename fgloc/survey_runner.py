@@ -157,6 +157,7 @@ class CameraWorker:
         cam = rig.cameras[rig.camera_ids.index(camera_id)]
         self.locator = LedLocator(rig.search, PinholePixelModel(cam.intrinsics))
         self.home = (0.0, 0.5 * (rig.search.tilt_min + rig.search.tilt_max))
+        self.zoom = cam.zoom
         self.head: PanTiltHead | None = None
         self.lock = threading.Lock()
 
@@ -168,7 +169,15 @@ class CameraWorker:
                 close()
             except Exception:  # noqa: BLE001 - a broken link may fail to close; we are replacing it
                 pass
-        self.head = self.open_head()
+        head = self.open_head()
+        try:
+            head.set_zoom(self.zoom)  # the zoom the intrinsics were calibrated at
+        except BaseException:
+            close = getattr(head, "close", None)
+            if callable(close):
+                close()
+            raise
+        self.head = head
 
     def call(self, op: Callable[[PanTiltHead], object]) -> object:
         """Run one head operation with retries, then reconnects."""
