@@ -21,7 +21,7 @@ from fgloc.model import FglocError, NodeMode, Survey
 
 
 def cramer_rao_bound(survey: Survey) -> dict[str, FloatArray]:
-    """Per-node CRLB covariance (2x2 planar, 3x3 3d) for every observed node with truth.
+    """Per-node CRLB covariance (2x2 planar, 3x3 3d) for every observable node with truth.
 
     Needs ``survey.truth`` with every camera and observed node.
     """
@@ -31,7 +31,12 @@ def cramer_rao_bound(survey: Survey) -> dict[str, FloatArray]:
     missing = [c for c in survey.camera_ids if c not in truth.cameras]
     if missing:
         raise FglocError(f"truth: cameras {missing} missing")
-    observed = {o.node for o in survey.observations}
+    cameras_of: dict[str, set[str]] = {}
+    for o in survey.observations:
+        cameras_of.setdefault(o.node, set()).add(o.camera)
+    # A 3d node needs two cameras to be observable; a planar node one.
+    need = 1 if survey.mode is NodeMode.PLANAR else 2
+    observed = {n for n, cams in cameras_of.items() if len(cams) >= need}
     start = InitialEstimate(
         cameras=dict(truth.cameras),
         nodes={n: np.asarray(truth.nodes[n], float) for n in survey.node_ids if n in observed and n in truth.nodes},

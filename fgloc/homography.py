@@ -43,6 +43,22 @@ def _null_vector(a: FloatArray) -> tuple[FloatArray, float]:
     return vt[-1], float(ratio)
 
 
+#: Ratio of the two smallest singular values of a DLT system above which its
+#: null space is not one-dimensional: the nodes do not span the plane (measured:
+#: 0.015-0.08 for nodes spread over a field, 0.33-0.49 for collinear nodes).
+DEGENERATE_RATIO = 0.2
+
+
+def check_spans_plane(b1: FloatArray, b2: FloatArray) -> None:
+    """Raise if pairs of bearings cannot determine a homography (collinear nodes)."""
+    rows = np.einsum("mki,mj->mkij", skew(b2), b1).reshape(-1, 9)
+    _, ratio = _null_vector(rows)
+    if len(b1) < 4 or ratio > DEGENERATE_RATIO:
+        raise DegenerateGeometryError(
+            "the shared nodes are (nearly) collinear: a planar survey needs nodes that span the ground plane"
+        )
+
+
 def estimate_bearing_homography(b1: FloatArray, b2: FloatArray) -> FloatArray:
     """DLT estimate of H with ``b2 = lambda H b1``, lambda > 0, from >= 4 bearing pairs (M, 3).
 

@@ -29,6 +29,7 @@ from fgloc.geometry import FloatArray, pan_tilt_bearing
 from fgloc.homography import (
     DegenerateGeometryError,
     camera_from_plane_homography,
+    check_spans_plane,
     chirality_score,
     decompose_bearing_homography,
     estimate_bearing_homography,
@@ -42,6 +43,8 @@ MIN_SHARED_PLANAR = 4
 #: transfer combines two readings; a resection also carries the start's node errors.
 PAIR_THRESHOLD_SIGMAS = 25.0
 RESECTION_THRESHOLD_SIGMAS = 30.0
+#: Floor of every RANSAC angle threshold (radians): numerical noise of noise-free data.
+MIN_THRESHOLD = 1e-9
 #: RANSAC is seeded so that a survey always gives the same start.
 RANSAC_SEED = 20260101
 
@@ -153,9 +156,10 @@ def _pair_frames(bs: BearingSet, a: int, b: int, rng: np.random.Generator) -> tu
         # Transfer both ways and keep the smaller angle: one direction amplifies the
         # noise by the ratio of the node's ranges, the other shrinks it.
         lambda H: np.minimum(_angles(b1 @ H.T, b2), _angles(b2 @ np.linalg.inv(H).T, b1)),
-        threshold=PAIR_THRESHOLD_SIGMAS * bs.sigma, rng=rng,
+        threshold=max(PAIR_THRESHOLD_SIGMAS * bs.sigma, MIN_THRESHOLD), rng=rng,
     )
     b1, b2 = b1[inliers], b2[inliers]
+    check_spans_plane(b1, b2)
     candidates = decompose_bearing_homography(H)
     scores = np.array([chirality_score(c, b1, b2) for c in candidates])
     keep = [c for c, sc in zip(candidates, scores) if sc >= 0.98 * scores.max()]
@@ -166,7 +170,7 @@ def _pair_frames(bs: BearingSet, a: int, b: int, rng: np.random.Generator) -> tu
         up = -n
         w = -cand.rotation.T @ cand.translation  # camera b's centre in camera a's base frame
         horiz = w - (w @ up) * up
-        if np.linalg.norm(horiz) < 1e-9 * max(np.linalg.norm(w), 1e-300):
+        if np.linalg.norm(horiz) < 1e-3 * max(np.linalg.norm(w), 1e-300):
             raise DegenerateGeometryError("the two cameras stand on the same vertical: no ground baseline")
         x_axis = horiz / np.linalg.norm(horiz)
         y_axis = np.cross(up, x_axis)
@@ -183,7 +187,7 @@ def _to_planar_gauge(
     g0 = cameras[origin].position[:2]
     d = cameras[baseline].position[:2] - g0
     length = float(np.linalg.norm(d))
-    if length < 1e-12:
+    if length < 1e-3 * max(np.linalg.norm(cameras[baseline].position - cameras[origin].position), 1e-300):
         raise DegenerateGeometryError("the gauge cameras stand on the same vertical: no ground baseline")
     ang = np.arctan2(d[1], d[0])
     c, s = np.cos(-ang), np.sin(-ang)
@@ -228,7 +232,7 @@ def _grow(
             len(xy), 4,
             lambda idx: plane_to_bearing_homography(xy[idx], bk[idx]),
             lambda G: _angles(p @ G.T, bk),
-            threshold=RESECTION_THRESHOLD_SIGMAS * bs.sigma, rng=rng,
+            threshold=max(RESECTION_THRESHOLD_SIGMAS * bs.sigma, MIN_THRESHOLD), rng=rng,
         )
         cameras[k] = camera_from_plane_homography(G)
         _place_nodes(cameras, bs, nodes)

@@ -15,6 +15,7 @@ The initial estimate comes from the bearings alone
 from __future__ import annotations
 
 import enum
+import re
 import time
 from dataclasses import dataclass, field, replace
 
@@ -25,6 +26,7 @@ from factors.baseline_prior import BaselinePrior
 from factors.pan_tilt_batch import PanTiltFactorSet
 from fgloc.geometry import bearing_pan_tilt, pan_tilt_bearing, pan_tilt_jacobian, pan_tilt_residual
 from fgloc.initialization import InitialEstimate, consensus_ground_point, ground_hits, initialize_planar
+from fgloc.initialization3d import initialize_3d
 from fgloc.levenberg_marquardt import IterationCallback, LMOutcome, LMParams, levenberg_marquardt
 from fgloc.model import (
     CameraPose,
@@ -231,7 +233,7 @@ def initialize(survey: Survey) -> InitialEstimate:
     """Closed-form initial estimate for the survey's mode."""
     if survey.mode is NodeMode.PLANAR:
         return initialize_planar(survey)
-    raise SolveError("3d surveys are not supported yet")
+    return initialize_3d(survey)
 
 
 @dataclass
@@ -287,6 +289,19 @@ def optimize(
     return outcome
 
 
+def _variable_named_in(message: str, problem: LocalizationProblem) -> str:
+    """The camera or node id GTSAM's indeterminate-system message points at."""
+    match = re.search(r"\(Symbol: ([a-z])(\d+)\)", message)
+    if match is None:
+        return "every variable"
+    index = int(match.group(2))
+    if match.group(1) == "c" and index < len(problem.survey.camera_ids):
+        return f"camera {problem.survey.camera_ids[index]}"
+    if match.group(1) == "l" and index < len(problem.survey.node_ids):
+        return f"node {problem.survey.node_ids[index]}"
+    return "every variable"
+
+
 def collect_result(
     problem: LocalizationProblem,
     outcome: LMOutcome,
@@ -305,15 +320,23 @@ def collect_result(
             problem.prepare(values)
             linear = problem.graph.linearize(values)
             # Batched Schur-complement marginals (fgloc.schur_marginals); None when a
-            # factor couples two nodes, then GTSAM's per-key Marginals.
-            fast = node_marginals(linear, values.dims(), list(problem.node_keys.values()))
+            # factor couples two nodes, then GTSAM's per-key Marginals. If the batched
+            # Cholesky fails, GTSAM runs too, to name the undetermined variable.
+            try:
+                fast = node_marginals(linear, values.dims(), list(problem.node_keys.values()))
+            except np.linalg.LinAlgError:
+                fast = None
             if fast is not None:
                 covariances = {nid: fast[key] for nid, key in problem.node_keys.items()}
             else:
                 marginals = gtsam.Marginals(linear, values)
                 covariances = {nid: marginals.marginalCovariance(key) for nid, key in problem.node_keys.items()}
-        except (RuntimeError, np.linalg.LinAlgError) as exc:
-            raise SolveError(f"marginal covariances are undefined (the graph is rank deficient): {exc}") from None
+        except RuntimeError as exc:
+            raise SolveError(
+                "marginal covariances are undefined: the readings do not determine "
+                f"{_variable_named_in(str(exc), problem)} (too few or degenerate readings, "
+                "or gauge cameras on one vertical)"
+            ) from None
         stages["marginals"] = stages.get("marginals", 0.0) + time.perf_counter() - t0
     nodes: dict[str, NodeEstimate] = {}
     for nid, key in problem.node_keys.items():

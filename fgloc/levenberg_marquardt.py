@@ -9,10 +9,10 @@ Python-owned ``Values`` itself and the loop is linear in n.
 Damping is diagonal (Marquardt): ``lambda * diag(J^T J)`` per variable, which is
 invariant to the strong whitening of 0.1-degree bearings (information ~3e5 would
 otherwise swamp an isotropic ``lambda I``). Lambda follows Nielsen's gain-ratio
-rule and starts small (1e-7): relative to ``diag(J^T J)`` a near-Gauss-Newton
-first step is right for this problem from the closed-form start, and a
-start at 1e-4 cost 8-11 iterations instead of 4-5 on the 100-node survey
-(the ratio rule only shrinks lambda by 3x per step). A rejected step raises
+rule, but a very good step may shrink it 10x (``min_lambda_factor``) instead of
+Nielsen's 3x: from the closed-form start that took the 100-node survey from
+8-11 iterations to 4 (starting at lambda 1e-7 did the same on planar
+surveys, but sent robust 3d solves into other basins). A rejected step raises
 it. The linear systems are solved by GTSAM's multifrontal Cholesky in the
 given elimination ordering.
 """
@@ -37,7 +37,8 @@ class LMParams:
     max_iterations: int = 100
     relative_error_tol: float = 1e-10
     absolute_error_tol: float = 1e-12
-    initial_lambda: float = 1e-7
+    initial_lambda: float = 1e-4
+    min_lambda_factor: float = 0.1  # smallest multiplier of lambda after a good step (Nielsen: 1/3)
     max_lambda: float = 1e12
     min_diagonal: float = 1e-9
 
@@ -155,7 +156,7 @@ def levenberg_marquardt(
             new_error = graph_error(candidate)
             if np.isfinite(new_error) and new_error < error and predicted > 0:
                 rho = (error - new_error) / predicted
-                lam *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
+                lam *= max(params.min_lambda_factor, 1.0 - (2.0 * rho - 1.0) ** 3)
                 nu = 2.0
                 accepted = True
                 break

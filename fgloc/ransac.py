@@ -44,16 +44,21 @@ def ransac(
         mask = residual(model) < threshold
         count = int(mask.sum())
         if count > best_count:
-            best_count, best_mask = count, mask
+            best_count, best_mask, best_model = count, mask, model
             w = count / n
             if w >= 1.0:
                 break
-            needed = int(np.ceil(np.log(1 - confidence) / np.log(max(1 - w**sample_size, 1e-12))))
+            miss = 1.0 - w**sample_size
+            if 1e-12 < miss < 1.0:
+                needed = int(np.ceil(np.log(1 - confidence) / np.log(miss)))
     if best_mask is None or best_count < sample_size:
         raise ValueError("RANSAC found no consistent model")
-    # Refit on all inliers, then take the final inlier set of the refitted model.
-    model = fit(np.flatnonzero(best_mask))
+    # Refit on all inliers; keep the refit only if it explains at least as many items.
+    try:
+        model = fit(np.flatnonzero(best_mask))
+    except (ValueError, ArithmeticError, np.linalg.LinAlgError, FglocError):
+        return best_model, best_mask
     mask = residual(model) < threshold
-    if mask.sum() >= sample_size:
-        model = fit(np.flatnonzero(mask))
+    if mask.sum() < best_count:
+        return best_model, best_mask
     return model, mask

@@ -1,5 +1,7 @@
 """The benchmark suite's scenes, its noise equivalence and its output (structure and consistency, never timing)."""
 
+import fgloc  # noqa: F401  (first: importing factors.* before fgloc is circular on main)
+
 import json
 import subprocess
 import sys

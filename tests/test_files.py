@@ -155,3 +155,13 @@ def test_result_write_is_atomic(tmp_path, small_survey, monkeypatch) -> None:
         write_result(result, path)
     assert path.read_bytes() == before
     assert [p.name for p in tmp_path.iterdir()] == ["result.json"]
+
+
+def test_written_files_get_normal_permissions(tmp_path, small_survey) -> None:
+    import os
+
+    path = tmp_path / "s.json"
+    write_survey(small_survey, path)
+    umask = os.umask(0)
+    os.umask(umask)
+    assert (path.stat().st_mode & 0o777) == (0o666 & ~umask)

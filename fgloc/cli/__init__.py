@@ -17,10 +17,10 @@ from types import ModuleType
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
-from fgloc.cli import bench, calibrate, demo, motes, ptz, report, score, simulate, solve, view  # noqa: E402
+from fgloc.cli import bench, calibrate, demo, motes, ptz, report, score, simulate, solve, survey, view  # noqa: E402
 from fgloc.model import FglocError  # noqa: E402
 
-COMMANDS: list[ModuleType] = [simulate, solve, score, demo, view, report, calibrate, ptz, motes, bench]
+COMMANDS: list[ModuleType] = [simulate, solve, score, demo, view, report, survey, calibrate, ptz, motes, bench]
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -1,0 +1,264 @@
+"""An in-process simulated survey rig: scene, pan-tilt heads, LED base station, faults.
+
+This twin works at the level of :mod:`fgloc.rig`'s protocols (no bytes): it lets
+the survey runner be exercised end to end, fast and deterministically. The
+byte-level twins (VISCA, TinyOS serial) replace it where the drivers are tested.
+
+Scene (gauge frame, planar): nodes uniform in the unit square on z = 0, camera
+0 above (0, 0), camera 1 above (1, 0), further cameras above points around the
+square; heights from the rig's simulation section; base rotations with random
+yaw and a few degrees of roll and pitch. Each (camera, node) pair carries a
+fixed measurement error N(0, sigma) on pan and tilt (deterministic by seed), so
+a camera always sees a node at the same apparent bearing: re-measuring after a
+resume reproduces the same reading. Frames are rendered as a Gaussian blob
+(1.5 px) per lit, unoccluded LED. Heads quantize moves to 1/14.4 degree (the
+EVI-D100's count).
+
+Faults: each head command may raise :class:`SimulatedLinkError` (a dropped or
+a garbled reply, at the configured rates), and one camera's link goes down
+after ``disconnect_after`` commands: every call raises ``ConnectionError`` until
+the runner reopens the head. The LED controller drops acknowledgements at the
+drop rate; dead nodes never acknowledge and never light.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+import zlib
+from dataclasses import dataclass
+
+import numpy as np
+
+from fgloc.geometry import FloatArray, pan_tilt_bearing, project_pan_tilt
+from fgloc.led_search import PinholePixelModel
+from fgloc.model import CameraPose, FglocError, NodeMode, Truth
+from fgloc.rig_config import RigConfig
+from fgloc.simulate import random_base_rotation
+
+COUNTS_PER_RAD = 14.4 * 180.0 / math.pi
+BLOB_SIGMA_PX = 1.5
+
+
+class SimulatedLinkError(OSError):
+    """A simulated lost or garbled reply."""
+
+
+def _stable_seed(*parts: object) -> int:
+    return zlib.crc32("/".join(str(p) for p in parts).encode())
+
+
+@dataclass
+class SimScene:
+    """Truth of a simulated rig plus the lit-LED state shared by heads and motes."""
+
+    camera_ids: list[str]
+    cameras: list[CameraPose]
+    node_ids: list[str]
+    nodes: FloatArray  # (N, 3)
+    visible: np.ndarray  # (n_cam, N) bool
+    apparent: np.ndarray  # (n_cam, N, 2) pan, tilt in radians, noise included
+    dead: set[str]
+
+    def __post_init__(self) -> None:
+        self.lit: set[str] = set()
+        self.lock = threading.Lock()
+
+    @property
+    def truth(self) -> Truth:
+        return Truth(cameras=dict(zip(self.camera_ids, self.cameras)),
+                     nodes={n: self.nodes[j] for j, n in enumerate(self.node_ids)})
+
+    def visible_pairs(self) -> set[tuple[str, str]]:
+        """(camera, node) pairs a survey can observe: unoccluded, LED working."""
+        return {(c, n) for i, c in enumerate(self.camera_ids) for j, n in enumerate(self.node_ids)
+                if self.visible[i, j] and n not in self.dead}
+
+
+def build_scene(rig: RigConfig) -> SimScene:
+    """The simulated scene of a rig (deterministic by ``rig.simulation.seed``)."""
+    if rig.mode is not NodeMode.PLANAR:
+        raise FglocError(f"{rig.path}: nodes: --simulate supports planar rigs only, got {rig.mode.value!r}")
+    sim = rig.simulation
+    rng = np.random.default_rng(sim.seed)
+    ids = rig.camera_ids
+    order = [rig.gauge.origin, rig.gauge.baseline] + [c for c in ids if c not in (rig.gauge.origin, rig.gauge.baseline)]
+    ground = {order[0]: (0.0, 0.0), order[1]: (1.0, 0.0)}
+    extra = [(0.0, 1.0), (1.0, 1.0), (0.5, -0.3), (0.5, 1.3), (-0.3, 0.5), (1.3, 0.5)]
+    for k, cid in enumerate(order[2:]):
+        ground[cid] = extra[k % len(extra)]
+    cameras = [CameraPose(np.array([*ground[c], sim.heights[i]]), random_base_rotation(rng, 3.0))
+               for i, c in enumerate(ids)]
+    n = len(rig.node_ids)
+    nodes = np.column_stack([rng.uniform(0.0, 1.0, size=(n, 2)), np.zeros(n)])
+    visible = rng.uniform(size=(len(ids), n)) >= sim.occlusion
+    apparent = np.empty((len(ids), n, 2))
+    for i, cam in enumerate(cameras):
+        pan, tilt = project_pan_tilt(cam.rotation, cam.position, nodes)
+        apparent[i, :, 0] = pan + rng.normal(0.0, rig.sigma, n)
+        apparent[i, :, 1] = tilt + rng.normal(0.0, rig.sigma, n)
+    return SimScene(list(ids), cameras, list(rig.node_ids), nodes, visible, apparent, set(sim.dead_nodes))
+
+
+def render_frame(scene: SimScene, index: int, pixels: PinholePixelModel, pan: float, tilt: float) -> np.ndarray:
+    """What camera ``index`` sees with its head at (pan, tilt): a Gaussian spot per lit LED."""
+    k = pixels.intrinsics
+    frame = np.zeros((k.height, k.width), dtype=np.uint8)
+    with scene.lock:
+        lit = [scene.node_ids.index(n) for n in scene.lit]
+    for j in lit:
+        if not scene.visible[index, j]:
+            continue
+        led_pan, led_tilt = scene.apparent[index, j]
+        px = pixels.bearing_to_pixel(pan, tilt, pan_tilt_bearing(led_pan, led_tilt))
+        if px is None:
+            continue
+        x, y = px
+        r = 8
+        x0, x1 = max(int(x) - r, 0), min(int(x) + r + 1, k.width)
+        y0, y1 = max(int(y) - r, 0), min(int(y) + r + 1, k.height)
+        if x0 >= x1 or y0 >= y1:
+            continue
+        ys, xs = np.mgrid[y0:y1, x0:x1]
+        blob = 250.0 * np.exp(-((xs - x) ** 2 + (ys - y) ** 2) / (2 * BLOB_SIGMA_PX**2))
+        frame[y0:y1, x0:x1] = np.maximum(frame[y0:y1, x0:x1], np.round(blob).astype(np.uint8))
+    return frame
+
+
+class SceneHead:
+    """A simulated pan-tilt head (implements :class:`fgloc.rig.PanTiltHead`)."""
+
+    def __init__(self, scene: SimScene, index: int, rig: RigConfig, generation: int, faults: "FaultPlan") -> None:
+        self.scene = scene
+        self.index = index
+        self.pixels = PinholePixelModel(rig.cameras[index].intrinsics)
+        self.pan = 0.0
+        self.tilt = 0.0
+        self._zoom = rig.cameras[index].zoom
+        self.time_scale = rig.simulation.time_scale
+        self.faults = faults
+        self.rng = np.random.default_rng(_stable_seed(rig.simulation.seed, rig.camera_ids[index], generation))
+        self.closed = False
+
+    def _command(self) -> None:
+        if self.closed:
+            raise ConnectionError("simulated head: port closed")
+        self.faults.on_command(self.scene.camera_ids[self.index], self.rng)
+
+    def move_to(self, pan: float, tilt: float) -> None:
+        self._command()
+        new_pan = round(pan * COUNTS_PER_RAD) / COUNTS_PER_RAD
+        new_tilt = round(tilt * COUNTS_PER_RAD) / COUNTS_PER_RAD
+        if self.time_scale > 0:
+            time.sleep(self.time_scale * (0.002 + 0.01 * math.hypot(new_pan - self.pan, new_tilt - self.tilt)))
+        self.pan, self.tilt = new_pan, new_tilt
+
+    def position(self) -> tuple[float, float]:
+        self._command()
+        return self.pan, self.tilt
+
+    def set_zoom(self, zoom: float) -> None:
+        self._command()
+        self._zoom = zoom
+
+    def zoom(self) -> float:
+        self._command()
+        return self._zoom
+
+    def stop(self) -> None:
+        self._command()
+
+    def home(self) -> None:
+        self.move_to(0.0, 0.0)
+
+    def grab_frame(self) -> np.ndarray:
+        self._command()
+        return render_frame(self.scene, self.index, self.pixels, self.pan, self.tilt)
+
+    def close(self) -> None:
+        self.closed = True
+
+
+class FaultPlan:
+    """Shared fault state of the simulated links (thread-safe)."""
+
+    def __init__(self, rig: RigConfig) -> None:
+        sim = rig.simulation
+        self.drop_rate = sim.drop_rate
+        self.garble_rate = sim.garble_rate
+        self.disconnect_after = sim.disconnect_after
+        self.disconnect_camera = sim.disconnect_camera
+        self.commands: dict[str, int] = {}
+        self.down: set[str] = set()
+        self.disconnected_once = False
+        self.injected = {"dropped": 0, "garbled": 0, "disconnects": 0}
+        self.lock = threading.Lock()
+
+    def on_command(self, camera: str, rng: np.random.Generator) -> None:
+        with self.lock:
+            if camera in self.down:
+                raise ConnectionError(f"simulated head {camera}: link down")
+            count = self.commands[camera] = self.commands.get(camera, 0) + 1
+            if (self.disconnect_after and not self.disconnected_once and camera == self.disconnect_camera
+                    and count >= self.disconnect_after):
+                self.disconnected_once = True
+                self.down.add(camera)
+                self.injected["disconnects"] += 1
+                raise ConnectionError(f"simulated head {camera}: link down")
+        u = rng.uniform()
+        if u < self.drop_rate:
+            with self.lock:
+                self.injected["dropped"] += 1
+            raise SimulatedLinkError(f"simulated head {camera}: no reply (timeout)")
+        if u < self.drop_rate + self.garble_rate:
+            with self.lock:
+                self.injected["garbled"] += 1
+            raise SimulatedLinkError(f"simulated head {camera}: garbled reply")
+
+    def reopen(self, camera: str) -> None:
+        with self.lock:
+            self.down.discard(camera)
+
+
+class SceneLeds:
+    """A simulated base station (implements :class:`fgloc.rig.LedController`)."""
+
+    def __init__(self, scene: SimScene, rig: RigConfig) -> None:
+        self.scene = scene
+        self.drop_rate = rig.simulation.drop_rate
+        self.time_scale = rig.simulation.time_scale
+        self.rng = np.random.default_rng(_stable_seed(rig.simulation.seed, "motes"))
+        self.acks_dropped = 0
+
+    def set_led(self, node_id: str, on: bool) -> bool:
+        if self.time_scale > 0:
+            time.sleep(self.time_scale * 0.005)
+        if node_id in self.scene.dead or node_id not in self.scene.node_ids:
+            return False
+        with self.scene.lock:
+            if on:
+                self.scene.lit.add(node_id)
+            else:
+                self.scene.lit.discard(node_id)
+        if self.rng.uniform() < self.drop_rate:
+            self.acks_dropped += 1
+            return False
+        return True
+
+
+class InProcessRig:
+    """Opens simulated heads and the LED controller of a rig, sharing one scene."""
+
+    def __init__(self, rig: RigConfig) -> None:
+        self.rig = rig
+        self.scene = build_scene(rig)
+        self.faults = FaultPlan(rig)
+        self.leds = SceneLeds(self.scene, rig)
+        self._generation: dict[str, int] = {}
+
+    def open_head(self, camera_id: str) -> SceneHead:
+        """Open (or reopen, after a disconnect) the head of ``camera_id``."""
+        gen = self._generation[camera_id] = self._generation.get(camera_id, -1) + 1
+        self.faults.reopen(camera_id)
+        return SceneHead(self.scene, self.rig.camera_ids.index(camera_id), self.rig, gen, self.faults)

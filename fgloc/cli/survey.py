@@ -1,0 +1,75 @@
+"""``fgloc survey``: run a survey on a rig (or its simulated twin), resumable after a kill."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+
+from fgloc.rig_config import load_rig
+from fgloc.survey_runner import BatchEstimator, IncrementalEstimator, LiveEstimate, Progress, format_estimate, format_progress
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("survey", help="run a survey: light each node, let every camera measure it")
+    p.add_argument("--rig", required=True, help="rig.json describing cameras, motes and nodes")
+    p.add_argument("-o", "--output", required=True, help="survey directory (journal.jsonl, survey.json)")
+    p.add_argument("--simulate", action="store_true", help="run against the simulated twin of the rig")
+    p.add_argument("--resume", action="store_true", help="continue the journal in the survey directory")
+    p.add_argument("--live-every", type=int, default=1, metavar="N",
+                   help="solve and print estimates after every N nodes (default 1)")
+    p.add_argument("--no-live", action="store_true", help="no live estimates")
+    p.add_argument("--estimator", choices=("batch", "incremental"), default="batch",
+                   help="live estimates by re-solving everything (batch, default) or iSAM2 (incremental)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(run=run)
+
+
+class _ProgressLine:
+    """Rewrites one stderr line (a bar) when stderr is a terminal, else prints every 10%."""
+
+    def __init__(self, enabled: bool) -> None:
+        self.enabled = enabled
+        self.tty = sys.stderr.isatty()
+        self.last_decile = -1
+        self.last_time = 0.0
+
+    def __call__(self, p: Progress) -> None:
+        if not self.enabled:
+            return
+        line = format_progress(p)
+        if self.tty:
+            now = time.monotonic()
+            if now - self.last_time > 0.1 or p.nodes_done == p.nodes_total:
+                print("\r" + line, end="\n" if p.nodes_done == p.nodes_total else "", file=sys.stderr, flush=True)
+                self.last_time = now
+        else:
+            decile = (10 * p.nodes_done) // max(p.nodes_total, 1)
+            if decile != self.last_decile:
+                print(line, file=sys.stderr, flush=True)
+                self.last_decile = decile
+
+
+def run(args: argparse.Namespace) -> int:
+    from fgloc.survey_session import run_survey
+
+    rig = load_rig(args.rig)
+    progress = _ProgressLine(not args.quiet)
+
+    def log(message: str) -> None:
+        print(("\n" if progress.tty and progress.enabled else "") + f"fgloc: {message}", file=sys.stderr, flush=True)
+
+    def show(live: LiveEstimate) -> None:
+        print(format_estimate(live), flush=True)
+
+    survey, runner = run_survey(
+        rig, args.output, simulate=args.simulate, resume=args.resume,
+        estimator=None if args.no_live else (IncrementalEstimator() if args.estimator == "incremental"
+                                             else BatchEstimator()),
+        live_every=args.live_every, on_estimate=show, on_progress=progress, log=log,
+    )
+    s = runner.stats
+    print(f"wrote {args.output}/survey.json: {len(survey.node_ids)} nodes, {len(survey.observations)} observations "
+          f"({s.nodes_skipped} nodes already done, {s.not_found} not found, {s.led_failed} LED failures, "
+          f"{s.head_errors} head errors, {s.reconnects} reconnects)")
+    return 0

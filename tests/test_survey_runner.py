@@ -1,0 +1,284 @@
+"""The survey runner against the in-process simulated rig: outcomes, resume, faults, live estimates."""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from drivers.inprocess_rig import InProcessRig
+from fgloc.journal import read_journal
+from fgloc.model import FglocError
+from fgloc.rig_config import parse_rig
+from fgloc.survey_runner import Progress, format_progress
+from fgloc.survey_session import OpenedRig, journal_survey, run_survey
+from tests.test_rig_config import EXAMPLE
+
+
+def small_rig(n_nodes: int = 8, **simulation):
+    data = json.loads(EXAMPLE.read_text())
+    data["node_ids"] = [f"n{j:03d}" for j in range(n_nodes)]
+    sim = {"seed": 1, "heights": [0.1, 0.12], "occlusion": 0.1, "dead_nodes": ["n003"]}
+    sim.update(simulation)
+    data["simulation"] = sim
+    data["retry"] = {"backoff_s": 0.0}
+    return parse_rig(data, str(EXAMPLE), EXAMPLE.parent)
+
+
+def opened(rig):
+    sim = InProcessRig(rig)
+    return OpenedRig(open_head=sim.open_head, leds=sim.leds, simulated=sim), sim
+
+
+def obs_by_key(path):
+    return {k: (o.pan, o.tilt) for k, o in read_journal(path).observations.items()}
+
+
+def test_survey_observes_every_visible_pair_and_records_the_rest(tmp_path):
+    rig = small_rig(10)
+    rig_opened, sim = opened(rig)
+    survey, runner = run_survey(rig, tmp_path, opened=rig_opened)
+    state = read_journal(tmp_path / "journal.jsonl")
+    seen = {(c, n) for (n, c, _) in state.observations}
+    assert seen == sim.scene.visible_pairs()
+    assert set(state.led_failed) == {"n003"}
+    occluded = {(n, c) for i, c in enumerate(rig.camera_ids) for j, n in enumerate(rig.node_ids)
+                if not sim.scene.visible[i, j] and n != "n003"}
+    assert occluded and set(state.not_found) == occluded
+    assert state.done == set(rig.node_ids)
+    for (n, c, _), o in state.observations.items():
+        want = sim.scene.apparent[rig.camera_ids.index(c), rig.node_ids.index(n)]
+        assert abs(math.remainder(o.pan - want[0], 2 * math.pi)) < 1e-4
+        assert abs(o.tilt - want[1]) < 1e-4
+    assert (tmp_path / "survey.json").exists()
+    assert survey.truth is not None and set(survey.truth.nodes) == set(rig.node_ids)
+
+
+def test_resume_from_any_kill_point_gives_the_same_observations(tmp_path):
+    """Cut the uninterrupted run's journal after every record (and mid-record), resume:
+    the observations are exactly those of the uninterrupted run, none lost or duplicated."""
+    rig = small_rig(6)
+    full_dir = tmp_path / "full"
+    run_survey(rig, full_dir, opened=opened(rig)[0])
+    reference = obs_by_key(full_dir / "journal.jsonl")
+    data = (full_dir / "journal.jsonl").read_bytes()
+    ends = [i + 1 for i, b in enumerate(data) if b == ord("\n")]
+    cuts = ends + [e + 9 for e in ends[:-1]]  # clean cuts and torn last lines
+    for k, cut in enumerate(cuts):
+        d = tmp_path / f"cut{k}"
+        d.mkdir()
+        (d / "journal.jsonl").write_bytes(data[:cut])
+        run_survey(rig, d, resume=True, opened=opened(rig)[0])
+        state = read_journal(d / "journal.jsonl")
+        assert state.duplicates_ignored == 0, cut
+        assert obs_by_key(d / "journal.jsonl") == reference, cut
+        assert state.done == set(rig.node_ids)
+
+
+def test_resume_refuses_another_rig_and_new_run_refuses_existing_journal(tmp_path):
+    rig = small_rig(5)
+    run_survey(rig, tmp_path, opened=opened(rig)[0])
+    with pytest.raises(FglocError, match="journal already exists"):
+        run_survey(rig, tmp_path, opened=opened(rig)[0])
+    other = small_rig(5, seed=2)
+    with pytest.raises(FglocError, match="rig_hash: journal was recorded with a different"):
+        run_survey(other, tmp_path, resume=True, opened=opened(other)[0])
+
+
+def test_faults_are_retried_and_a_disconnect_reconnected(tmp_path):
+    rig = small_rig(12, drop_rate=0.05, garble_rate=0.01, disconnect_after=40, disconnect_camera="cam1")
+    rig_opened, sim = opened(rig)
+    _, runner = run_survey(rig, tmp_path, opened=rig_opened)
+    assert sim.faults.injected["disconnects"] == 1 and sim.faults.injected["dropped"] > 0
+    assert runner.stats.reconnects >= 1 and runner.stats.head_errors >= sim.faults.injected["dropped"]
+    state = read_journal(tmp_path / "journal.jsonl")
+    assert {(c, n) for (n, c, _) in state.observations} == sim.scene.visible_pairs()
+
+
+def test_a_dead_camera_is_recorded_not_fatal(tmp_path):
+    rig = small_rig(5)
+    rig_opened, sim = opened(rig)
+
+    def open_head(cid):
+        if cid == "cam1":
+            raise ConnectionError("no such port")
+        return sim.open_head(cid)
+
+    run_survey(rig, tmp_path, opened=replace(rig_opened, open_head=open_head))
+    state = read_journal(tmp_path / "journal.jsonl")
+    assert all(c == "cam0" for (_, c, _) in state.observations)
+    assert all("camera error" in r for (n, c), r in state.not_found.items() if c == "cam1")
+    assert state.done == set(rig.node_ids)
+
+
+class CountingEstimator:
+    """A stand-in for an incremental estimator: records what it was given, solves in batch."""
+
+    def __init__(self):
+        self.sizes = []
+
+    def update(self, survey):
+        from fgloc.joint_solver import solve_survey
+
+        self.sizes.append(len(survey.observations))
+        return solve_survey(survey)
+
+
+def test_live_estimates_and_progress(tmp_path):
+    rig = small_rig(10, occlusion=0.0, dead_nodes=[])
+    est = CountingEstimator()
+    estimates, progress = [], []
+    survey, runner = run_survey(rig, tmp_path, opened=opened(rig)[0], estimator=est,
+                                on_estimate=estimates.append, on_progress=progress.append)
+    # Estimates start once five nodes are seen by both cameras, then follow every node.
+    assert est.sizes == [10, 12, 14, 16, 18, 20]
+    assert [e.nodes_done for e in estimates] == [5, 6, 7, 8, 9, 10]
+    final = estimates[-1].result
+    assert set(final.nodes) == set(rig.node_ids)
+    truth = survey.truth
+    err = max(np.linalg.norm(final.nodes[n].position - truth.nodes[n]) for n in rig.node_ids)
+    assert err < 0.05  # sigma 0.1 deg, 10 nodes: errors are ~1e-2
+    assert [p.nodes_done for p in progress] == list(range(11))
+    assert progress[-1].eta_s == 0.0 and (tmp_path / "estimate.json").exists()
+    line = format_progress(Progress(3, 10, 6, 1, 75.0))
+    assert "3/10 nodes" in line and "6 obs" in line and "left 01:15" in line
+
+
+def test_journal_survey_reads_a_directory(tmp_path):
+    rig = small_rig(4, occlusion=0.0, dead_nodes=[])
+    survey, _ = run_survey(rig, tmp_path, opened=opened(rig)[0])
+    assert journal_survey(tmp_path).observations == survey.observations
+
+
+def test_open_hardware_reaches_every_transport_through_rig_json(tmp_path):
+    """rig.json port strings for VISCA serial, VISCA-IP, Sony CGI and a TinyOS base station open
+    the real drivers (here against the issue-7a twins) and answer."""
+    from drivers.twins.rig import TwinCamera, TwinRig
+    from fgloc.survey_session import open_hardware
+
+    cams = [TwinCamera("cam0", "serial"), TwinCamera("cam1", "udp", model="VISCA-IP"),
+            TwinCamera("cam2", "http", model="SNC-RZ25N")]
+    with TwinRig(cams) as twins:
+        data = json.loads(EXAMPLE.read_text())
+        k = data["cameras"][0]["intrinsics"]
+        drivers = {"cam0": "visca-serial", "cam1": "visca-ip", "cam2": "sony-cgi"}
+        data["cameras"] = [{"id": c.camera_id, "driver": drivers[c.camera_id], "port": twins.ports[c.camera_id],
+                            "model": c.model, "intrinsics": k} for c in cams]
+        data["motes"] = {"driver": "tinyos-serial", "port": twins.mote_port, "addresses": {"n000": 5}}
+        data["node_ids"] = ["n000"]
+        del data["simulation"]
+        rig = parse_rig(data, "rig.json", EXAMPLE.parent)
+        opened_rig = open_hardware(rig)
+        try:
+            for cid in rig.camera_ids:
+                head = opened_rig.open_head(cid)
+                head.move_to(0.2, 0.1)
+                pan, tilt = head.position()
+                assert abs(pan - 0.2) < 0.01 and abs(tilt - 0.1) < 0.01
+                head.close()
+            assert opened_rig.leds.set_led("n000", True)
+            assert twins.field.led_on.get(5) is True
+        finally:
+            opened_rig.close()
+
+
+def test_cli_survey_over_the_visca_twins_and_resume(tmp_path, capsys):
+    """fgloc survey --simulate with simulation.twin = visca: real VISCA and TinyOS bytes end to end."""
+    from fgloc.cli import main
+    from tests.test_survey_acceptance import visca_rig
+
+    rig = visca_rig(tmp_path / "rig.json", 8, occlusion=0.0)
+    out = tmp_path / "out"
+    assert main(["survey", "--rig", str(rig), "-o", str(out), "--simulate", "--quiet"]) == 0
+    text = capsys.readouterr().out
+    assert "estimate after 8 nodes: 8 localized" in text and "16 observations" in text
+    survey = read_survey_file(out / "survey.json")
+    assert len(survey.observations) == 16 and survey.truth is not None
+
+    assert main(["survey", "--rig", str(rig), "-o", str(out), "--simulate", "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "journal already exists (use --resume" in err and err.count("\n") == 1
+    assert main(["survey", "--rig", str(rig), "-o", str(out), "--simulate", "--resume", "--quiet"]) == 0
+    assert "(8 nodes already done" in capsys.readouterr().out
+    assert read_survey_file(out / "survey.json").observations == survey.observations
+
+
+def read_survey_file(path):
+    from fgloc.files import read_survey
+
+    return read_survey(path)
+
+
+@pytest.mark.slow
+def test_on_off_detection_on_rendered_frames_with_background_and_a_static_light(tmp_path):
+    """Against the camera pipeline's renderer (drivers/rendered_camera.py: textured background,
+    sensor noise, an always-on bright light in view of both cameras) the survey finds every
+    node with on/off frame pairs and fgloc.led_detection. Truth here is noise-free geometry, so
+    each reading must equal the true bearing to within the centroid error of a noisy spot
+    (~0.05 px at ~400 px focal length: 1e-4 rad; tolerance 3e-4 rad). With "single" detection
+    the same survey reads the background or the static light (errors of radians)."""
+    from drivers.rendered_camera import simulated_rig
+    from fgloc.geometry import project_pan_tilt
+    from fgloc.intrinsics import CameraIntrinsics
+    from fgloc.simulate import PaperScenario, paper_scenario
+
+    truth_survey = paper_scenario(PaperScenario(n_nodes=6, heights=(0.3, 0.35), seed=5))
+    truth = truth_survey.truth
+    intr = CameraIntrinsics.from_fov(320, 240, 40.0)
+    heads, leds = simulated_rig(truth.cameras, truth.nodes, intr, seed=3,
+                                distractors=np.array([[0.5, 0.5, 0.02]]))
+    data = json.loads(EXAMPLE.read_text())
+    for cam in data["cameras"]:
+        cam["intrinsics"] = {"fx": intr.fx, "fy": intr.fy, "cx": intr.cx, "cy": intr.cy,
+                             "width": intr.width, "height": intr.height}
+    data["node_ids"] = list(truth_survey.node_ids)
+    data["search"] = {"detection": "on-off", "tilt_min_deg": -85, "tilt_max_deg": 10}
+    data["retry"] = {"backoff_s": 0.0}
+    del data["simulation"]
+    rig = parse_rig(data, str(EXAMPLE), EXAMPLE.parent)
+    survey, runner = run_survey(rig, tmp_path, opened=OpenedRig(open_head=lambda cid: heads[cid], leds=leds))
+    assert len(survey.observations) == 12
+    for o in survey.observations:
+        pose = truth.cameras[o.camera]
+        pan, tilt = project_pan_tilt(pose.rotation, pose.position, truth.nodes[o.node][None, :])
+        assert abs(math.remainder(o.pan - float(pan[0]), 2 * math.pi)) < 3e-4
+        assert abs(o.tilt - float(tilt[0])) < 3e-4
+
+
+class FakeLocalizer:
+    """Records what an incremental localizer is fed; estimates by batch-solving all of it."""
+
+    instances = []
+
+    def __init__(self, camera_ids, gauge, sigma):
+        self.args = (camera_ids, gauge, sigma)
+        self.fed = []
+        FakeLocalizer.instances.append(self)
+
+    def add_observations(self, observations):
+        self.fed.append(list(observations))
+
+    def estimate(self):
+        from fgloc.joint_solver import solve_survey
+        from fgloc.model import NodeMode, Survey
+
+        obs = [o for batch in self.fed for o in batch]
+        nodes = sorted({o.node for o in obs})
+        return solve_survey(Survey(NodeMode.PLANAR, self.args[1], self.args[2], self.args[0], nodes, obs))
+
+
+def test_incremental_estimator_feeds_each_reading_once(tmp_path):
+    from fgloc.survey_runner import IncrementalEstimator
+
+    FakeLocalizer.instances.clear()
+    rig = small_rig(8, occlusion=0.0, dead_nodes=[])
+    est = IncrementalEstimator(FakeLocalizer)
+    survey, runner = run_survey(rig, tmp_path, opened=opened(rig)[0], estimator=est)
+    (loc,) = FakeLocalizer.instances
+    fed = [o for batch in loc.fed for o in batch]
+    assert sorted(fed, key=repr) == sorted(survey.observations, key=repr)  # each exactly once
+    assert [len(b) for b in loc.fed] == [10, 2, 2, 2]  # first estimate at 5 shared nodes, then per node
+    assert runner.latest is not None and set(runner.latest.result.nodes) == set(rig.node_ids)
