@@ -43,20 +43,21 @@ def _null_vector(a: FloatArray) -> tuple[FloatArray, float]:
     return vt[-1], float(ratio)
 
 
-#: Ratio of the two smallest singular values of a DLT system above which its
-#: null space is not one-dimensional: the nodes do not span the plane (measured:
-#: 0.015-0.08 for nodes spread over a field, 0.33-0.49 for collinear nodes).
-DEGENERATE_RATIO = 0.2
+def check_spans_plane(b1: FloatArray, b2: FloatArray, sigma: float) -> None:
+    """Raise if the shared nodes are (nearly) collinear.
 
-
-def check_spans_plane(b1: FloatArray, b2: FloatArray) -> None:
-    """Raise if pairs of bearings cannot determine a homography (collinear nodes)."""
-    rows = np.einsum("mki,mj->mkij", skew(b2), b1).reshape(-1, 9)
-    _, ratio = _null_vector(rows)
-    if len(b1) < 4 or ratio > DEGENERATE_RATIO:
-        raise DegenerateGeometryError(
-            "the shared nodes are (nearly) collinear: a planar survey needs nodes that span the ground plane"
-        )
+    Collinear ground nodes lie in one plane through each camera, so their
+    bearings fill only a great circle: the stacked bearings have rank 2. The
+    smallest singular value of the stack, relative to the largest, is then at
+    the noise level (a node spread over a field gives 0.05 or more even from a
+    camera 0.05 baselines high); below 10 sigma the survey is refused.
+    """
+    for b in (b1, b2):
+        s = np.linalg.svd(np.asarray(b, dtype=float), compute_uv=False)
+        if len(b) < 4 or s[-1] < 10.0 * sigma * s[0]:
+            raise DegenerateGeometryError(
+                "the shared nodes are (nearly) collinear: a planar survey needs nodes that span the ground plane"
+            )
 
 
 def estimate_bearing_homography(b1: FloatArray, b2: FloatArray) -> FloatArray:

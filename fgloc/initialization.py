@@ -159,7 +159,7 @@ def _pair_frames(bs: BearingSet, a: int, b: int, rng: np.random.Generator) -> tu
         threshold=max(PAIR_THRESHOLD_SIGMAS * bs.sigma, MIN_THRESHOLD), rng=rng,
     )
     b1, b2 = b1[inliers], b2[inliers]
-    check_spans_plane(b1, b2)
+    check_spans_plane(b1, b2, bs.sigma)
     candidates = decompose_bearing_homography(H)
     scores = np.array([chirality_score(c, b1, b2) for c in candidates])
     keep = [c for c, sc in zip(candidates, scores) if sc >= 0.98 * scores.max()]
