@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fgloc.geometry import FloatArray, nearest_rotation, skew
+from fgloc.geometry import FloatArray, angle_between, nearest_rotation, skew
 from fgloc.homography import DegenerateGeometryError
 from fgloc.model import CameraPose
 
@@ -54,17 +54,11 @@ def check_not_coplanar(b1: FloatArray, b2: FloatArray, sigma: float) -> None:
     from fgloc.homography import estimate_bearing_homography  # local: homography imports this module's error
 
     H = estimate_bearing_homography(b1, b2)
-    err = np.minimum(_angle(b1 @ H.T, b2), _angle(b2 @ np.linalg.inv(H).T, b1))
+    err = np.minimum(angle_between(b1 @ H.T, b2), angle_between(b2 @ np.linalg.inv(H).T, b1))
     if np.median(err) < 3.0 * sigma:
         raise DegenerateGeometryError(
             "the shared nodes are (nearly) coplanar: a 3d survey needs nodes off one plane (use planar mode)"
         )
-
-
-def _angle(a: FloatArray, b: FloatArray) -> FloatArray:
-    a = a / np.linalg.norm(a, axis=1, keepdims=True)
-    b = b / np.linalg.norm(b, axis=1, keepdims=True)
-    return np.arctan2(np.linalg.norm(np.cross(a, b), axis=1), np.einsum("mi,mi->m", a, b))
 
 
 def triangulate_pair(pose: RelativePose, b1: FloatArray, b2: FloatArray) -> tuple[FloatArray, FloatArray]:

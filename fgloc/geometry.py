@@ -118,6 +118,13 @@ def pan_tilt_residual(
     return np.stack(np.broadcast_arrays(dp, dt), axis=-1)
 
 
+def angle_between(a: ArrayLike, b: ArrayLike) -> FloatArray:
+    """Angle in radians between corresponding vectors (..., 3) of any lengths (atan2 form, exact near 0)."""
+    a = np.asarray(a, dtype=float)
+    b = np.asarray(b, dtype=float)
+    return np.arctan2(np.linalg.norm(np.cross(a, b), axis=-1), np.einsum("...i,...i->...", a, b))
+
+
 def skew(v: ArrayLike) -> FloatArray:
     """Cross-product matrix(es) ``[v]_x`` of shape (..., 3, 3)."""
     v = np.asarray(v, dtype=float)

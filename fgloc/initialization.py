@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from fgloc.geometry import FloatArray, pan_tilt_bearing
+from fgloc.geometry import FloatArray, angle_between, pan_tilt_bearing
 from fgloc.homography import (
     DegenerateGeometryError,
     camera_from_plane_homography,
@@ -115,13 +115,6 @@ def consensus_ground_point(pts: FloatArray, tol: FloatArray) -> tuple[FloatArray
     return (w[:, None] * pts[inliers]).sum(0) / w.sum(), inliers
 
 
-def _angles(a: FloatArray, b: FloatArray) -> FloatArray:
-    """Angle between rows of a and b (any lengths), radians."""
-    a = a / np.linalg.norm(a, axis=1, keepdims=True)
-    b = b / np.linalg.norm(b, axis=1, keepdims=True)
-    return np.arctan2(np.linalg.norm(np.cross(a, b), axis=1), np.einsum("mi,mi->m", a, b))
-
-
 def _place_nodes(cameras: dict[int, CameraPose], bs: BearingSet, nodes: dict[int, FloatArray]) -> None:
     cam_ids = list(cameras)
     for j in range(bs.seen.shape[1]):
@@ -155,7 +148,7 @@ def _pair_frames(bs: BearingSet, a: int, b: int, rng: np.random.Generator) -> tu
         lambda idx: estimate_bearing_homography(b1[idx], b2[idx]),
         # Transfer both ways and keep the smaller angle: one direction amplifies the
         # noise by the ratio of the node's ranges, the other shrinks it.
-        lambda H: np.minimum(_angles(b1 @ H.T, b2), _angles(b2 @ np.linalg.inv(H).T, b1)),
+        lambda H: np.minimum(angle_between(b1 @ H.T, b2), angle_between(b2 @ np.linalg.inv(H).T, b1)),
         threshold=max(PAIR_THRESHOLD_SIGMAS * bs.sigma, MIN_THRESHOLD), rng=rng,
     )
     b1, b2 = b1[inliers], b2[inliers]
@@ -208,6 +201,42 @@ def covisibility(bs: BearingSet) -> np.ndarray:
     return s @ s.T
 
 
+def starting_pair(bs: BearingSet, survey: Survey, min_shared: int) -> tuple[int, int]:
+    """The gauge pair if it shares ``min_shared`` nodes, else the pair of cameras sharing the most."""
+    ids = survey.camera_ids
+    origin, baseline = ids.index(survey.gauge.origin), ids.index(survey.gauge.baseline)
+    shared = covisibility(bs)
+    if shared[origin, baseline] >= min_shared:
+        return origin, baseline
+    off = shared - np.diag(np.diag(shared))
+    a, b = (int(v) for v in np.unravel_index(int(np.argmax(off)), off.shape))
+    if off[a, b] < min_shared:
+        raise DegenerateGeometryError(
+            f"no two cameras share {min_shared} nodes (best: {ids[a]} and {ids[b]} share {off[a, b]})"
+        )
+    return a, b
+
+
+def next_camera(
+    bs: BearingSet, cameras: dict[int, CameraPose], nodes: dict[int, FloatArray], ids: list[str], min_shared: int
+) -> tuple[int, np.ndarray]:
+    """The unplaced camera seeing the most placed nodes, and which nodes those are (mask).
+
+    Raises, naming the cameras, when none sees ``min_shared`` placed nodes (the
+    co-visibility graph is disconnected or too weakly connected).
+    """
+    placed = np.zeros(bs.seen.shape[1], dtype=bool)
+    placed[list(nodes)] = True
+    counts = [(int(np.sum(bs.seen[i] & placed)), i) for i in range(len(ids)) if i not in cameras]
+    n_best, k = max(counts)
+    if n_best < min_shared:
+        missing = sorted(ids[i] for _, i in counts)
+        raise DegenerateGeometryError(
+            f"camera(s) {', '.join(missing)} share fewer than {min_shared} nodes with the placed cameras"
+        )
+    return k, bs.seen[k] & placed
+
+
 def _grow(
     bs: BearingSet, cameras: dict[int, CameraPose], ids: list[str], rng: np.random.Generator
 ) -> dict[int, FloatArray]:
@@ -215,23 +244,14 @@ def _grow(
     nodes: dict[int, FloatArray] = {}
     _place_nodes(cameras, bs, nodes)
     while len(cameras) < len(ids):
-        placed = np.zeros(bs.seen.shape[1], dtype=bool)
-        placed[list(nodes)] = True
-        counts = [(int(np.sum(bs.seen[i] & placed)), i) for i in range(len(ids)) if i not in cameras]
-        n_best, k = max(counts)
-        if n_best < MIN_SHARED_PLANAR:
-            missing = sorted(ids[i] for _, i in counts)
-            raise DegenerateGeometryError(
-                f"camera(s) {', '.join(missing)} share fewer than {MIN_SHARED_PLANAR} nodes with the placed cameras"
-            )
-        vis = bs.seen[k] & placed
+        k, vis = next_camera(bs, cameras, nodes, ids, MIN_SHARED_PLANAR)
         xy = np.array([nodes[j][:2] for j in np.flatnonzero(vis)])
         bk = bs.bearings[k, vis]
         p = np.column_stack([xy, np.ones(len(xy))])
         G, _ = ransac(
             len(xy), 4,
             lambda idx: plane_to_bearing_homography(xy[idx], bk[idx]),
-            lambda G: _angles(p @ G.T, bk),
+            lambda G: angle_between(p @ G.T, bk),
             threshold=max(RESECTION_THRESHOLD_SIGMAS * bs.sigma, MIN_THRESHOLD), rng=rng,
         )
         cameras[k] = camera_from_plane_homography(G)
@@ -272,16 +292,7 @@ def initialize_planar(survey: Survey) -> InitialEstimate:
     bs = BearingSet.from_survey(survey)
     ids = survey.camera_ids
     origin, baseline = ids.index(survey.gauge.origin), ids.index(survey.gauge.baseline)
-    shared = covisibility(bs)
-    if shared[origin, baseline] >= MIN_SHARED_PLANAR:
-        a, b = origin, baseline
-    else:
-        off = shared - np.diag(np.diag(shared))
-        a, b = np.unravel_index(int(np.argmax(off)), off.shape)
-        if off[a, b] < MIN_SHARED_PLANAR:
-            raise DegenerateGeometryError(
-                f"no two cameras share {MIN_SHARED_PLANAR} nodes (best: {ids[a]} and {ids[b]} share {off[a, b]})"
-            )
+    a, b = starting_pair(bs, survey, MIN_SHARED_PLANAR)
     best: tuple[float, float, dict[int, CameraPose], dict[int, FloatArray]] | None = None
     rng = np.random.default_rng(RANSAC_SEED)
     frames, outliers = _pair_frames(bs, int(a), int(b), rng)

@@ -28,20 +28,14 @@ from fgloc.essential import (
     resect_camera,
     triangulate_rays,
 )
-from fgloc.geometry import FloatArray
+from fgloc.geometry import FloatArray, angle_between
 from fgloc.homography import DegenerateGeometryError
-from fgloc.initialization import MIN_THRESHOLD, RANSAC_SEED, BearingSet, InitialEstimate, covisibility
+from fgloc.initialization import MIN_THRESHOLD, RANSAC_SEED, BearingSet, InitialEstimate, next_camera, starting_pair
 from fgloc.model import CameraPose, FglocError, NodeMode, Survey
 from fgloc.ransac import ransac
 
 PAIR_THRESHOLD_SIGMAS = 10.0
 RESECTION_THRESHOLD_SIGMAS = 30.0
-
-
-def _angles(a: FloatArray, b: FloatArray) -> FloatArray:
-    a = a / np.linalg.norm(a, axis=1, keepdims=True)
-    b = b / np.linalg.norm(b, axis=1, keepdims=True)
-    return np.arctan2(np.linalg.norm(np.cross(a, b), axis=1), np.einsum("mi,mi->m", a, b))
 
 
 def _triangulate_all(cameras: dict[int, CameraPose], bs: BearingSet, nodes: dict[int, FloatArray]) -> None:
@@ -100,37 +94,20 @@ def initialize_3d(survey: Survey) -> InitialEstimate:
     bs = BearingSet.from_survey(survey)
     ids = survey.camera_ids
     origin, baseline = ids.index(survey.gauge.origin), ids.index(survey.gauge.baseline)
-    shared = covisibility(bs)
-    if shared[origin, baseline] >= MIN_SHARED_3D:
-        a, b = origin, baseline
-    else:
-        off = shared - np.diag(np.diag(shared))
-        a, b = (int(v) for v in np.unravel_index(int(np.argmax(off)), off.shape))
-        if off[a, b] < MIN_SHARED_3D:
-            raise DegenerateGeometryError(
-                f"no two cameras share {MIN_SHARED_3D} nodes (best: {ids[a]} and {ids[b]} share {off[a, b]})"
-            )
+    a, b = starting_pair(bs, survey, MIN_SHARED_3D)
     rng = np.random.default_rng(RANSAC_SEED)
     cameras, outliers = _pair(bs, a, b, rng)
     nodes: dict[int, FloatArray] = {}
     _triangulate_all(cameras, bs, nodes)
     while len(cameras) < len(ids):
-        placed = np.zeros(bs.seen.shape[1], dtype=bool)
-        placed[list(nodes)] = True
-        counts = [(int(np.sum(bs.seen[i] & placed)), i) for i in range(len(ids)) if i not in cameras]
-        n_best, k = max(counts)
-        if n_best < MIN_RESECTION_3D:
-            missing = sorted(ids[i] for _, i in counts)
-            raise DegenerateGeometryError(
-                f"camera(s) {', '.join(missing)} share fewer than {MIN_RESECTION_3D} nodes with the placed cameras"
-            )
-        vis = np.flatnonzero(bs.seen[k] & placed)
+        k, mask = next_camera(bs, cameras, nodes, ids, MIN_RESECTION_3D)
+        vis = np.flatnonzero(mask)
         pts = np.array([nodes[j] for j in vis])
         bk = bs.bearings[k, vis]
         cam, _ = ransac(
             len(vis), MIN_RESECTION_3D,
             lambda idx: resect_camera(pts[idx], bk[idx]),
-            lambda c: _angles((pts - c.position) @ c.rotation, bk),
+            lambda c: angle_between((pts - c.position) @ c.rotation, bk),
             threshold=max(RESECTION_THRESHOLD_SIGMAS * bs.sigma, MIN_THRESHOLD), rng=rng,
         )
         cameras[k] = cam
