@@ -116,20 +116,36 @@ def consensus_ground_point(pts: FloatArray, tol: FloatArray) -> tuple[FloatArray
 
 
 def _place_nodes(cameras: dict[int, CameraPose], bs: BearingSet, nodes: dict[int, FloatArray]) -> None:
+    """Place every unplaced node seen by a placed camera where its rays meet the ground.
+
+    Ground hits are computed per camera for all nodes at once; one or two hits
+    are averaged by inverse variance, three or more go through the consensus.
+    """
+    n_nodes = bs.seen.shape[1]
+    todo = np.ones(n_nodes, dtype=bool)
+    todo[list(nodes)] = False
     cam_ids = list(cameras)
-    for j in range(bs.seen.shape[1]):
-        if j in nodes:
+    pts = np.full((len(cam_ids), n_nodes, 2), np.nan)
+    tol = np.full((len(cam_ids), n_nodes), np.inf)
+    for row, i in enumerate(cam_ids):
+        js = np.flatnonzero(bs.seen[i] & todo)
+        if not len(js):
             continue
-        seen = [i for i in cam_ids if bs.seen[i, j]]
-        if not seen:
-            continue
-        positions = np.array([cameras[i].position for i in seen])
-        dirs = np.array([cameras[i].rotation @ bs.bearings[i, j] for i in seen])
-        pts, tol, ok = ground_hits(positions, dirs, bs.sigma)
-        if not ok.any():
-            continue
-        xy, _ = consensus_ground_point(pts[ok], tol[ok])
-        nodes[j] = np.array([xy[0], xy[1], 0.0])
+        cam = cameras[i]
+        dirs = bs.bearings[i, js] @ cam.rotation.T
+        p, t, ok = ground_hits(np.broadcast_to(cam.position, dirs.shape), dirs, bs.sigma)
+        pts[row, js[ok]] = p[ok]
+        tol[row, js[ok]] = t[ok]
+    hit = np.isfinite(tol)
+    n_hits = hit.sum(axis=0)
+    w = np.where(hit, 1.0 / np.where(hit, tol, 1.0) ** 2, 0.0)
+    mean = np.einsum("cn,cnk->nk", w, np.nan_to_num(pts)) / np.maximum(w.sum(axis=0), 1e-300)[:, None]
+    for j in np.flatnonzero(todo & (n_hits >= 1)):
+        if n_hits[j] >= 3:
+            xy, _ = consensus_ground_point(pts[hit[:, j], j], tol[hit[:, j], j])
+        else:
+            xy = mean[j]
+        nodes[int(j)] = np.array([xy[0], xy[1], 0.0])
 
 
 def _pair_frames(bs: BearingSet, a: int, b: int, rng: np.random.Generator) -> tuple[list[dict[int, CameraPose]], int]:

@@ -461,13 +461,16 @@ def deletion_residuals(survey: Survey, estimate: InitialEstimate, included: np.n
     np.add.at(node_info, t.node_index[use], info[use])
     loo = node_info[t.node_index] - np.where(use[:, None, None], info, 0.0)
     out = np.full(n_obs, np.nan)
-    eye = np.eye(dim)
-    for k in np.flatnonzero(valid):
-        if np.linalg.cond(loo[k]) > 1e12:
-            continue  # no other reading determines the node
-        cov = np.linalg.solve(loo[k], eye)
-        S = t.sigma[k] ** 2 * np.eye(2) + jac[k] @ cov @ jac[k].T
-        out[k] = float(r[k] @ np.linalg.solve(S, r[k]))
+    k = np.flatnonzero(valid)
+    if not len(k):
+        return out
+    # Batched: eigenvalues tell whether the other readings determine the node.
+    eig = np.linalg.eigvalsh(loo[k])
+    ok = eig[:, 0] > 1e-12 * np.maximum(eig[:, -1], 1e-300)
+    k = k[ok]
+    cov = np.linalg.inv(loo[k])
+    S = t.sigma[k, None, None] ** 2 * np.eye(2) + jac[k] @ cov @ np.transpose(jac[k], (0, 2, 1))
+    out[k] = np.einsum("mi,mi->m", r[k], np.linalg.solve(S, r[k][..., None])[..., 0])
     return out
 
 
