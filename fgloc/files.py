@@ -278,8 +278,9 @@ def result_to_json(result: Result) -> dict:
         data["solver"] = {
             "method": s.method,
             "iterations": s.iterations,
-            "initial_error": s.initial_error,
-            "final_error": s.final_error,
+            # Informational; an incremental solver may not know them (NaN -> null).
+            "initial_error": s.initial_error if math.isfinite(s.initial_error) else None,
+            "final_error": s.final_error if math.isfinite(s.final_error) else None,
             "converged": s.converged,
             "stage_seconds": s.stage_seconds,
             "error_history": s.error_history,

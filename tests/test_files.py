@@ -165,3 +165,15 @@ def test_written_files_get_normal_permissions(tmp_path, small_survey) -> None:
     umask = os.umask(0)
     os.umask(umask)
     assert (path.stat().st_mode & 0o777) == (0o666 & ~umask)
+
+
+def test_unknown_solver_errors_are_written_as_null(tmp_path, small_survey) -> None:
+    """An incremental estimate does not know its total error: the file stays valid JSON."""
+    result = solve_survey(small_survey)
+    result.stats.initial_error = float("nan")
+    result.stats.final_error = float("nan")
+    path = tmp_path / "r.json"
+    write_result(result, path)
+    doc = json.loads(path.read_text())
+    assert doc["solver"]["initial_error"] is None and doc["solver"]["final_error"] is None
+    assert set(read_result(path).nodes) == set(result.nodes)
