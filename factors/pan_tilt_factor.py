@@ -26,8 +26,6 @@ a reading carries almost no pan information: avoid observing at the pole.
 
 from __future__ import annotations
 
-from typing import Callable
-
 import gtsam
 import numpy as np
 
@@ -98,5 +96,3 @@ def planar_pan_tilt_factor(
 
     return gtsam.CustomFactor(_noise(noise), [camera_key, node_key], error)
 
-
-ErrorFunction = Callable[[gtsam.CustomFactor, gtsam.Values, "list[np.ndarray] | None"], np.ndarray]

@@ -20,8 +20,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fgloc.model import CameraPose, Gauge, NodeMode, Survey, Truth
-from fgloc.simulate import PAPER_SIGMA, observe, random_base_rotation
+from fgloc.model import CameraPose, NodeMode, Survey
+from fgloc.simulate import PAPER_SIGMA, observe, random_base_rotation, simulated_survey
 
 
 @dataclass(frozen=True)
@@ -69,12 +69,4 @@ def scene_survey(scene: BenchScene) -> Survey:
     width = max(3, len(str(n - 1)))
     node_ids = [f"n{j:0{width}d}" for j in range(n)]
     observations = observe(camera_ids, cameras, node_ids, nodes, scene.sigma, rng, visible=visible)
-    return Survey(
-        mode=NodeMode.PLANAR,
-        gauge=Gauge(origin="cam0", baseline="cam1"),
-        sigma=scene.sigma,
-        camera_ids=camera_ids,
-        node_ids=node_ids,
-        observations=observations,
-        truth=Truth(cameras=dict(zip(camera_ids, cameras)), nodes={k: v for k, v in zip(node_ids, nodes)}),
-    )
+    return simulated_survey(NodeMode.PLANAR, scene.sigma, camera_ids, cameras, node_ids, nodes, observations)

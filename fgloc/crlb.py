@@ -53,7 +53,3 @@ def crlb_rms(survey: Survey) -> float:
     bound = cramer_rao_bound(survey)
     return float(np.sqrt(np.mean([np.trace(c) for c in bound.values()])))
 
-
-def position_dim(mode: NodeMode) -> int:
-    """Dimension of a node position's covariance in ``mode``."""
-    return mode.position_dim

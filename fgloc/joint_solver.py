@@ -361,13 +361,6 @@ def collect_result(
     return Result(mode=survey.mode, nodes=nodes, cameras=cameras, unlocalized=dict(problem.unlocalized), stats=stats)
 
 
-def whitened_residuals(problem: LocalizationProblem, values: gtsam.Values) -> np.ndarray:
-    """Norm of each pan-tilt factor's residual over its sigma (plain, not robust-weighted)."""
-    problem.prepare(values)
-    sigma = problem.survey.observation_table.sigma[problem.observation_index]
-    return np.linalg.norm(problem.pan_tilt.errors(values), axis=1) / sigma
-
-
 def estimate_from_values(problem: LocalizationProblem, values: gtsam.Values) -> InitialEstimate:
     """The problem's current values as an :class:`InitialEstimate` (gauge frame)."""
     planar = problem.survey.mode is NodeMode.PLANAR

@@ -43,6 +43,27 @@ class PaperScenario:
     subset_schedule: tuple[int, int] | None = None
 
 
+def simulated_survey(
+    mode: NodeMode,
+    sigma: float,
+    camera_ids: list[str],
+    cameras: list[CameraPose],
+    node_ids: list[str],
+    nodes: FloatArray,
+    observations: list[Observation],
+) -> Survey:
+    """A survey whose truth (in the gauge frame, cameras 'cam0'/'cam1' by default) is known."""
+    return Survey(
+        mode=mode,
+        gauge=Gauge(origin=camera_ids[0], baseline=camera_ids[1]),
+        sigma=sigma,
+        camera_ids=camera_ids,
+        node_ids=node_ids,
+        observations=observations,
+        truth=Truth(cameras=dict(zip(camera_ids, cameras)), nodes={n: p for n, p in zip(node_ids, nodes)}),
+    )
+
+
 def random_base_rotation(rng: np.random.Generator, max_roll_pitch_deg: float) -> FloatArray:
     """Base rotation with uniform yaw in [-pi, pi) and roll, pitch uniform within the bound."""
     yaw = rng.uniform(-np.pi, np.pi)
@@ -121,15 +142,7 @@ def paper_scenario(config: PaperScenario = PaperScenario()) -> Survey:
                 camera_ids, cameras, [node_ids[j] for j in subset], nodes[subset], config.sigma, rng, config.repeats
             )
             observations += [replace(o, subset=s) for o in readings]
-    return Survey(
-        mode=NodeMode.PLANAR,
-        gauge=Gauge(origin="cam0", baseline="cam1"),
-        sigma=config.sigma,
-        camera_ids=camera_ids,
-        node_ids=node_ids,
-        observations=observations,
-        truth=Truth(cameras=dict(zip(camera_ids, cameras)), nodes={n: p for n, p in zip(node_ids, nodes)}),
-    )
+    return simulated_survey(NodeMode.PLANAR, config.sigma, camera_ids, cameras, node_ids, nodes, observations)
 
 
 @dataclass(frozen=True)
@@ -201,12 +214,4 @@ def random_scene(config: RandomScene = RandomScene()) -> Survey:
     camera_ids = [f"cam{i}" for i in range(config.n_cameras)]
     node_ids = [f"n{j:04d}" for j in range(config.n_nodes)]
     observations = observe(camera_ids, cameras, node_ids, nodes, config.sigma, rng, config.repeats, visible)
-    return Survey(
-        mode=config.mode,
-        gauge=Gauge(origin="cam0", baseline="cam1"),
-        sigma=config.sigma,
-        camera_ids=camera_ids,
-        node_ids=node_ids,
-        observations=observations,
-        truth=Truth(cameras=dict(zip(camera_ids, cameras)), nodes={n: p for n, p in zip(node_ids, nodes)}),
-    )
+    return simulated_survey(config.mode, config.sigma, camera_ids, cameras, node_ids, nodes, observations)

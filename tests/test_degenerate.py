@@ -10,17 +10,23 @@ from fgloc.cli import main
 from fgloc.files import write_survey
 from fgloc.homography import DegenerateGeometryError
 from fgloc.joint_solver import SolveError, solve_survey
-from fgloc.model import CameraPose, NodeMode, Survey, Truth
-from fgloc.simulate import PAPER_SIGMA, PaperScenario, RandomScene, observe, paper_scenario, random_scene
+from fgloc.model import CameraPose, NodeMode, Survey
+from fgloc.simulate import (
+    PAPER_SIGMA,
+    PaperScenario,
+    RandomScene,
+    observe,
+    paper_scenario,
+    random_scene,
+    simulated_survey,
+)
 
 
 def survey_of(cameras: list[CameraPose], nodes: np.ndarray, mode=NodeMode.PLANAR, seed=0, sigma=PAPER_SIGMA):
     ids = [f"cam{i}" for i in range(len(cameras))]
     node_ids = [f"n{j:03d}" for j in range(len(nodes))]
     obs = observe(ids, cameras, node_ids, nodes, sigma, np.random.default_rng(seed))
-    from fgloc.model import Gauge
-    return Survey(mode, Gauge("cam0", "cam1"), sigma, ids, node_ids, obs,
-                  Truth(dict(zip(ids, cameras)), dict(zip(node_ids, nodes))))
+    return simulated_survey(mode, sigma, ids, cameras, node_ids, nodes, obs)
 
 
 def finite(result) -> bool:

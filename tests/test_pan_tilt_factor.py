@@ -82,13 +82,11 @@ def test_planar_factor_jacobians_match_numerical(seed: int) -> None:
 @pytest.mark.parametrize("pan_true", [np.pi - 1e-4, -np.pi + 1e-4, np.pi, 3.0, -3.0])
 def test_pan_error_wraps_across_pi(pan_true: float) -> None:
     """A reading just across +-pi from the prediction gives a small error, not ~2 pi."""
-    pose = gtsam.Pose3()
     point = np.array([np.cos(pan_true), np.sin(pan_true), 0.2])
     pan_meas = float(wrap_angle(pan_true + 2e-4))
     e, _, _ = pan_tilt_error(np.eye(3), np.zeros(3), point, pan_meas, float(np.arctan2(0.2, 1.0)))
     assert abs(e[0] - 2e-4) < 1e-9
     assert abs(e[1]) < 1e-12
-    assert pose is not None
 
 
 def test_error_sign_is_measured_minus_predicted() -> None:
