@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from fgloc.bench_scenes import BenchScene, scene_survey
-from fgloc.incremental import IncrementalLocalizer
+from fgloc.incremental import IncrementalLocalizer, IncrementalParams
 from fgloc.joint_solver import SolverOptions, solve_survey
 from fgloc.model import FglocError
 
@@ -36,20 +36,59 @@ def _compare(result, batch):
     return pos, cov
 
 
-def test_incremental_agrees_with_batch_after_all_readings() -> None:
+def _held_factors(loc) -> int:
+    graph = loc._isam.getFactorsUnsafe()
+    return sum(1 for i in range(graph.size()) if graph.at(i) is not None)
+
+
+@pytest.mark.parametrize("active_nodes", [None, 8, 64])
+def test_incremental_agrees_with_batch_after_all_readings(active_nodes) -> None:
+    """None keeps all 120 nodes in iSAM2; 8 and 64 marginalize old nodes in rounds."""
     survey = scene_survey(BenchScene(120, 4, seed=1))
-    loc = IncrementalLocalizer(survey.camera_ids, survey.gauge, survey.sigma)
+    loc = IncrementalLocalizer(survey.camera_ids, survey.gauge, survey.sigma, IncrementalParams(active_nodes=active_nodes))
     _feed_node_by_node(survey, loc)
     batch = solve_survey(survey, SolverOptions(gauge_sigma=loc.gauge_sigma))
     live = loc.estimate()
     assert set(live.nodes) == set(batch.nodes)
     pos, cov = _compare(live, batch)
     assert pos < 0.5 and cov < 0.2  # live: linearization error only, a fraction of a sigma
+    if active_nodes is None:
+        # Every reading is in iSAM2 exactly once (plus the two gauge factors).
+        assert _held_factors(loc) == len(survey.observations) + 2
+    else:
+        # iSAM2 holds only the newest nodes: their readings, the gauge pair and one summary.
+        assert loc.active_node_count <= active_nodes
+        held = sum(1 for o in survey.observations if o.node in loc._active)
+        assert _held_factors(loc) == held + 2 + 1
     loc.refine()
     pos, cov = _compare(loc.estimate(), batch)
     assert pos < 1e-5 and cov < 1e-5
-    # Every reading is in iSAM2 exactly once (plus the two gauge factors).
-    assert loc._isam.getFactorsUnsafe().size() == len(survey.observations) + 2
+
+
+def test_late_reading_of_a_marginalized_node_brings_it_back() -> None:
+    """Each node's second and later readings arrive 20 nodes after its first, when an
+    8-node window has long marginalized it: the node becomes a variable again with its
+    old conditional, and nothing is lost or counted twice (covariances would shrink)."""
+    survey = scene_survey(BenchScene(90, 3, seed=5))
+    by_node: dict[str, list] = {}
+    for o in survey.observations:
+        by_node.setdefault(o.node, []).append(o)
+    loc = IncrementalLocalizer(survey.camera_ids, survey.gauge, survey.sigma, IncrementalParams(active_nodes=8))
+    ids = survey.node_ids
+    for k in range(len(ids) + 20):
+        if k < len(ids):
+            loc.add_observations(by_node[ids[k]][:1])
+        if k >= 20:
+            loc.add_observations(by_node[ids[k - 20]][1:])
+    assert loc.revived_nodes > 20
+    batch = solve_survey(survey, SolverOptions(gauge_sigma=loc.gauge_sigma))
+    live = loc.estimate()
+    assert set(live.nodes) == set(batch.nodes)
+    pos, cov = _compare(live, batch)
+    assert pos < 0.5 and cov < 0.2
+    loc.refine()
+    pos, cov = _compare(loc.estimate(), batch)
+    assert pos < 1e-5 and cov < 1e-5
 
 
 def test_estimate_before_bootstrap_is_a_clear_error() -> None:
