@@ -78,8 +78,10 @@ def _worker(n_nodes: int, n_cameras: int, method: str, repeats: int, seed: int) 
     }
 
 
-def _incremental_worker(n_nodes: int, n_cameras: int, new_nodes: int, batch_nodes: int, seed: int) -> dict:
-    """iSAM2: bootstrap on all but ``new_nodes`` nodes, then time adding them one node (all its readings) at a time."""
+def _incremental_worker(n_nodes: int, n_cameras: int, new_nodes: int, batch_nodes: int, active_nodes: int, seed: int) -> dict:
+    """iSAM2: bootstrap on all but ``new_nodes`` nodes, then time adding them one node (all its readings) at a time.
+
+    ``active_nodes`` <= 0 keeps every node an iSAM2 variable (no marginalization)."""
     from fgloc.bench_scenes import BenchScene, scene_survey
     from fgloc.incremental import IncrementalLocalizer, IncrementalParams
 
@@ -87,7 +89,12 @@ def _incremental_worker(n_nodes: int, n_cameras: int, new_nodes: int, batch_node
     by_node: dict[str, list] = {}
     for o in survey.observations:
         by_node.setdefault(o.node, []).append(o)
-    loc = IncrementalLocalizer(survey.camera_ids, survey.gauge, survey.sigma, IncrementalParams(batch_nodes=batch_nodes))
+    loc = IncrementalLocalizer(
+        survey.camera_ids,
+        survey.gauge,
+        survey.sigma,
+        IncrementalParams(batch_nodes=batch_nodes, active_nodes=active_nodes if active_nodes > 0 else None),
+    )
     t0 = time.perf_counter()
     loc.add_observations([o for nid in survey.node_ids[:-new_nodes] for o in by_node[nid]])
     bootstrap = time.perf_counter() - t0
@@ -107,6 +114,7 @@ def _incremental_worker(n_nodes: int, n_cameras: int, new_nodes: int, batch_node
         "n_nodes": n_nodes,
         "n_cameras": n_cameras,
         "batch_nodes": batch_nodes,
+        "active_nodes": active_nodes if active_nodes > 0 else None,
         "new_nodes": new_nodes,
         "bootstrap_s": bootstrap,
         "update_median_s": float(np.median(u)),
@@ -119,9 +127,11 @@ def _incremental_worker(n_nodes: int, n_cameras: int, new_nodes: int, batch_node
     }
 
 
-def run_incremental(n_nodes: int, n_cameras: int, new_nodes: int, batch_nodes: int, seed: int = 0) -> dict:
-    """One iSAM2 timing case in a fresh subprocess."""
-    spec = f"{n_nodes},{n_cameras},{new_nodes},{batch_nodes},{seed}"
+def run_incremental(
+    n_nodes: int, n_cameras: int, new_nodes: int, batch_nodes: int, active_nodes: int | None, seed: int = 0
+) -> dict:
+    """One iSAM2 timing case in a fresh subprocess (``active_nodes`` None: every node stays a variable)."""
+    spec = f"{n_nodes},{n_cameras},{new_nodes},{batch_nodes},{active_nodes or 0},{seed}"
     cmd = [sys.executable, "-m", "fgloc.bench", "--incremental-worker", spec]
     out = subprocess.run(cmd, capture_output=True, text=True, check=False)
     if out.returncode != 0:
@@ -132,12 +142,13 @@ def run_incremental(n_nodes: int, n_cameras: int, new_nodes: int, batch_nodes: i
 def incremental_markdown(rows: list[dict]) -> str:
     """The iSAM2 timings as a Markdown table."""
     lines = [
-        "| nodes x cams | nodes per iSAM2 update | per new node: median | mean | p95 | max | estimate() | with all covariances | bootstrap |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "| nodes x cams | nodes kept in iSAM2 | nodes per update | per new node: median | mean | p95 | max | estimate() | with all covariances | bootstrap |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         lines.append(
-            f"| {r['n_nodes']} x {r['n_cameras']} | {r['batch_nodes']} | {_fmt_s(r['update_median_s'])} | "
+            f"| {r['n_nodes']} x {r['n_cameras']} | {r['active_nodes'] or 'all'} | {r['batch_nodes']} | "
+            f"{_fmt_s(r['update_median_s'])} | "
             f"{_fmt_s(r['update_mean_s'])} | {_fmt_s(r['update_p95_s'])} | {_fmt_s(r['update_max_s'])} | "
             f"{_fmt_s(r['estimate_s'])} | {_fmt_s(r['estimate_with_covariances_s'])} | {_fmt_s(r['bootstrap_s'])} |"
         )
@@ -297,8 +308,8 @@ def run(args: argparse.Namespace) -> int:
     from fgloc.model import FglocError
 
     if args.incremental_worker:
-        n, c, k, b, seed = (int(v) for v in args.incremental_worker.split(","))
-        print(json.dumps(_incremental_worker(n, c, k, b, seed)))
+        n, c, k, b, a, seed = (int(v) for v in args.incremental_worker.split(","))
+        print(json.dumps(_incremental_worker(n, c, k, b, a, seed)))
         return 0
     if args.worker:
         n, c, method, repeats, seed = args.worker.split(",")
@@ -315,9 +326,13 @@ def run(args: argparse.Namespace) -> int:
     inc_rows = []
     if inc_spec != "none":
         for n, c in parse_cases(inc_spec):
-            for batch in (1, 10) if args.quick else (1, 10, 25):
-                inc_rows.append(run_incremental(n, c, new_nodes=20 if args.quick else 100, batch_nodes=batch))
-                print(f"# iSAM2 {n} x {c} batch {batch} done", file=sys.stderr, flush=True)
+            from fgloc.incremental import IncrementalParams
+
+            # The default window against every node kept (the O(n) update), side by side.
+            for active in (IncrementalParams().active_nodes, None):
+                row = run_incremental(n, c, new_nodes=20 if args.quick else 100, batch_nodes=1, active_nodes=active)
+                inc_rows.append(row)
+                print(f"# iSAM2 {n} x {c} active {active or 'all'} done", file=sys.stderr, flush=True)
     report["incremental"] = inc_rows
     if inc_rows:
         report["markdown"] += "\n\niSAM2 (IncrementalLocalizer), new nodes added one at a time after a batch bootstrap:\n\n"

@@ -70,7 +70,8 @@ class IncrementalEstimator:
 
     ``factory(camera_ids, gauge, sigma)`` builds the localizer (default:
     ``fgloc.incremental.IncrementalLocalizer``); it must offer
-    ``add_observations(list[Observation])`` and ``estimate() -> Result``. Each update
+    ``add_observations(list[Observation])`` and ``estimate() -> Result`` (and may say
+    ``bootstrapped``: until it does, estimates come from a batch solve). Each update
     passes only the readings the localizer has not seen: the survey's observations only
     ever grow, so within each (node, camera) group the first ones were fed before.
     """
@@ -78,6 +79,7 @@ class IncrementalEstimator:
     def __init__(self, factory: Callable[..., object] | None = None) -> None:
         self.factory = factory
         self.localizer: object | None = None
+        self._before_bootstrap = BatchEstimator()
         self._fed: dict[tuple[str, str], int] = {}
 
     def update(self, survey: Survey) -> Result:
@@ -99,7 +101,9 @@ class IncrementalEstimator:
         if new:
             self.localizer.add_observations(new)  # type: ignore[attr-defined]
         if not getattr(self.localizer, "bootstrapped", True):
-            return None  # still buffering readings until its first batch solve
+            # iSAM2 starts from a batch solve once the gauge pair shares enough nodes
+            # (12 by default); until then a batch solve of the few readings is cheap.
+            return self._before_bootstrap.update(survey)
         return self.localizer.estimate()  # type: ignore[attr-defined]
 
 

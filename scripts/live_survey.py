@@ -19,7 +19,7 @@ import sys
 
 from fgloc.model import FglocError
 from fgloc.rig_config import load_rig
-from fgloc.survey_runner import BatchEstimator, LiveEstimate, Progress, format_estimate, format_progress
+from fgloc.survey_runner import BatchEstimator, IncrementalEstimator, LiveEstimate, Progress, format_estimate, format_progress
 from fgloc.survey_session import run_survey
 
 
@@ -29,7 +29,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("-o", "--output", required=True)
     p.add_argument("--simulate", action="store_true")
     p.add_argument("--resume", action="store_true")
-    p.add_argument("--every", type=int, default=5, help="solve after every N nodes (default 5)")
+    p.add_argument("--every", type=int, default=5, help="show estimates after every N nodes (default 5)")
+    p.add_argument("--batch", action="store_true",
+                   help="re-solve everything for each estimate instead of updating iSAM2 with the new readings")
     p.add_argument("--rerun", metavar="FILE.rrd", help="log live estimates to a Rerun recording (fgloc.viz)")
     args = p.parse_args(argv)
 
@@ -56,7 +58,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         rig = load_rig(args.rig)
         survey, runner = run_survey(rig, args.output, simulate=args.simulate, resume=args.resume,
-                                    estimator=BatchEstimator(), live_every=args.every,
+                                    estimator=BatchEstimator() if args.batch else IncrementalEstimator(), live_every=args.every,
                                     on_estimate=on_estimate, on_progress=on_progress,
                                     log=lambda m: print(f"live_survey: {m}", file=sys.stderr))
     except FglocError as exc:

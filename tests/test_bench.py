@@ -84,5 +84,5 @@ def test_quick_bench_output_is_consistent(tmp_path) -> None:
     assert not by[(40, 2, "subset_newton")]["available"] or by[(40, 2, "subset_newton")]["final_cost"] is not None
     assert "2 cameras" in report["slopes"] and "optimize" in report["slopes"]["2 cameras"]
     inc = report["incremental"]
-    assert [r["batch_nodes"] for r in inc] == [1, 10]
+    assert [(r["active_nodes"], r["batch_nodes"]) for r in inc] == [(64, 1), (None, 1)]
     assert all(0 < r["update_median_s"] <= r["update_max_s"] for r in inc)

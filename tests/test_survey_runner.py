@@ -282,3 +282,26 @@ def test_incremental_estimator_feeds_each_reading_once(tmp_path):
     assert sorted(fed, key=repr) == sorted(survey.observations, key=repr)  # each exactly once
     assert [len(b) for b in loc.fed] == [10, 2, 2, 2]  # first estimate at 5 shared nodes, then per node
     assert runner.latest is not None and set(runner.latest.result.nodes) == set(rig.node_ids)
+
+
+def test_incremental_estimator_with_isam2_tracks_the_batch_solve(tmp_path):
+    """The default live estimator: batch estimates until iSAM2 bootstraps (12 shared nodes),
+    then iSAM2's. Truth: the batch solve of the same journal; the live estimate may differ
+    only by linearization error, a fraction of each node's sigma."""
+    from fgloc.joint_solver import SolverOptions, solve_survey
+    from fgloc.survey_runner import IncrementalEstimator
+
+    rig = small_rig(20, occlusion=0.0, dead_nodes=[])
+    est = IncrementalEstimator()
+    seen = []
+    survey, runner = run_survey(rig, tmp_path, opened=opened(rig)[0], estimator=est,
+                                on_estimate=lambda live: seen.append((live.nodes_done, live.result.stats.method)))
+    methods = dict(seen)
+    assert methods[min(methods)] != "isam2" and methods[20] == "isam2"
+    batch = solve_survey(survey, SolverOptions(gauge_sigma=est.localizer.gauge_sigma))
+    live = runner.latest.result
+    assert set(live.nodes) == set(batch.nodes) == set(rig.node_ids)
+    for nid, b in batch.nodes.items():
+        sigma = np.sqrt(np.trace(b.covariance))
+        assert np.abs(live.nodes[nid].position - b.position).max() < 0.5 * sigma
+        assert np.abs(live.nodes[nid].covariance - b.covariance).max() < 0.2 * np.abs(b.covariance).max()

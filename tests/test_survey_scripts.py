@@ -22,7 +22,8 @@ def _run(*args: str) -> subprocess.CompletedProcess:
 def test_live_survey_then_replay(tmp_path):
     rig = write_rig(tmp_path / "rig.json", 15, occlusion=0.05)
     out = tmp_path / "survey"
-    live = _run("scripts/live_survey.py", "--rig", str(rig), "-o", str(out), "--simulate", "--every", "5")
+    # --batch: the replay re-solves in batch, so the live run does too and both must agree exactly.
+    live = _run("scripts/live_survey.py", "--rig", str(rig), "-o", str(out), "--simulate", "--every", "5", "--batch")
     assert live.returncode == 0, live.stderr
     assert "estimate after 10 nodes" in live.stdout and "estimate after 15 nodes" in live.stdout
     assert "15/15 nodes" in live.stderr
