@@ -28,6 +28,7 @@ from typing import Any
 _PUBLIC = {
     "cramer_rao_bound": "fgloc.crlb",
     "read_result": "fgloc.files", "read_survey": "fgloc.files",
+    "IncrementalLocalizer": "fgloc.incremental", "IncrementalParams": "fgloc.incremental",
     "write_result": "fgloc.files", "write_survey": "fgloc.files",
     "LocalizationProblem": "fgloc.joint_solver", "RobustKernel": "fgloc.joint_solver",
     "SolveError": "fgloc.joint_solver", "SolverOptions": "fgloc.joint_solver",
