@@ -10,9 +10,11 @@ square; heights from the rig's simulation section; base rotations with random
 yaw and a few degrees of roll and pitch. Each (camera, node) pair carries a
 fixed measurement error N(0, sigma) on pan and tilt (deterministic by seed), so
 a camera always sees a node at the same apparent bearing: re-measuring after a
-resume reproduces the same reading. Frames are rendered as a Gaussian blob
-(1.5 px) per lit, unoccluded LED. Heads quantize moves to 1/14.4 degree (the
-EVI-D100's count).
+resume reproduces the same reading. Frames (``simulation.frames``) are either a
+clean Gaussian blob (1.5 px) per lit, unoccluded LED on black (``spot``), or the
+camera pipeline's rendering (``rendered``, :class:`RenderedFrames`: textured
+background, a few static bright lights, sensor noise) with the LED spot at the
+same apparent bearing. Heads quantize moves to 1/14.4 degree (the EVI-D100's count).
 
 Faults: each head command may raise :class:`SimulatedLinkError` (a dropped or
 a garbled reply, at the configured rates), and one camera's link goes down
@@ -27,10 +29,12 @@ import math
 import threading
 import time
 import zlib
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Callable
 
 import numpy as np
 
+from drivers.rendered_camera import LedScene, RenderedCamera, RenderSettings
 from fgloc.geometry import FloatArray, pan_tilt_bearing, project_pan_tilt
 from fgloc.led_search import PinholePixelModel
 from fgloc.model import CameraPose, FglocError, NodeMode, Truth
@@ -39,6 +43,10 @@ from fgloc.simulate import random_base_rotation
 
 COUNTS_PER_RAD = 14.4 * 180.0 / math.pi
 BLOB_SIGMA_PX = 1.5
+STATIC_LIGHTS = 3  #: always-on bright lights in a scene with rendered frames
+
+#: (pan, tilt) radians of the head -> uint8 (H, W) frame
+FrameRenderer = Callable[[float, float], np.ndarray]
 
 
 class SimulatedLinkError(OSError):
@@ -60,6 +68,7 @@ class SimScene:
     visible: np.ndarray  # (n_cam, N) bool
     apparent: np.ndarray  # (n_cam, N, 2) pan, tilt in radians, noise included
     dead: set[str]
+    lights: FloatArray = field(default_factory=lambda: np.zeros((0, 3)))  # (K, 3) static lights (rendered frames)
 
     def __post_init__(self) -> None:
         self.lit: set[str] = set()
@@ -98,7 +107,12 @@ def build_scene(rig: RigConfig) -> SimScene:
         pan, tilt = project_pan_tilt(cam.rotation, cam.position, nodes)
         apparent[i, :, 0] = pan + rng.normal(0.0, rig.sigma, n)
         apparent[i, :, 1] = tilt + rng.normal(0.0, rig.sigma, n)
-    return SimScene(list(ids), cameras, list(rig.node_ids), nodes, visible, apparent, set(sim.dead_nodes))
+    lights = np.zeros((0, 3))
+    if sim.frames == "rendered":  # own generator: the rest of the scene is the same for either kind of frame
+        lrng = np.random.default_rng(_stable_seed(sim.seed, "static-lights"))
+        lights = np.column_stack([lrng.uniform(-0.2, 1.2, size=(STATIC_LIGHTS, 2)),
+                                  lrng.uniform(0.0, 0.05, size=STATIC_LIGHTS)])
+    return SimScene(list(ids), cameras, list(rig.node_ids), nodes, visible, apparent, set(sim.dead_nodes), lights)
 
 
 def render_frame(scene: SimScene, index: int, pixels: PinholePixelModel, pan: float, tilt: float) -> np.ndarray:
@@ -126,13 +140,58 @@ def render_frame(scene: SimScene, index: int, pixels: PinholePixelModel, pan: fl
     return frame
 
 
-class SceneHead:
-    """A simulated pan-tilt head (implements :class:`fgloc.rig.PanTiltHead`)."""
+class RenderedFrames:
+    """Camera ``index``'s frames through the camera pipeline's renderer (drivers/rendered_camera.py).
 
-    def __init__(self, scene: SimScene, index: int, rig: RigConfig, generation: int, faults: "FaultPlan") -> None:
+    The LED of every lit, unoccluded node is an integrated Gaussian spot (1500 DN, 1.2 px) at
+    the pair's apparent bearing (``scene.apparent``: truth plus the pair's fixed N(0, sigma)
+    error, exactly where the ``spot`` frames put it), drawn through the camera's intrinsics
+    (distortion included) on a textured background fixed to base-frame directions (its own
+    texture per camera), with the scene's static lights and Gaussian read + shot noise. The
+    noise of a frame is seeded by (rig seed, camera, head angles, lit LEDs), so a frame is a
+    pure function of the rig's state: the simulation stays deterministic, resumes included.
+    Thread-safe for one head per camera.
+    """
+
+    def __init__(self, scene: SimScene, index: int, rig: RigConfig, settings: RenderSettings | None = None) -> None:
         self.scene = scene
         self.index = index
-        self.pixels = PinholePixelModel(rig.cameras[index].intrinsics)
+        self.intrinsics = rig.cameras[index].intrinsics
+        self.seed = rig.simulation.seed
+        self.camera_id = scene.camera_ids[index]
+        settings = settings or RenderSettings(texture_seed=_stable_seed(self.seed, self.camera_id, "texture"))
+        self.camera = RenderedCamera(scene.cameras[index], LedScene(positions={}, distractors=scene.lights), settings)
+
+    def __call__(self, pan: float, tilt: float) -> np.ndarray:
+        """The frame with the head at (pan, tilt) radians (spec convention): uint8 (H, W)."""
+        scene = self.scene
+        with scene.lock:
+            lit = sorted(scene.lit)
+        shown = [scene.node_ids.index(n) for n in lit]
+        shown = [j for j in shown if scene.visible[self.index, j]]
+        directions = np.array([pan_tilt_bearing(*scene.apparent[self.index, j]) for j in shown]).reshape(-1, 3)
+        rng = np.random.default_rng(_stable_seed(self.seed, self.camera_id, repr(float(pan)), repr(float(tilt)), *lit))
+        return self.camera.render_directions(self.intrinsics, pan, tilt, rng, directions)
+
+
+def frame_renderer(scene: SimScene, index: int, rig: RigConfig) -> FrameRenderer:
+    """Camera ``index``'s frames, as ``rig.simulation.frames`` asks: ``spot`` or ``rendered``."""
+    if rig.simulation.frames == "rendered":
+        return RenderedFrames(scene, index, rig)
+    pixels = PinholePixelModel(rig.cameras[index].intrinsics)
+    return lambda pan, tilt: render_frame(scene, index, pixels, pan, tilt)
+
+
+class SceneHead:
+    """A simulated pan-tilt head (implements :class:`fgloc.rig.PanTiltHead`).
+
+    ``frames`` renders what the head sees (default: :func:`frame_renderer` for the rig)."""
+
+    def __init__(self, scene: SimScene, index: int, rig: RigConfig, generation: int, faults: "FaultPlan",
+                 frames: FrameRenderer | None = None) -> None:
+        self.scene = scene
+        self.index = index
+        self.frames = frames or frame_renderer(scene, index, rig)
         self.pan = 0.0
         self.tilt = 0.0
         self._zoom = rig.cameras[index].zoom
@@ -174,7 +233,7 @@ class SceneHead:
 
     def grab_frame(self) -> np.ndarray:
         self._command()
-        return render_frame(self.scene, self.index, self.pixels, self.pan, self.tilt)
+        return self.frames(self.pan, self.tilt)
 
     def close(self) -> None:
         self.closed = True
@@ -255,10 +314,12 @@ class InProcessRig:
         self.scene = build_scene(rig)
         self.faults = FaultPlan(rig)
         self.leds = SceneLeds(self.scene, rig)
+        self.frames = {c: frame_renderer(self.scene, i, rig) for i, c in enumerate(rig.camera_ids)}
         self._generation: dict[str, int] = {}
 
     def open_head(self, camera_id: str) -> SceneHead:
         """Open (or reopen, after a disconnect) the head of ``camera_id``."""
         gen = self._generation[camera_id] = self._generation.get(camera_id, -1) + 1
         self.faults.reopen(camera_id)
-        return SceneHead(self.scene, self.rig.camera_ids.index(camera_id), self.rig, gen, self.faults)
+        return SceneHead(self.scene, self.rig.camera_ids.index(camera_id), self.rig, gen, self.faults,
+                         self.frames[camera_id])

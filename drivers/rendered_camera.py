@@ -192,12 +192,23 @@ class RenderedCamera:
     ) -> np.ndarray:
         """A noisy uint8 (H, W) frame with the head at (pan, tilt) radians through ``intr``
         (optical centre ``pupil_shift`` forward of the rotation axes, see ``base_directions``)."""
-        s = self.settings
-        img = self.background(intr, pan, tilt).copy()
         lit = [i for i in sorted(set(self.scene.lit)) if i in self.scene.positions]
+        directions = np.zeros((0, 3))
         if lit:
             pts = np.array([self.scene.positions[i] for i in lit], dtype=float)
-            uv, front = base_to_pixel(intr, self.base_directions(pts, pan, tilt, pupil_shift), pan, tilt)
+            directions = self.base_directions(pts, pan, tilt, pupil_shift)
+        return self.render_directions(intr, pan, tilt, rng, directions)
+
+    def render_directions(
+        self, intr: CameraIntrinsics, pan: float, tilt: float, rng: np.random.Generator, directions: np.ndarray
+    ) -> np.ndarray:
+        """A noisy uint8 (H, W) frame with the head at (pan, tilt) radians through ``intr``, with a
+        lit LED spot along each base-frame direction of ``directions`` (K, 3) (any length), on
+        this camera's background and static lights (``scene.distractors``)."""
+        s = self.settings
+        img = self.background(intr, pan, tilt).copy()
+        if len(directions):
+            uv, front = base_to_pixel(intr, np.asarray(directions, dtype=float), pan, tilt)
             for k in np.flatnonzero(front & in_image(intr, uv, -10.0)):
                 add_spot(img, float(uv[k, 0]), float(uv[k, 1]), s.led_flux, s.led_sigma_px)
         noise_sd = np.sqrt(s.read_noise**2 + s.shot_gain * img)

@@ -4,7 +4,8 @@ Each camera of the rig gets a :class:`drivers.twins.visca_camera.ViscaSerialTwin
 (the emulated camera on a pseudo-terminal, with the rig's fault rates) and is
 opened with the real driver, :func:`drivers.visca.open_serial_head`, through
 pyserial. The emulator renders frames from the same scene as the in-process rig
-(:func:`drivers.inprocess_rig.render_frame`), converting its head counts to spec
+(:func:`drivers.inprocess_rig.frame_renderer`: ``spot`` or ``rendered`` per
+``simulation.frames``), converting its head counts to spec
 angles with the camera's :class:`~drivers.ptz_units.PanTiltUnits` (model and
 mounting from rig.json). The LEDs go through the real TinyOS serial driver
 (:func:`drivers.tinyos_serial.open_mote_network`) to a base-station pty twin whose
@@ -21,14 +22,13 @@ from __future__ import annotations
 import zlib
 from dataclasses import replace
 
-from drivers.inprocess_rig import build_scene, render_frame
+from drivers.inprocess_rig import FrameRenderer, build_scene, frame_renderer
 from drivers.tinyos_serial import open_mote_network
 from drivers.twins.base_station import BaseStationSerialTwin, MoteFieldEmulator
 from drivers.ptz_units import PanTiltUnits, camera_model, mounting
 from drivers.twins.faults import FaultConfig
 from drivers.twins.visca_camera import HeadPose, ViscaCameraEmulator, ViscaSerialTwin
 from drivers.visca import HeadSettings, Timeouts, ViscaHead, open_serial_head
-from fgloc.led_search import PinholePixelModel
 from fgloc.rig_config import RigConfig
 
 
@@ -55,12 +55,11 @@ class ViscaTwinRig:
                 model = replace(model, pan_speed_dps=tuple(v * speedup for v in model.pan_speed_dps),
                                 tilt_speed_dps=tuple(v * speedup for v in model.tilt_speed_dps))
                 units = PanTiltUnits(model, mounting(cam.mounting))
-                pixels = PinholePixelModel(cam.intrinsics)
+                frames = frame_renderer(self.scene, i, rig)
 
-                def renderer(pose: HeadPose, i: int = i, units: PanTiltUnits = units,
-                             pixels: PinholePixelModel = pixels):
+                def renderer(pose: HeadPose, units: PanTiltUnits = units, frames: FrameRenderer = frames):
                     pan, tilt = units.to_spec(pose.pan_counts, pose.tilt_counts)
-                    return render_frame(self.scene, i, pixels, pan, tilt)
+                    return frames(pan, tilt)
 
                 faults = FaultConfig(
                     drop_rate=sim.drop_rate,

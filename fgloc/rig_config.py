@@ -25,6 +25,7 @@ MOUNTINGS = ("upright", "ceiling")
 MEASURE_METHODS = ("centre", "pixel-offset")
 DETECTIONS = ("single", "on-off")
 SIMULATION_TWINS = ("inprocess", "visca")
+SIMULATION_FRAMES = ("spot", "rendered")
 
 
 class RigConfigError(FglocError):
@@ -113,6 +114,9 @@ class SimulationConfig:
     ``twin`` picks the simulated cameras: ``inprocess`` (protocol-level, fast,
     deterministic) or ``visca`` (the real VISCA serial driver against a pty twin
     per camera; camera ``model`` and ``mounting`` must be known to drivers.ptz_units).
+    ``frames`` picks what the simulated cameras see, for either twin: ``spot`` (a clean
+    Gaussian spot per lit LED on black) or ``rendered`` (the camera pipeline's renderer,
+    drivers/rendered_camera.py: textured background, static bright lights, sensor noise).
     """
 
     seed: int = 0
@@ -125,6 +129,7 @@ class SimulationConfig:
     disconnect_camera: str = ""
     time_scale: float = 0.0
     twin: str = "inprocess"
+    frames: str = "spot"
 
 
 @dataclass(frozen=True)
@@ -338,6 +343,7 @@ def parse_rig(data: Any, path: str = "rig.json", base: Path | None = None) -> Ri
         disconnect_camera=dcam or ids[0],
         time_scale=f.number(sim.get("time_scale", 0.0), "simulation.time_scale", 0, 10),
         twin=f.string(sim.get("twin", "inprocess"), "simulation.twin", SIMULATION_TWINS),
+        frames=f.string(sim.get("frames", "spot"), "simulation.frames", SIMULATION_FRAMES),
     )
     return RigConfig(
         path=path,

@@ -28,6 +28,13 @@ def test_example_rig_loads():
     assert len(rig.hash) == 64
 
 
+def test_rendered_example_rig_loads():
+    """examples/rig-rendered.json: rendered frames need the on/off detector (docs/survey.md)."""
+    rig = load_rig(EXAMPLE.parent / "rig-rendered.json")
+    assert (rig.simulation.frames, rig.search.detection) == ("rendered", "on-off")
+    assert load_rig(EXAMPLE).simulation.frames == "spot"  # the default
+
+
 def test_hash_changes_with_content():
     a = parse_rig(_example())
     data = _example()
@@ -86,6 +93,8 @@ def _mutate(path: str, value):
         ("search.method", "guess", "search.method: expected one of centre, pixel-offset"),
         ("search.tilt_max_deg", -90, "search.tilt_max_deg: must exceed tilt_min_deg"),
         ("simulation.dead_nodes", ["nope"], "simulation.dead_nodes: expected a list of node ids"),
+        ("simulation.frames", "textured", "simulation.frames: expected one of spot, rendered, got 'textured'"),
+        ("simulation.twin", "udp", "simulation.twin: expected one of inprocess, visca, got 'udp'"),
         ("nodes", "2d", "nodes: expected \"planar\" or \"3d\", got '2d'"),
     ],
 )

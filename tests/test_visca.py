@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import math
-import time
 
 import pytest
 
@@ -127,12 +126,32 @@ def test_move_and_read_back_in_spec_convention() -> None:
         assert head.session.stats.retries == 0
 
 
+def _replies_when_returned(twin: ViscaSerialTwin, call) -> list[bytes]:
+    """Run ``call``; the replies the twin had sent from its start up to the moment it returned.
+
+    The twin logs each reply just before writing it, so this list holds at least every reply
+    the driver read; a reply still scheduled when the call returned is not in it."""
+    start = len(twin.sent)
+    call()
+    return list(twin.sent[start:])
+
+
+def _assert_returned_after_completion(replies: list[bytes]) -> None:
+    """The move's ACK (z0 4y FF) and, after it, the Completion on the same socket (z0 5y FF) were sent."""
+    acks = [r for r in replies if len(r) == 3 and r[1] & 0xF0 == 0x40]
+    assert len(acks) == 1, replies
+    socket = acks[0][1] & 0x0F
+    completion = bytes([acks[0][0], 0x50 | socket, 0xFF])
+    assert completion in replies, f"returned before the completion was sent: {[r.hex(' ') for r in replies]}"
+    assert replies.index(acks[0]) < replies.index(completion)
+
+
 def test_move_waits_for_completion_of_a_slow_move() -> None:
-    """With real-time motion the read-back right after move_to is already the target (completion awaited)."""
+    """With real-time motion (20.8 deg at 300 deg/s: the Completion follows the ACK by ~0.07 s)
+    move_to returns only after the twin sent the Completion, and the read-back is the target."""
     with ViscaSerialTwin(time_scale=1.0) as twin, _head(twin) as head:
-        t0 = time.monotonic()
-        head.move_to_counts(300, 0)  # 20.8 deg at 300 deg/s ~ 0.07 s
-        assert time.monotonic() - t0 >= 0.06
+        replies = _replies_when_returned(twin, lambda: head.move_to_counts(300, 0))
+        _assert_returned_after_completion(replies)
         assert head.position_counts() == (300, 0)
 
 
@@ -194,10 +213,10 @@ def test_illegal_command_gets_syntax_error_from_the_twin() -> None:
 def test_slow_completion_within_budget_and_beyond() -> None:
     with ViscaSerialTwin(faults=FaultConfig(slow_seconds=0.15)) as twin, _head(twin) as head:
         head.position_counts()
-        twin.faults.force("ok", "slow")  # the move's ACK, then its completion
-        t0 = time.monotonic()
-        head.move_to_counts(5, 5)
-        assert time.monotonic() - t0 >= 0.14 and head.session.stats.retries == 0
+        twin.faults.force("ok", "slow")  # the move's ACK, then its completion 0.15 s late
+        replies = _replies_when_returned(twin, lambda: head.move_to_counts(5, 5))
+        _assert_returned_after_completion(replies)  # waited for the late Completion, no resend
+        assert head.session.stats.retries == 0
     with ViscaSerialTwin(faults=FaultConfig(slow_rate=1.0, slow_seconds=5.0)) as twin, \
             _head(twin, timeouts=Timeouts(0.1, 0.1, 0.1, retries=1)) as head:
         with pytest.raises(ViscaTimeout, match="no completion"):

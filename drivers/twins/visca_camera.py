@@ -328,8 +328,12 @@ class WireTime:
         return max(0.0, min(default, self._tx_free - now)) if now < self._tx_free else default
 
 
-def write_paced(port: PtyPort, out: ScheduledReplies, wire: WireTime) -> None:
-    """Write every due reply, one at a time, respecting the line's transmit time."""
+def write_paced(port: PtyPort, out: ScheduledReplies, wire: WireTime,
+                sent: list[bytes] | None = None) -> None:
+    """Write every due reply, one at a time, respecting the line's transmit time.
+
+    Each reply is appended to ``sent`` (when given) *before* it is written, so any reply
+    the driver has read is already in ``sent``: an ordering witness that needs no clock."""
     while True:
         now = time.monotonic()
         if not wire.can_send(now):
@@ -337,6 +341,8 @@ def write_paced(port: PtyPort, out: ScheduledReplies, wire: WireTime) -> None:
         data = out.pop_one(now)
         if data is None:
             return
+        if sent is not None:
+            sent.append(data)
         port.write(data)
         wire.sent(data, now)
 
@@ -360,6 +366,9 @@ class ViscaSerialTwin:
         self._splitter = PacketSplitter()
         self._stop = threading.Event()
         self._reconnect_at: float | None = None
+        #: every reply written to the driver, in order (faults applied), appended just before the
+        #: write: whatever the driver has received is in here (tests check event order with it)
+        self.sent: list[bytes] = []
         self._thread = threading.Thread(target=self._serve, name="visca-serial-twin", daemon=True)
         self._thread.start()
 
@@ -400,7 +409,7 @@ class ViscaSerialTwin:
                     arrived = time.monotonic() + self.wire.rx(packet)
                     for due_at, reply in apply_reply_faults(self.faults, self.emulator, packet, arrived):
                         self._out.put(due_at, reply)
-            write_paced(self._pty, self._out, self.wire)
+            write_paced(self._pty, self._out, self.wire, self.sent)
 
     def close(self) -> None:
         self._stop.set()
