@@ -305,3 +305,25 @@ def test_incremental_estimator_with_isam2_tracks_the_batch_solve(tmp_path):
         sigma = np.sqrt(np.trace(b.covariance))
         assert np.abs(live.nodes[nid].position - b.position).max() < 0.5 * sigma
         assert np.abs(live.nodes[nid].covariance - b.covariance).max() < 0.2 * np.abs(b.covariance).max()
+
+
+def test_cli_survey_logs_live_estimates_to_rerun(tmp_path, capsys):
+    """--rerun: every live estimate lands on the 'survey' timeline (step = observations so
+    far), and the last one logged is the estimate.json the survey wrote."""
+    from fgloc.cli import main
+    from fgloc.files import read_result
+    from tests.rrd_reading import load_rrd
+
+    rig = EXAMPLE  # examples/rig-simulated.json: 20 nodes, 2 cameras
+    rrd, out = tmp_path / "live.rrd", tmp_path / "out"
+    assert main(["survey", "--rig", str(rig), "-o", str(out), "--simulate", "--quiet", "--rerun", str(rrd)]) == 0
+    shown = capsys.readouterr().out.count("estimate after")
+    rows = load_rrd(rrd)["world/nodes/estimate"].timed["survey"]["Points3D:positions"]
+    assert shown >= 3 and len(rows) == shown
+    steps = [t for t, _ in rows]
+    assert steps == sorted(steps) and steps[-1] == len(read_survey_file(out / "survey.json").observations)
+    final = read_result(out / "estimate.json")
+    logged = np.asarray(rows[-1][1], float)
+    expected = np.array([final.nodes[n].position for n in final.nodes])
+    assert logged.shape == expected.shape
+    assert np.abs(np.sort(logged, axis=0) - np.sort(expected, axis=0)).max() < 1e-6

@@ -22,6 +22,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--estimator", choices=("batch", "incremental"), default="incremental",
                    help="live estimates from iSAM2 (incremental, default: each reading once, ~1 ms per node "
                         "at any survey size) or by re-solving everything (batch)")
+    p.add_argument("--rerun", metavar="FILE.rrd",
+                   help="log every live estimate to a Rerun recording on the 'survey' timeline")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(run=run)
 
@@ -60,15 +62,28 @@ def run(args: argparse.Namespace) -> int:
     def log(message: str) -> None:
         print(("\n" if progress.tty and progress.enabled else "") + f"fgloc: {message}", file=sys.stderr, flush=True)
 
+    recording = None
+    if args.rerun:
+        from fgloc import viz  # rerun only when asked
+
+        recording = viz.open_recording(args.rerun)
+        logger = viz.SurveyLogger(recording)
+
     def show(live: LiveEstimate) -> None:
         print(format_estimate(live), flush=True)
+        if recording is not None:
+            logger.log_estimates(len(live.survey.observations), live.result, live.survey)
 
-    survey, runner = run_survey(
-        rig, args.output, simulate=args.simulate, resume=args.resume,
-        estimator=None if args.no_live else (IncrementalEstimator() if args.estimator == "incremental"
-                                             else BatchEstimator()),
-        live_every=args.live_every, on_estimate=show, on_progress=progress, log=log,
-    )
+    try:
+        survey, runner = run_survey(
+            rig, args.output, simulate=args.simulate, resume=args.resume,
+            estimator=None if args.no_live else (IncrementalEstimator() if args.estimator == "incremental"
+                                                 else BatchEstimator()),
+            live_every=args.live_every, on_estimate=show, on_progress=progress, log=log,
+        )
+    finally:
+        if recording is not None:
+            viz.close_recording(recording)
     s = runner.stats
     print(f"wrote {args.output}/survey.json: {len(survey.node_ids)} nodes, {len(survey.observations)} observations "
           f"({s.nodes_skipped} nodes already done, {s.not_found} not found, {s.led_failed} LED failures, "
