@@ -164,8 +164,12 @@ def open_recording(
     """
     rec = rr.RecordingStream(APPLICATION_ID, recording_id=recording_id)
     if path is not None:
-        Path(path).parent.mkdir(parents=True, exist_ok=True)
-        rec.save(str(path), default_blueprint=blueprint)
+        try:
+            Path(path).parent.mkdir(parents=True, exist_ok=True)
+            rec.save(str(path), default_blueprint=blueprint)
+        except (OSError, RuntimeError) as exc:  # rerun reports an unwritable file as RuntimeError
+            reason = str(exc).split(" (os error")[0].split(", path:")[0]
+            raise FglocError(f"{path}: cannot write the Rerun recording ({reason})") from None
     rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
     return rec
 

@@ -285,3 +285,25 @@ def test_planar_subset_solutions_are_accepted_as_2d(tmp_path) -> None:
     assert list(last_static(e, "world/subset_newton/mean", "Points3D:labels")) == ["a"]  # NaN mean skipped
     with pytest.raises(ValueError):
         viz.log_subset_solutions(rec, ["a"], np.zeros((3, 2)), np.zeros(2, dtype=int))
+
+
+def test_unwritable_recording_is_one_line_error(tmp_path, solved, capsys) -> None:
+    """An .rrd that cannot be created ends `solve --rerun` and `survey --rerun` with one line
+    naming the file and exit 2 (rerun itself raises a RuntimeError with a traceback), and
+    the survey stops before touching the rig."""
+    from fgloc.cli import main
+
+    survey, _, _ = solved
+    write_survey(survey, tmp_path / "survey.json")
+    blocker = tmp_path / "file"
+    blocker.write_text("not a directory")
+    bad = blocker / "x.rrd"
+    assert main(["solve", str(tmp_path / "survey.json"), "-o", str(tmp_path / "r.json"), "--rerun", str(bad)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and str(bad) in err and "cannot write the Rerun recording" in err
+    rig = Path(__file__).resolve().parent.parent / "examples" / "rig-simulated.json"
+    out = tmp_path / "survey-out"
+    assert main(["survey", "--rig", str(rig), "-o", str(out), "--simulate", "--quiet", "--rerun", str(bad)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and str(bad) in err
+    assert not (out / "journal.jsonl").exists()
