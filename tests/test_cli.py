@@ -5,6 +5,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 from fgloc.cli import main
 
 
@@ -22,6 +24,35 @@ def test_simulate_solve_score(tmp_path: Path, capsys) -> None:
 def test_simulate_rejects_bad_options(tmp_path: Path, capsys) -> None:
     assert main(["simulate", "-o", str(tmp_path / "s.json"), "--heights", "0", "0.1"]) == 2
     assert "heights" in capsys.readouterr().err
+
+
+
+
+
+@pytest.mark.parametrize(
+    "option, expected",
+    [
+        (["--nodes", "-5"], "--nodes must be >= 1, got -5"),
+        (["--nodes", "0"], "--nodes must be >= 1, got 0"),
+        (["--sigma-deg", "nan"], "--sigma-deg must be a finite number, got nan"),
+        (["--heights", "inf", "0.1"], "--heights must be a finite number, got inf"),
+        (["--roll-pitch-deg", "nan"], "--roll-pitch-deg must be a finite number, got nan"),
+    ],
+)
+def test_simulate_bad_numbers_are_one_line_errors(tmp_path: Path, capsys, option, expected) -> None:
+    out = tmp_path / "s.json"
+    assert main(["simulate", "-o", str(out), *option]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and expected in err
+    assert not out.exists()
+
+
+def test_survey_live_every_must_be_positive(tmp_path: Path, capsys) -> None:
+    rig = Path(__file__).resolve().parent.parent / "examples" / "rig-simulated.json"
+    assert main(["survey", "--rig", str(rig), "-o", str(tmp_path / "o"), "--simulate", "--live-every", "0"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--live-every must be >= 1, got 0" in err
+    assert not (tmp_path / "o").exists()
 
 
 def test_score_needs_truth(tmp_path: Path, capsys) -> None:

@@ -32,6 +32,12 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def scenario_from_args(args: argparse.Namespace) -> PaperScenario:
+    for flag, value in (("--sigma-deg", args.sigma_deg), ("--heights", args.heights[0]),
+                        ("--heights", args.heights[1]), ("--roll-pitch-deg", args.roll_pitch_deg)):
+        if not np.isfinite(value):
+            raise FglocError(f"simulate: {flag} must be a finite number, got {value}")
+    if args.nodes < 1:
+        raise FglocError(f"simulate: --nodes must be >= 1, got {args.nodes}")
     try:
         config = PaperScenario(
             n_nodes=args.nodes,

@@ -6,6 +6,7 @@ import argparse
 import sys
 import time
 
+from fgloc.model import FglocError
 from fgloc.rig_config import load_rig
 from fgloc.survey_runner import BatchEstimator, IncrementalEstimator, LiveEstimate, Progress, format_estimate, format_progress
 
@@ -56,6 +57,8 @@ class _ProgressLine:
 def run(args: argparse.Namespace) -> int:
     from fgloc.survey_session import run_survey
 
+    if args.live_every < 1:
+        raise FglocError(f"--live-every must be >= 1, got {args.live_every}")
     rig = load_rig(args.rig)
     progress = _ProgressLine(not args.quiet)
 
