@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from fgloc.geometry import is_rotation
+from fgloc.json_fields import JsonFields, show_value
 from fgloc.model import (
     CameraPose,
     FglocError,
@@ -41,106 +42,24 @@ class FileFormatError(FglocError):
     """A survey or result file that does not follow the interchange contract."""
 
 
-def _show(value: Any) -> str:
-    text = json.dumps(value)  # NaN and Infinity shown as the JSON literals a user wrote
-    return text if len(text) <= 60 else text[:57] + "..."
-
-
-class _Reader:
-    """Typed field access that reports ``file: field: problem`` on failure."""
-
-    def __init__(self, path: str) -> None:
-        self.path = path
-
-    def fail(self, field_name: str, problem: str) -> FileFormatError:
-        return FileFormatError(f"{self.path}: {field_name}: {problem}")
-
-    def get(self, obj: dict, key: str, where: str, required: bool = True) -> Any:
-        name = f"{where}.{key}" if where else key
-        if key not in obj:
-            if required:
-                raise self.fail(name, "missing required field")
-            return None
-        return obj[key]
-
-    def obj(self, value: Any, name: str) -> dict:
-        if not isinstance(value, dict):
-            raise self.fail(name, f"expected an object, got {_show(value)}")
-        return value
-
-    def array(self, value: Any, name: str) -> list:
-        if not isinstance(value, list):
-            raise self.fail(name, f"expected an array, got {_show(value)}")
-        return value
-
-    def ident(self, value: Any, name: str) -> str:
-        if not isinstance(value, str) or not value:
-            raise self.fail(name, f"expected a non-empty string id, got {_show(value)}")
-        return value
-
-    def number(self, value: Any, name: str, positive: bool = False) -> float:
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise self.fail(name, f"expected a number, got {_show(value)}")
-        x = float(value)
-        if not math.isfinite(x):
-            raise self.fail(name, f"expected a finite number, got {_show(value)}")
-        if positive and x <= 0.0:
-            raise self.fail(name, f"must be > 0, got {_show(value)}")
-        return x
-
-    def vector(self, value: Any, name: str, length: int) -> np.ndarray:
-        items = self.array(value, name)
-        if len(items) != length:
-            raise self.fail(name, f"expected {length} numbers, got {_show(value)}")
-        return np.array([self.number(v, f"{name}[{i}]") for i, v in enumerate(items)])
-
-    def matrix(self, value: Any, name: str, size: int) -> np.ndarray:
-        rows = self.array(value, name)
-        if len(rows) != size:
-            raise self.fail(name, f"expected a {size}x{size} matrix, got {_show(value)}")
-        return np.array([self.vector(r, f"{name}[{i}]", size) for i, r in enumerate(rows)])
-
-    def unique_ids(self, values: list[str], name: str) -> None:
-        seen: set[str] = set()
-        for i, v in enumerate(values):
-            if v in seen:
-                raise self.fail(f"{name}[{i}]", f"duplicate id {_show(v)}")
-            seen.add(v)
-
-
-def _load_json(path: str | os.PathLike[str]) -> tuple[_Reader, dict]:
-    reader = _Reader(str(path))
-    try:
-        text = Path(path).read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise FileFormatError(f"{path}: file not found") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise FileFormatError(f"{path}: cannot read: {exc}") from None
-    try:
-        data = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise FileFormatError(f"{path}: not valid JSON: {exc}") from None
-    return reader, reader.obj(data, "(top level)")
-
-
-def _check_header(r: _Reader, data: dict, expected_format: str) -> None:
+def _check_header(r: JsonFields, data: dict, expected_format: str) -> None:
     fmt = r.get(data, "format", "")
     if fmt != expected_format:
-        raise r.fail("format", f"expected {_show(expected_format)}, got {_show(fmt)}")
+        raise r.fail("format", f"expected {show_value(expected_format)}, got {show_value(fmt)}")
     version = r.get(data, "version", "")
     if isinstance(version, bool) or version != FORMAT_VERSION:
-        raise r.fail("version", f"unsupported version {_show(version)} (this reader knows {FORMAT_VERSION})")
+        raise r.fail("version", f"unsupported version {show_value(version)} (this reader knows {FORMAT_VERSION})")
 
 
-def _mode(r: _Reader, data: dict) -> NodeMode:
+def _mode(r: JsonFields, data: dict) -> NodeMode:
     value = r.get(data, "nodes", "")
     try:
         return NodeMode(value)
     except ValueError:
-        raise r.fail("nodes", f'expected "planar" or "3d", got {_show(value)}') from None
+        raise r.fail("nodes", f'expected "planar" or "3d", got {show_value(value)}') from None
 
 
-def _camera_pose(r: _Reader, value: Any, name: str) -> CameraPose:
+def _camera_pose(r: JsonFields, value: Any, name: str) -> CameraPose:
     obj = r.obj(value, name)
     position = r.vector(r.get(obj, "position", name), f"{name}.position", 3)
     rotation = r.matrix(r.get(obj, "rotation", name), f"{name}.rotation", 3)
@@ -151,7 +70,7 @@ def _camera_pose(r: _Reader, value: Any, name: str) -> CameraPose:
 
 def read_survey(path: str | os.PathLike[str]) -> Survey:
     """Read and validate a survey.json file."""
-    r, data = _load_json(path)
+    r, data = JsonFields.load(path, FileFormatError)
     _check_header(r, data, SURVEY_FORMAT)
     mode = _mode(r, data)
     sigma = r.number(r.get(data, "sigma", ""), "sigma", positive=True)
@@ -171,9 +90,9 @@ def read_survey(path: str | os.PathLike[str]) -> Survey:
     known_cameras = set(camera_ids)
     for name, cam in (("gauge.origin", origin), ("gauge.baseline", baseline)):
         if cam not in known_cameras:
-            raise r.fail(name, f"camera {_show(cam)} is not in cameras")
+            raise r.fail(name, f"camera {show_value(cam)} is not in cameras")
     if origin == baseline:
-        raise r.fail("gauge.baseline", f"must differ from gauge.origin, both are {_show(origin)}")
+        raise r.fail("gauge.baseline", f"must differ from gauge.origin, both are {show_value(origin)}")
 
     known_nodes = set(node_ids)
     observations: list[Observation] = []
@@ -182,18 +101,18 @@ def read_survey(path: str | os.PathLike[str]) -> Survey:
         o = r.obj(item, where)
         cam = r.ident(r.get(o, "camera", where), f"{where}.camera")
         if cam not in known_cameras:
-            raise r.fail(f"{where}.camera", f"unknown camera {_show(cam)}")
+            raise r.fail(f"{where}.camera", f"unknown camera {show_value(cam)}")
         node = r.ident(r.get(o, "node", where), f"{where}.node")
         if node not in known_nodes:
-            raise r.fail(f"{where}.node", f"unknown node {_show(node)}")
+            raise r.fail(f"{where}.node", f"unknown node {show_value(node)}")
         pan = r.number(r.get(o, "pan", where), f"{where}.pan")
         tilt = r.number(r.get(o, "tilt", where), f"{where}.tilt")
         if abs(tilt) > math.pi / 2 + 1e-9:
-            raise r.fail(f"{where}.tilt", f"must lie in [-pi/2, pi/2], got {_show(tilt)}")
+            raise r.fail(f"{where}.tilt", f"must lie in [-pi/2, pi/2], got {show_value(tilt)}")
         obs_sigma = r.get(o, "sigma", where, required=False)
         obs_subset = r.get(o, "subset", where, required=False)
         if obs_subset is not None and (isinstance(obs_subset, bool) or not isinstance(obs_subset, int) or obs_subset < 0):
-            raise r.fail(f"{where}.subset", f"expected a non-negative integer, got {_show(obs_subset)}")
+            raise r.fail(f"{where}.subset", f"expected a non-negative integer, got {show_value(obs_subset)}")
         observations.append(
             Observation(
                 camera=cam,
@@ -325,7 +244,7 @@ def write_result(result: Result, path: str | os.PathLike[str]) -> None:
 
 def read_result(path: str | os.PathLike[str]) -> Result:
     """Read and validate a result.json file (fgloc's extra fields are optional)."""
-    r, data = _load_json(path)
+    r, data = JsonFields.load(path, FileFormatError)
     _check_header(r, data, RESULT_FORMAT)
     nodes_obj = r.obj(r.get(data, "nodes", ""), "nodes")
     nodes: dict[str, NodeEstimate] = {}
@@ -336,7 +255,7 @@ def read_result(path: str | os.PathLike[str]) -> Result:
         position = r.vector(r.get(o, "position", where), f"{where}.position", 3)
         cov_rows = r.array(r.get(o, "covariance", where), f"{where}.covariance")
         if len(cov_rows) not in (2, 3):
-            raise r.fail(f"{where}.covariance", f"expected a 2x2 or 3x3 matrix, got {_show(cov_rows)}")
+            raise r.fail(f"{where}.covariance", f"expected a 2x2 or 3x3 matrix, got {show_value(cov_rows)}")
         cov = r.matrix(cov_rows, f"{where}.covariance", len(cov_rows))
         dims.add(len(cov_rows))
         nodes[k] = NodeEstimate(position=position, covariance=cov)
@@ -353,7 +272,7 @@ def read_result(path: str | os.PathLike[str]) -> Result:
     unlocalized = {}
     for k, v in unloc_obj.items():
         if not isinstance(v, str):
-            raise r.fail(f"unlocalized.{k}", f"expected a reason string, got {_show(v)}")
+            raise r.fail(f"unlocalized.{k}", f"expected a reason string, got {show_value(v)}")
         unlocalized[k] = v
     flagged = []
     for i, f in enumerate(r.array(data.get("flagged_observations", []), "flagged_observations")):

@@ -23,7 +23,8 @@ from typing import Any
 
 import numpy as np
 
-from fgloc.files import FileFormatError, _load_json, write_json_atomic
+from fgloc.files import FileFormatError, write_json_atomic
+from fgloc.json_fields import JsonFields
 
 CAMERA_FORMAT = "fgloc-camera"
 CAMERA_FORMAT_VERSION = 1
@@ -117,43 +118,29 @@ def write_intrinsics(intr: CameraIntrinsics, path: str | os.PathLike[str]) -> No
 
 def read_intrinsics(path: str | os.PathLike[str]) -> CameraIntrinsics:
     """Read and validate a camera.json file; errors name file, field and value in one line."""
-    try:
-        r, data = _load_json(path)
-    except IntrinsicsFormatError:
-        raise
-    except FileFormatError as exc:
-        raise IntrinsicsFormatError(str(exc)) from None
-
-    def fail(name: str, problem: str) -> IntrinsicsFormatError:
-        return IntrinsicsFormatError(f"{path}: {name}: {problem}")
-
+    r, data = JsonFields.load(path, IntrinsicsFormatError)
     fmt = data.get("format")
     if fmt != CAMERA_FORMAT:
-        raise fail("format", f"expected {CAMERA_FORMAT!r}, got {fmt!r}")
+        raise r.fail("format", f"expected {CAMERA_FORMAT!r}, got {fmt!r}")
     version = data.get("version")
     if isinstance(version, bool) or version != CAMERA_FORMAT_VERSION:
-        raise fail("version", f"unsupported version {version!r} (this reader knows {CAMERA_FORMAT_VERSION})")
-    try:
-        size = r.array(r.get(data, "image_size", ""), "image_size")
-        if len(size) != 2 or not all(isinstance(s, int) and not isinstance(s, bool) and s > 0 for s in size):
-            raise fail("image_size", f"expected [width, height] positive integers, got {size!r}")
-        zoom = r.number(r.get(data, "zoom", ""), "zoom")
-        if not 0.0 <= zoom <= 1.0:
-            raise fail("zoom", f"must lie in [0, 1], got {zoom!r}")
-        values = {k: r.number(r.get(data, k, ""), k, positive=k in ("fx", "fy")) for k in ("fx", "fy", "cx", "cy")}
-        for key, limit in (("cx", size[0]), ("cy", size[1])):
-            if not -0.5 <= values[key] <= limit - 0.5:
-                raise fail(key, f"principal point must lie inside the image (0 .. {limit - 1}), got {values[key]!r}")
-        dist_obj = r.obj(r.get(data, "distortion", ""), "distortion")
-        dist = {k: r.number(dist_obj.get(k, 0.0), f"distortion.{k}") for k in ("k1", "k2", "p1", "p2", "k3")}
-        rms = data.get("rms_px")
-        rms_px = None if rms is None else r.number(rms, "rms_px")
-        images = data.get("images", [])
-        if not isinstance(images, list) or not all(isinstance(i, str) for i in images):
-            raise fail("images", "expected an array of file names")
-    except IntrinsicsFormatError:
-        raise
-    except FileFormatError as exc:
-        raise IntrinsicsFormatError(str(exc)) from None
+        raise r.fail("version", f"unsupported version {version!r} (this reader knows {CAMERA_FORMAT_VERSION})")
+    size = r.array(r.get(data, "image_size", ""), "image_size")
+    if len(size) != 2 or not all(isinstance(s, int) and not isinstance(s, bool) and s > 0 for s in size):
+        raise r.fail("image_size", f"expected [width, height] positive integers, got {size!r}")
+    zoom = r.number(r.get(data, "zoom", ""), "zoom")
+    if not 0.0 <= zoom <= 1.0:
+        raise r.fail("zoom", f"must lie in [0, 1], got {zoom!r}")
+    values = {k: r.number(r.get(data, k, ""), k, positive=k in ("fx", "fy")) for k in ("fx", "fy", "cx", "cy")}
+    for key, limit in (("cx", size[0]), ("cy", size[1])):
+        if not -0.5 <= values[key] <= limit - 0.5:
+            raise r.fail(key, f"principal point must lie inside the image (0 .. {limit - 1}), got {values[key]!r}")
+    dist_obj = r.obj(r.get(data, "distortion", ""), "distortion")
+    dist = {k: r.number(dist_obj.get(k, 0.0), f"distortion.{k}") for k in ("k1", "k2", "p1", "p2", "k3")}
+    rms = data.get("rms_px")
+    rms_px = None if rms is None else r.number(rms, "rms_px")
+    images = data.get("images", [])
+    if not isinstance(images, list) or not all(isinstance(i, str) for i in images):
+        raise r.fail("images", "expected an array of file names")
     return CameraIntrinsics(width=size[0], height=size[1], zoom=zoom, rms_px=rms_px, images=tuple(images),
                             **values, **dist)

@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from fgloc.intrinsics import CameraIntrinsics, read_intrinsics
+from fgloc.json_fields import load_json
 from fgloc.journal import rig_hash
 from fgloc.model import FglocError, Gauge, NodeMode
 
@@ -156,6 +157,8 @@ class RigConfig:
 
 
 class _Fields:
+    """rig.json's field checks (ranges, integers, choices), raising ``file: field: problem``."""
+
     def __init__(self, path: str) -> None:
         self.path = path
 
@@ -364,15 +367,5 @@ def parse_rig(data: Any, path: str = "rig.json", base: Path | None = None) -> Ri
 
 def load_rig(path: str | os.PathLike[str]) -> RigConfig:
     """Read and validate rig.json."""
-    p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise RigConfigError(f"{path}: file not found") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise RigConfigError(f"{path}: cannot read: {exc}") from None
-    try:
-        data = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise RigConfigError(f"{path}: not valid JSON: {exc}") from None
-    return parse_rig(data, str(path), p.parent)
+    data = load_json(path, RigConfigError)
+    return parse_rig(data, str(path), Path(path).parent)

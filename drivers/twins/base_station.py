@@ -28,8 +28,7 @@ from drivers.tinyos_serial import (
     Deframer, MoteProtocolError, ack_frame, data_frame, frame, led_report, parse_body,
 )
 from drivers.twins.faults import FaultConfig, FaultInjector
-from drivers.twins.pty_port import PtyPort
-from drivers.twins.visca_camera import ScheduledReplies
+from drivers.twins.pty_twin import PtyTwin
 
 
 class MoteFieldEmulator:
@@ -62,62 +61,30 @@ class MoteFieldEmulator:
         return [(self.radio_delay, led_report(node, on, packet.group))]
 
 
-class BaseStationSerialTwin:
+class BaseStationSerialTwin(PtyTwin):
     """Base station on a pty at the byte level; open :attr:`port` with pyserial. Context manager."""
 
     def __init__(self, field: MoteFieldEmulator | None = None, faults: FaultConfig | None = None) -> None:
         self.field = field or MoteFieldEmulator()
-        self.faults = FaultInjector(faults)
         self.deframer = Deframer()
         self.acks_received: list[int] = []
-        self._pty = PtyPort("basestation")
-        self._out = ScheduledReplies()
-        self._stop = threading.Event()
-        self._reconnect_at: float | None = None
-        self._thread = threading.Thread(target=self._serve, name="basestation-twin", daemon=True)
-        self._thread.start()
+        super().__init__("basestation", "basestation-twin", faults)
 
-    @property
-    def port(self) -> str:
-        return self._pty.path
-
-    def inject_raw(self, data: bytes) -> None:
-        """Write arbitrary bytes to the driver (line noise, truncated frames)."""
-        self._pty.write(data)
-
-    def disconnect(self, reconnect_after: float | None = None) -> None:
-        self._pty.disconnect()
-        self._out.clear()
+    def _reset_link(self) -> None:
         self.deframer = Deframer(self.deframer.stats)
-        self._reconnect_at = None if reconnect_after is None else time.monotonic() + reconnect_after
 
     def _emit(self, due: float, data: bytes, can_be_slow: bool = True) -> None:
-        fate = self.faults.reply_fate(can_be_slow=can_be_slow)
-        if fate == "drop":
-            return
-        if fate == "garble":
-            data = data[:1] + self.faults.garble(data[1:-1]) + data[-1:]
-        if fate == "slow":
-            due += self.faults.config.slow_seconds
-        self._out.put(due, self.faults.line_noise(data))
+        sent = self.faults.faulted_reply(data, can_be_slow, garble=self._garble_inside_flags)
+        if sent is not None:
+            self._out.put(due + sent[0], sent[1])
 
-    def _serve(self) -> None:
-        while not self._stop.is_set():
-            now = time.monotonic()
-            if not self._pty.connected:
-                if self._reconnect_at is not None and now >= self._reconnect_at:
-                    self._reconnect_at = None
-                    self._pty.reconnect()
-                else:
-                    self._stop.wait(0.01)
-                    continue
-            due = self._out.next_due()
-            data = self._pty.read(0.02 if due is None else min(0.02, max(0.0, due - now)))
-            if data:
-                for body in self.deframer.feed(data):
-                    self._on_body(body)
-            for out in self._out.pop_due(time.monotonic()):
-                self._pty.write(out)
+    def _garble_inside_flags(self, data: bytes) -> bytes:
+        """``data`` with one byte between its HDLC flags garbled."""
+        return data[:1] + self.faults.garble(data[1:-1]) + data[-1:]
+
+    def _on_bytes(self, data: bytes) -> None:
+        for body in self.deframer.feed(data):
+            self._on_body(body)
 
     def _on_body(self, body: bytes) -> None:
         try:
@@ -141,17 +108,6 @@ class BaseStationSerialTwin:
             self._emit(now, ack_frame(f.seq))
         for delay, packet in self.field.handle(f.packet):
             self._emit(now + delay, data_frame(packet, None))
-
-    def close(self) -> None:
-        self._stop.set()
-        self._thread.join(timeout=2.0)
-        self._pty.close()
-
-    def __enter__(self) -> BaseStationSerialTwin:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
 
 class SerialForwarderTwin:
@@ -206,15 +162,13 @@ class SerialForwarderTwin:
             threading.Thread(target=self._serve, args=(client,), daemon=True).start()
 
     def _send(self, client: socket.socket, packet: AmPacket) -> None:
-        data = packet.pack()
-        fate = self.faults.reply_fate(can_be_slow=True)
-        if fate == "drop":
+        # line noise included: TCP itself never corrupts; it models a bad radio packet
+        sent = self.faults.faulted_reply(packet.pack(), can_be_slow=True)
+        if sent is None:
             return
-        if fate == "garble":
-            data = self.faults.garble(data)
-        if fate == "slow":
-            time.sleep(self.faults.config.slow_seconds)
-        data = self.faults.line_noise(data)  # TCP itself never corrupts; this models a bad radio packet
+        delay, data = sent
+        if delay:
+            time.sleep(delay)
         try:
             client.sendall(bytes([len(data)]) + data)
         except OSError:

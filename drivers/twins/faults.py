@@ -23,6 +23,7 @@ from __future__ import annotations
 import random
 import threading
 from collections import Counter
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 
@@ -124,6 +125,21 @@ class FaultInjector:
             if hit:
                 self.counts["byte_error"] += hit
             return bytes(out)
+
+    def faulted_reply(self, data: bytes, can_be_slow: bool = False,
+                      garble: Callable[[bytes], bytes] | None = None) -> tuple[float, bytes] | None:
+        """One outgoing reply after its fate: None if dropped, else (extra delay s, bytes to send).
+
+        A garbled reply goes through ``garble`` (default :meth:`garble`; a twin passes its own
+        to keep framing bytes intact), a slow one is ``slow_seconds`` late, and every sent
+        reply gets :meth:`line_noise`."""
+        fate = self.reply_fate(can_be_slow=can_be_slow)
+        if fate == "drop":
+            return None
+        if fate == "garble":
+            data = (garble or self.garble)(data)
+        delay = self.config.slow_seconds if fate == "slow" else 0.0
+        return delay, self.line_noise(data)
 
     def request_error(self) -> int | None:
         """An error code to answer this request with, or None to execute it."""

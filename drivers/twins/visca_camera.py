@@ -20,8 +20,6 @@ Scene hook: ``renderer(pose) -> ndarray`` renders what the camera sees for a
 
 from __future__ import annotations
 
-import heapq
-import itertools
 import threading
 import time
 from collections.abc import Callable
@@ -33,6 +31,7 @@ from drivers.frames import CallableFrameSource
 from drivers.ptz_units import EVI_D100, CameraModel
 from drivers.twins.faults import FaultConfig, FaultInjector
 from drivers.twins.pty_port import PtyPort
+from drivers.twins.pty_twin import PtyTwin, ScheduledReplies
 from drivers.visca import PacketSplitter, ViscaProtocolError, decode_nibbles, encode_nibbles
 
 
@@ -252,40 +251,6 @@ def is_socket_request(packet: bytes) -> bool:
             and packet[1] in (0x01, 0x09) and packet[1:4] != b"\x01\x00\x01")
 
 
-class ScheduledReplies:
-    """A time-ordered queue of outgoing byte strings (thread-safe)."""
-
-    def __init__(self) -> None:
-        self._heap: list[tuple[float, int, bytes]] = []
-        self._seq = itertools.count()
-        self._lock = threading.Lock()
-
-    def put(self, due: float, payload: bytes) -> None:
-        with self._lock:
-            heapq.heappush(self._heap, (due, next(self._seq), payload))
-
-    def pop_one(self, now: float) -> bytes | None:
-        with self._lock:
-            if self._heap and self._heap[0][0] <= now:
-                return heapq.heappop(self._heap)[2]
-            return None
-
-    def pop_due(self, now: float) -> list[bytes]:
-        out = []
-        with self._lock:
-            while self._heap and self._heap[0][0] <= now:
-                out.append(heapq.heappop(self._heap)[2])
-        return out
-
-    def next_due(self) -> float | None:
-        with self._lock:
-            return self._heap[0][0] if self._heap else None
-
-    def clear(self) -> None:
-        with self._lock:
-            self._heap.clear()
-
-
 def apply_reply_faults(faults: FaultInjector, emulator: ViscaCameraEmulator, request: bytes,
                        now: float) -> list[tuple[float, bytes]]:
     """Run ``request`` through error injection, the emulator and per-reply faults -> [(due, bytes)]."""
@@ -296,14 +261,9 @@ def apply_reply_faults(faults: FaultInjector, emulator: ViscaCameraEmulator, req
             return [(now, emulator.error(socket, code))]
     out = []
     for delay, reply, is_completion in emulator.handle(request):
-        fate = faults.reply_fate(can_be_slow=is_completion)
-        if fate == "drop":
-            continue
-        if fate == "garble":
-            reply = faults.garble(reply)
-        if fate == "slow":
-            delay += faults.config.slow_seconds
-        out.append((now + delay, faults.line_noise(reply)))
+        sent = faults.faulted_reply(reply, can_be_slow=is_completion)
+        if sent is not None:
+            out.append((now + (delay + sent[0]), sent[1]))
     return out
 
 
@@ -347,7 +307,7 @@ def write_paced(port: PtyPort, out: ScheduledReplies, wire: WireTime,
         wire.sent(data, now)
 
 
-class ViscaSerialTwin:
+class ViscaSerialTwin(PtyTwin):
     """The emulator on a pseudo-terminal; open :attr:`port` with pyserial. Use as a context manager.
 
     ``baudrate`` (e.g. 9600 for a D100) adds the wire time of both directions
@@ -360,64 +320,26 @@ class ViscaSerialTwin:
                  baudrate: int | None = None) -> None:
         self.emulator = emulator or ViscaCameraEmulator(model, time_scale=time_scale, renderer=renderer)
         self.wire = WireTime(baudrate)
-        self.faults = FaultInjector(faults)
-        self._pty = PtyPort("visca")
-        self._out = ScheduledReplies()
         self._splitter = PacketSplitter()
-        self._stop = threading.Event()
-        self._reconnect_at: float | None = None
         #: every reply written to the driver, in order (faults applied), appended just before the
         #: write: whatever the driver has received is in here (tests check event order with it)
         self.sent: list[bytes] = []
-        self._thread = threading.Thread(target=self._serve, name="visca-serial-twin", daemon=True)
-        self._thread.start()
+        super().__init__("visca", "visca-serial-twin", faults)
 
-    @property
-    def port(self) -> str:
-        """Serial device path for pyserial (a symlink to the current pty slave)."""
-        return self._pty.path
-
-    def inject_raw(self, data: bytes) -> None:
-        """Write arbitrary bytes to the driver (line noise, an unsolicited Network Change)."""
-        self._pty.write(data)
-
-    def disconnect(self, reconnect_after: float | None = None) -> None:
-        """Pull the cable now; plug it back after ``reconnect_after`` seconds (never if None)."""
-        self._pty.disconnect()
-        self._out.clear()
+    def _reset_link(self) -> None:
         self._splitter.reset()
-        self._reconnect_at = None if reconnect_after is None else time.monotonic() + reconnect_after
 
-    def _serve(self) -> None:
-        while not self._stop.is_set():
-            now = time.monotonic()
-            if not self._pty.connected:
-                if self._reconnect_at is not None and now >= self._reconnect_at:
-                    self._reconnect_at = None
-                    self._pty.reconnect()
-                else:
-                    self._stop.wait(0.01)
-                    continue
-            due = self._out.next_due()
-            wait = 0.02 if due is None else min(0.02, max(0.0, due - now))
-            data = self._pty.read(self.wire.wait(now, wait))
-            if data:
-                for packet in self._splitter.feed(data):
-                    if self.faults.count_request():
-                        self.disconnect(self.faults.config.reconnect_after)
-                        break
-                    arrived = time.monotonic() + self.wire.rx(packet)
-                    for due_at, reply in apply_reply_faults(self.faults, self.emulator, packet, arrived):
-                        self._out.put(due_at, reply)
-            write_paced(self._pty, self._out, self.wire, self.sent)
+    def _read_timeout(self, now: float, wait: float) -> float:
+        return self.wire.wait(now, wait)
 
-    def close(self) -> None:
-        self._stop.set()
-        self._thread.join(timeout=2.0)
-        self._pty.close()
+    def _on_bytes(self, data: bytes) -> None:
+        for packet in self._splitter.feed(data):
+            if self.faults.count_request():
+                self.disconnect(self.faults.config.reconnect_after)
+                break
+            arrived = time.monotonic() + self.wire.rx(packet)
+            for due_at, reply in apply_reply_faults(self.faults, self.emulator, packet, arrived):
+                self._out.put(due_at, reply)
 
-    def __enter__(self) -> ViscaSerialTwin:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
+    def _write_due(self) -> None:
+        write_paced(self._pty, self._out, self.wire, self.sent)

@@ -16,7 +16,8 @@ import time
 
 from drivers.ptz_units import VISCA_IP_GENERIC, CameraModel
 from drivers.twins.faults import FaultConfig, FaultInjector
-from drivers.twins.visca_camera import Renderer, ScheduledReplies, ViscaCameraEmulator, apply_reply_faults
+from drivers.twins.pty_twin import ScheduledReplies
+from drivers.twins.visca_camera import Renderer, ViscaCameraEmulator, apply_reply_faults
 from drivers.visca import is_inquiry
 from drivers.visca_ip import (
     CONTROL_ACK, CONTROL_RESET, ERROR_MESSAGE_TYPE, ERROR_SEQUENCE, TYPE_COMMAND, TYPE_CONTROL, TYPE_CONTROL_REPLY,
