@@ -34,7 +34,7 @@ from typing import Callable, Protocol
 
 from fgloc.journal import JournalObservation, JournalState, JournalWriter, journal_to_survey
 from fgloc.led_search import LedLocator, PinholePixelModel
-from fgloc.model import FglocError, Result, Survey
+from fgloc.model import FglocError, NodeMode, Result, Survey
 from fgloc.rig import LedController, PanTiltHead
 from fgloc.rig_config import RigConfig
 
@@ -71,7 +71,8 @@ class IncrementalEstimator:
     ``factory(camera_ids, gauge, sigma)`` builds the localizer (default:
     ``fgloc.incremental.IncrementalLocalizer``); it must offer
     ``add_observations(list[Observation])`` and ``estimate() -> Result`` (and may say
-    ``bootstrapped``: until it does, estimates come from a batch solve). Each update
+    ``bootstrapped``: until it does, estimates come from a batch solve). The localizer is
+    planar: a 3d survey is always solved in batch. Each update
     passes only the readings the localizer has not seen: the survey's observations only
     ever grow, so within each (node, camera) group the first ones were fed before.
     """
@@ -83,6 +84,9 @@ class IncrementalEstimator:
         self._fed: dict[tuple[str, str], int] = {}
 
     def update(self, survey: Survey) -> Result:
+        if survey.mode is not NodeMode.PLANAR:
+            # The iSAM2 localizer is planar only: a 3d survey is re-solved in batch.
+            return self._before_bootstrap.update(survey)
         if self.localizer is None:
             factory = self.factory
             if factory is None:

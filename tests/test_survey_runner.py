@@ -327,3 +327,20 @@ def test_cli_survey_logs_live_estimates_to_rerun(tmp_path, capsys):
     expected = np.array([final.nodes[n].position for n in final.nodes])
     assert logged.shape == expected.shape
     assert np.abs(np.sort(logged, axis=0) - np.sort(expected, axis=0)).max() < 1e-6
+
+
+def test_incremental_estimator_solves_3d_surveys_in_batch():
+    """IncrementalLocalizer is planar only; a 3d journal (a real rig with "nodes": "3d") must
+    get 3d estimates, the batch solve's, never planar ones."""
+    from fgloc.joint_solver import solve_survey
+    from fgloc.model import NodeMode
+    from fgloc.simulate import RandomScene, random_scene
+    from fgloc.survey_runner import IncrementalEstimator
+
+    survey = random_scene(RandomScene(n_cameras=3, n_nodes=40, mode=NodeMode.THREE_D, seed=3))
+    est = IncrementalEstimator()
+    live = est.update(survey)
+    batch = solve_survey(survey)
+    assert live.mode is NodeMode.THREE_D and est.localizer is None
+    for nid, b in batch.nodes.items():
+        assert np.abs(live.nodes[nid].position - b.position).max() < 1e-9
