@@ -156,3 +156,17 @@ def test_live_covariances_are_honest_over_monte_carlo() -> None:
     assert 1.8 <= nees_all.mean() <= 2.2, nees_all.mean()
     assert 0.93 <= np.mean(nees_all <= CHI2_95[2]) <= 0.97
     assert np.mean(conditional_only) > 2.6
+
+
+def test_stress_script_scenes_stay_close_to_batch(capsys) -> None:
+    """scripts/stress_incremental.py on 3 random scenes (random node order, late readings that
+    bring marginalized nodes back, random windows): every scene within 0.5 sigma and 20 %."""
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parent.parent / "scripts" / "stress_incremental.py"
+    spec = importlib.util.spec_from_file_location("stress_incremental", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    assert module.main(["--scenes", "3", "--seed", "1"]) == 0
+    assert "3 of 3 scenes within" in capsys.readouterr().out
