@@ -151,6 +151,8 @@ class IncrementalLocalizer:
         self._summary: gtsam.LinearContainerFactor | None = None
         self._summary_slot: int | None = None
         self._marginalized = MarginalizedNodes(len(self.camera_ids))
+        # The same conditionals as GTSAM objects: the only way back into iSAM2 for a node
+        # seen by several cameras (Python builds JacobianFactors of at most 3 keys).
         self._conditionals: dict[str, gtsam.GaussianConditional] = {}
 
     # ----------------------------------------------------------------- input
@@ -271,14 +273,17 @@ class IncrementalLocalizer:
             cams.add(key)
         for nid, xy in self._node_positions(current).items():
             values.insert(node_key(self._node_index[nid]), xy)
-        graph = self._graph_of_factored()
+        readings = self._factor_set(sorted(self._factored))
+        graph = gtsam.NonlinearFactorGraph()
+        for f in readings.factors + self._gauge_factors():
+            graph.add(f)
         ordering = gtsam.Ordering()
         for k in values.keys():
             if k not in cams:
                 ordering.push_back(k)
         for k in sorted(cams):
             ordering.push_back(k)
-        outcome = levenberg_marquardt(graph, values, ordering)
+        outcome = levenberg_marquardt(graph, values, ordering, prepare=readings.prepare)
         self._seed_isam(outcome.values)
 
     def _gauge_factors(self) -> list[gtsam.NonlinearFactor]:
@@ -290,14 +295,21 @@ class IncrementalLocalizer:
         )
         return list(gauge.factors())
 
-    def _graph_of_factored(self) -> gtsam.NonlinearFactorGraph:
-        """A factor per reading in ``_factored`` plus the gauge priors."""
-        graph = gtsam.NonlinearFactorGraph()
-        for i in sorted(self._factored):
-            graph.add(self._factor(self._observations[i]))
-        for f in self._gauge_factors():
-            graph.add(f)
-        return graph
+    def _factor_set(self, readings: list[int]) -> PanTiltFactorSet:
+        """The readings ``readings`` (indices into the observations) as vectorized factors:
+        one numpy pass per linearization point (call ``prepare`` first) instead of a
+        Python callback's arithmetic per reading."""
+        obs = [self._observations[i] for i in readings]
+        noise: dict[float, gtsam.noiseModel.Base] = {}
+        sigmas = [self.sigma if o.sigma is None else float(o.sigma) for o in obs]
+        return PanTiltFactorSet(
+            np.array([camera_key(self._cam_index[o.camera]) for o in obs], np.int64),
+            np.array([node_key(self._node_index[o.node]) for o in obs], np.int64),
+            np.array([o.pan for o in obs]),
+            np.array([o.tilt for o in obs]),
+            [noise.setdefault(s, gtsam.noiseModel.Isotropic.Sigma(2, s)) for s in sigmas],
+            planar=True,
+        )
 
     def _seed_isam(self, values: gtsam.Values) -> None:
         """A fresh iSAM2 on every reading in ``_factored`` at ``values`` (cameras and placed nodes).
@@ -574,18 +586,7 @@ class IncrementalLocalizer:
         complement on the cameras plus the previous summary, as one linear factor.
         Readings are linearized in one vectorized pass (``PanTiltFactorSet``).
         """
-        readings = [i for nid in node_ids for i in self._readings.pop(nid)]
-        obs = [self._observations[i] for i in readings]
-        noise: dict[float, gtsam.noiseModel.Base] = {}
-        sigmas = [self.sigma if o.sigma is None else float(o.sigma) for o in obs]
-        factor_set = PanTiltFactorSet(
-            np.array([camera_key(self._cam_index[o.camera]) for o in obs], np.int64),
-            np.array([node_key(self._node_index[o.node]) for o in obs], np.int64),
-            np.array([o.pan for o in obs]),
-            np.array([o.tilt for o in obs]),
-            [noise.setdefault(s, gtsam.noiseModel.Isotropic.Sigma(2, s)) for s in sigmas],
-            planar=True,
-        )
+        factor_set = self._factor_set([i for nid in node_ids for i in self._readings.pop(nid)])
         graph = gtsam.NonlinearFactorGraph()
         for f in factor_set.factors:
             graph.add(f)
