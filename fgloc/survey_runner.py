@@ -102,13 +102,20 @@ class IncrementalEstimator:
             if seen[k] > self._fed.get(k, 0):
                 new.append(o)
         self._fed = seen
-        if new:
-            self.localizer.add_observations(new)  # type: ignore[attr-defined]
-        if not getattr(self.localizer, "bootstrapped", True):
-            # iSAM2 starts from a batch solve once the gauge pair shares enough nodes
-            # (12 by default); until then a batch solve of the few readings is cheap.
-            return self._before_bootstrap.update(survey)
-        return self.localizer.estimate()  # type: ignore[attr-defined]
+        try:
+            if new:
+                self.localizer.add_observations(new)  # type: ignore[attr-defined]
+            if not getattr(self.localizer, "bootstrapped", True):
+                # iSAM2 starts from a batch solve once the gauge pair shares enough nodes
+                # (12 by default); until then a batch solve of the few readings is cheap.
+                return self._before_bootstrap.update(survey)
+            return self.localizer.estimate()  # type: ignore[attr-defined]
+        except RuntimeError as exc:
+            # GTSAM gave up (e.g. an indeterminate system): the localizer's state is not
+            # trusted any more, so the next update starts a new one from every reading.
+            self.localizer = None
+            self._fed = {}
+            raise FglocError(f"incremental estimate: {exc}") from None
 
 
 @dataclass(frozen=True)

@@ -344,3 +344,29 @@ def test_incremental_estimator_solves_3d_surveys_in_batch():
     assert live.mode is NodeMode.THREE_D and est.localizer is None
     for nid, b in batch.nodes.items():
         assert np.abs(live.nodes[nid].position - b.position).max() < 1e-9
+
+
+class FailingOnceLocalizer(FakeLocalizer):
+    """Raises like GTSAM does (RuntimeError) on its second batch of readings."""
+
+    def add_observations(self, observations):
+        super().add_observations(observations)
+        if len(FakeLocalizer.instances) == 1 and len(self.fed) == 2:
+            raise RuntimeError("Indeterminant linear system detected while working near variable 7")
+
+
+def test_a_failing_live_estimate_never_stops_the_survey(tmp_path):
+    """A GTSAM failure inside the incremental estimator is one logged line; the survey goes
+    on, and the next estimate starts a new localizer fed every reading once."""
+    from fgloc.survey_runner import IncrementalEstimator
+
+    FakeLocalizer.instances.clear()
+    rig = small_rig(8, occlusion=0.0, dead_nodes=[])
+    est = IncrementalEstimator(FailingOnceLocalizer)
+    survey, runner = run_survey(rig, tmp_path, opened=opened(rig)[0], estimator=est)
+    assert len(survey.observations) == 16  # every node surveyed despite the failure
+    assert len(runner.stats.estimate_errors) == 1 and "Indeterminant" in runner.stats.estimate_errors[0]
+    first, second = FakeLocalizer.instances
+    fed = [o for batch in second.fed for o in batch]
+    assert sorted(fed, key=repr) == sorted(survey.observations, key=repr)  # each exactly once, from scratch
+    assert runner.latest is not None and set(runner.latest.result.nodes) == set(rig.node_ids)
