@@ -25,14 +25,14 @@ camera clique, without that clique having to be re-eliminated with every node.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
 
-@dataclass
+@dataclass(frozen=True)
 class ConditionalBatch:
-    """Conditionals of the nodes eliminated together, sharing one camera linearization point.
+    """What the conditionals of nodes eliminated together share: the camera linearization point.
 
     ``camera_points`` maps camera slot (index into the stacking) to whatever the
     caller uses as that camera's linearization point (a ``gtsam.Pose3``); it is
@@ -40,7 +40,6 @@ class ConditionalBatch:
     """
 
     camera_points: dict[int, object]
-    node_ids: list[str] = field(default_factory=list)
 
 
 class MarginalizedNodes:
@@ -88,7 +87,6 @@ class MarginalizedNodes:
         self._s.append(np.asarray(s, float))
         self._d.append(np.asarray(d, float))
         self._alive.append(True)
-        self._batches[batch].node_ids.append(node_id)
         self._arrays = None
 
     def pop(self, node_id: str) -> tuple[int, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
