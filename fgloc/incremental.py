@@ -265,12 +265,8 @@ class IncrementalLocalizer:
             return
         self._flush()
         current = self._isam.calculateEstimate()
-        values = gtsam.Values()
-        cams = set()
-        for cid in self._cameras:
-            key = camera_key(self._cam_index[cid])
-            values.insert(key, current.atPose3(key))
-            cams.add(key)
+        values = self._camera_values(current)
+        cams = set(values.keys())
         for nid, xy in self._node_positions(current).items():
             values.insert(node_key(self._node_index[nid]), xy)
         readings = self._factor_set(sorted(self._factored))
@@ -285,6 +281,14 @@ class IncrementalLocalizer:
             ordering.push_back(k)
         outcome = levenberg_marquardt(graph, values, ordering, prepare=readings.prepare)
         self._seed_isam(outcome.values)
+
+    def _camera_values(self, source: gtsam.Values) -> gtsam.Values:
+        """A new ``Values`` with the pose of every camera in the graph, taken from ``source``."""
+        values = gtsam.Values()
+        for cid in self._cameras:
+            key = camera_key(self._cam_index[cid])
+            values.insert(key, source.atPose3(key))
+        return values
 
     def _gauge_factors(self) -> list[gtsam.NonlinearFactor]:
         gauge = BaselinePrior(
@@ -333,10 +337,7 @@ class IncrementalLocalizer:
             summary_at = graph.size()
             graph.add(self._eliminate(ordered[:cut], values))
             owners.append(None)
-        seed_values = gtsam.Values()
-        for cid in self._cameras:
-            key = camera_key(self._cam_index[cid])
-            seed_values.insert(key, values.atPose3(key))
+        seed_values = self._camera_values(values)
         for nid in ordered[cut:]:
             key = node_key(self._node_index[nid])
             seed_values.insert(key, values.atPoint2(key))
@@ -559,10 +560,7 @@ class IncrementalLocalizer:
         """Move ``node_ids`` out of iSAM2 (see module docstring, step 4)."""
         assert self._isam is not None and self._linearization_point is not None
         estimate = self._isam.calculateEstimate()
-        lin = gtsam.Values()
-        for cid in self._cameras:
-            key = camera_key(self._cam_index[cid])
-            lin.insert(key, self._linearization_point.atPose3(key))
+        lin = self._camera_values(self._linearization_point)
         remove: list[int] = []
         for nid in node_ids:
             key = node_key(self._node_index[nid])

@@ -80,13 +80,13 @@ class IncrementalEstimator:
     def __init__(self, factory: Callable[..., object] | None = None) -> None:
         self.factory = factory
         self.localizer: object | None = None
-        self._before_bootstrap = BatchEstimator()
+        self._batch = BatchEstimator()
         self._fed: dict[tuple[str, str], int] = {}
 
     def update(self, survey: Survey) -> Result:
         if survey.mode is not NodeMode.PLANAR:
             # The iSAM2 localizer is planar only: a 3d survey is re-solved in batch.
-            return self._before_bootstrap.update(survey)
+            return self._batch.update(survey)
         if self.localizer is None:
             factory = self.factory
             if factory is None:
@@ -108,7 +108,7 @@ class IncrementalEstimator:
             if not getattr(self.localizer, "bootstrapped", True):
                 # iSAM2 starts from a batch solve once the gauge pair shares enough nodes
                 # (12 by default); until then a batch solve of the few readings is cheap.
-                return self._before_bootstrap.update(survey)
+                return self._batch.update(survey)
             return self.localizer.estimate()  # type: ignore[attr-defined]
         except RuntimeError as exc:
             # GTSAM gave up (e.g. an indeterminate system): the localizer's state is not
