@@ -188,7 +188,9 @@ def result_to_json(result: Result) -> dict:
         # Extra fields (allowed by the spec: readers ignore unknown fields).
         "mode": result.mode.value,
         "flagged_observations": [
-            {"camera": f.camera, "node": f.node, "index": f.index, "whitened_residual": f.whitened_residual}
+            {"camera": f.camera, "node": f.node, "index": f.index,
+             # JSON has no infinity: null means "the node could not be placed without this reading".
+             "whitened_residual": f.whitened_residual if math.isfinite(f.whitened_residual) else None}
             for f in result.flagged
         ],
     }
@@ -242,6 +244,11 @@ def write_result(result: Result, path: str | os.PathLike[str]) -> None:
     write_json_atomic(result_to_json(result), path)
 
 
+def _residual_or_inf(r: JsonFields, value: object, name: str) -> float:
+    """A flagged reading's whitened residual; null (or absent) stands for infinity."""
+    return math.inf if value is None else r.number(value, name)
+
+
 def read_result(path: str | os.PathLike[str]) -> Result:
     """Read and validate a result.json file (fgloc's extra fields are optional)."""
     r, data = JsonFields.load(path, FileFormatError)
@@ -283,7 +290,7 @@ def read_result(path: str | os.PathLike[str]) -> Result:
                 camera=r.ident(r.get(fo, "camera", where), f"{where}.camera"),
                 node=r.ident(r.get(fo, "node", where), f"{where}.node"),
                 index=int(r.number(r.get(fo, "index", where), f"{where}.index")),
-                whitened_residual=r.number(r.get(fo, "whitened_residual", where), f"{where}.whitened_residual"),
+                whitened_residual=_residual_or_inf(r, fo.get("whitened_residual"), f"{where}.whitened_residual"),
             )
         )
     stats = None

@@ -110,9 +110,9 @@ class IncrementalEstimator:
                 # (12 by default); until then a batch solve of the few readings is cheap.
                 return self._batch.update(survey)
             return self.localizer.estimate()  # type: ignore[attr-defined]
-        except RuntimeError as exc:
-            # GTSAM gave up (e.g. an indeterminate system): the localizer's state is not
-            # trusted any more, so the next update starts a new one from every reading.
+        except Exception as exc:  # noqa: BLE001 - GTSAM's RuntimeError, a degenerate start's ValueError, ...
+            # The localizer's state is not trusted any more (e.g. GTSAM found an
+            # indeterminate system), so the next update starts a new one from every reading.
             self.localizer = None
             self._fed = {}
             raise FglocError(f"incremental estimate: {exc}") from None
@@ -361,7 +361,7 @@ class SurveyRunner:
         t0 = time.perf_counter()
         try:
             result = self.estimator.update(survey)
-        except FglocError as exc:
+        except Exception as exc:  # noqa: BLE001 - a live estimate is advisory; the survey must go on
             message = " ".join(str(exc).split())  # GTSAM's messages span lines
             self.stats.estimate_errors.append(message)
             self.log(f"live estimate failed: {message[:200]}")

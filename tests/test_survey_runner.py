@@ -370,3 +370,26 @@ def test_a_failing_live_estimate_never_stops_the_survey(tmp_path):
     fed = [o for batch in second.fed for o in batch]
     assert sorted(fed, key=repr) == sorted(survey.observations, key=repr)  # each exactly once, from scratch
     assert runner.latest is not None and set(runner.latest.result.nodes) == set(rig.node_ids)
+
+
+class DegenerateStartLocalizer(FakeLocalizer):
+    """Raises what a degenerate early subset raises inside the closed-form start (a ValueError)."""
+
+    def add_observations(self, observations):
+        super().add_observations(observations)
+        if len(FakeLocalizer.instances) == 1 and len(self.fed) == 2:
+            raise ValueError("RANSAC found no consistent model")
+
+
+def test_any_exception_in_a_live_estimate_is_logged_and_the_survey_goes_on(tmp_path):
+    """Only FglocError used to be caught: a ValueError from the start ended the survey (and every resume)."""
+    from fgloc.survey_runner import IncrementalEstimator
+
+    FakeLocalizer.instances.clear()
+    rig = small_rig(8, occlusion=0.0, dead_nodes=[])
+    survey, runner = run_survey(rig, tmp_path, opened=opened(rig)[0],
+                                estimator=IncrementalEstimator(DegenerateStartLocalizer))
+    assert len(survey.observations) == 16
+    assert len(runner.stats.estimate_errors) == 1 and "RANSAC" in runner.stats.estimate_errors[0]
+    assert len(FakeLocalizer.instances) == 2  # a fresh localizer after the failure
+    assert runner.latest is not None and set(runner.latest.result.nodes) == set(rig.node_ids)
