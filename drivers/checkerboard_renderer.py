@@ -19,9 +19,9 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from fgloc.calibration import BoardSpec
-from fgloc.intrinsics import CameraIntrinsics
-from fgloc.pixel_angles import pixel_to_ray
+from fgloc.camera.calibration import BoardSpec
+from fgloc.camera.intrinsics import CameraIntrinsics
+from fgloc.camera.pixel_angles import pixel_to_ray
 
 
 def project_corners(intr: CameraIntrinsics, board: BoardSpec, rvec: np.ndarray, tvec: np.ndarray) -> np.ndarray:

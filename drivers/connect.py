@@ -1,9 +1,9 @@
 """Open rig hardware from a port string: the one place that maps ``--port`` to a driver.
 
-* ``/dev/ttyUSB0`` (any path / ``COM3``) -> VISCA over RS-232 (:mod:`drivers.visca`)
-  for heads, TinyOS serial BaseStation (:mod:`drivers.tinyos_serial`) for motes;
-* ``udp://HOST[:PORT]``  -> VISCA over IP (:mod:`drivers.visca_ip`), port 52381 by default;
-* ``http://[USER:PASSWORD@]HOST[:PORT]`` -> Sony CGI (:mod:`drivers.sony_cgi`); credentials
+* ``/dev/ttyUSB0`` (any path / ``COM3``) -> VISCA over RS-232 (:mod:`fgloc.drivers.visca`)
+  for heads, TinyOS serial BaseStation (:mod:`fgloc.drivers.tinyos_serial`) for motes;
+* ``udp://HOST[:PORT]``  -> VISCA over IP (:mod:`fgloc.drivers.visca_ip`), port 52381 by default;
+* ``http://[USER:PASSWORD@]HOST[:PORT]`` -> Sony CGI (:mod:`fgloc.drivers.sony_cgi`); credentials
   may instead come from ``FGLOC_CAMERA_USER`` / ``FGLOC_CAMERA_PASSWORD``;
 * ``tcp://HOST[:PORT]``  -> SerialForwarder (motes only), port 9002 by default.
 
@@ -17,10 +17,18 @@ import os
 from collections.abc import Mapping
 from dataclasses import dataclass
 
-from drivers.ptz_units import EVI_D100, SNC_RZ25N, VISCA_IP_GENERIC, CameraModel, PanTiltUnits, camera_model, mounting
-from drivers.visca import Timeouts
-from fgloc.model import FglocError
-from fgloc.rig import LedController, PanTiltHead
+from fgloc.core.errors import FglocError
+from fgloc.core.hardware import LedController, PanTiltHead
+from fgloc.drivers.ptz_units import (
+    EVI_D100,
+    SNC_RZ25N,
+    VISCA_IP_GENERIC,
+    CameraModel,
+    PanTiltUnits,
+    camera_model,
+    mounting,
+)
+from fgloc.drivers.visca import Timeouts
 
 
 @dataclass(frozen=True)
@@ -54,7 +62,7 @@ def default_model(transport: str) -> CameraModel:
 
 
 def open_head(port: str, options: HeadOptions | None = None, frames: object | None = None) -> PanTiltHead:
-    """A ``fgloc.rig.PanTiltHead`` for ``port`` (initialised and answering), see the module doc."""
+    """A ``fgloc.core.hardware.PanTiltHead`` for ``port`` (initialised and answering), see the module doc."""
     o = options or HeadOptions()
     transport = transport_of(port)
     if transport == "tcp":
@@ -62,19 +70,19 @@ def open_head(port: str, options: HeadOptions | None = None, frames: object | No
     model = camera_model(o.camera_model) if o.camera_model else default_model(transport)
     units = PanTiltUnits(model, mounting(o.mount))
     if frames is None and o.video:
-        from drivers.frames import open_frame_source
+        from fgloc.drivers.frames import open_frame_source
 
         frames = open_frame_source(o.video)
     timeouts = Timeouts(ack=o.timeout, inquiry=o.timeout, completion_margin=o.completion_margin, retries=o.retries)
     if transport == "serial":
-        from drivers.visca import open_serial_head
+        from fgloc.drivers.visca import open_serial_head
 
         return open_serial_head(port, units, o.address, timeouts, frames)
     if transport == "udp":
-        from drivers.visca_ip import open_ip_head
+        from fgloc.drivers.visca_ip import open_ip_head
 
         return open_ip_head(port, None, units, timeouts, frames)
-    from drivers.sony_cgi import Credentials, open_cgi_head, split_url
+    from fgloc.drivers.sony_cgi import Credentials, open_cgi_head, split_url
 
     _, url_creds = split_url(port)
     creds = url_creds
@@ -87,8 +95,8 @@ def open_head(port: str, options: HeadOptions | None = None, frames: object | No
 
 def open_leds(port: str, address_map: Mapping[str, int] | None = None, timeout: float = 0.25, retries: int = 5,
               report_timeout: float = 0.5, attempts: int = 3) -> LedController:
-    """A ``fgloc.rig.LedController`` (:class:`drivers.tinyos_serial.MoteNetwork`) for a serial port or tcp://."""
-    from drivers.tinyos_serial import open_mote_network
+    """A ``fgloc.core.hardware.LedController`` (:class:`fgloc.drivers.tinyos_serial.MoteNetwork`) for a serial port or tcp://."""
+    from fgloc.drivers.tinyos_serial import open_mote_network
 
     transport = transport_of(port)
     if transport not in ("serial", "tcp"):

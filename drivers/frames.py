@@ -13,7 +13,7 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from fgloc.model import FglocError
+from fgloc.core.errors import FglocError
 
 
 class FrameError(FglocError):

@@ -1,6 +1,6 @@
 """An in-process simulated survey rig: scene, pan-tilt heads, LED base station, faults.
 
-This twin works at the level of :mod:`fgloc.rig`'s protocols (no bytes): it lets
+This twin works at the level of :mod:`fgloc.core.hardware`'s protocols (no bytes): it lets
 the survey runner be exercised end to end, fast and deterministically. The
 byte-level twins (VISCA, TinyOS serial) replace it where the drivers are tested.
 
@@ -29,17 +29,18 @@ import math
 import threading
 import time
 import zlib
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
 
-from drivers.rendered_camera import LedScene, RenderedCamera, RenderSettings
-from fgloc.geometry import FloatArray, pan_tilt_bearing, project_pan_tilt
-from fgloc.led_search import PinholePixelModel
-from fgloc.model import CameraPose, FglocError, NodeMode, Truth
-from fgloc.rig_config import RigConfig
-from fgloc.simulate import random_base_rotation
+from fgloc.camera.led_search import PinholePixelModel
+from fgloc.core.errors import FglocError
+from fgloc.core.geometry import FloatArray, pan_tilt_bearing, project_pan_tilt
+from fgloc.core.model import CameraPose, NodeMode, Truth
+from fgloc.drivers.rendered_camera import LedScene, RenderedCamera, RenderSettings
+from fgloc.files.rig_config import RigConfig
+from fgloc.sim.scenes import random_base_rotation
 
 COUNTS_PER_RAD = 14.4 * 180.0 / math.pi
 BLOB_SIGMA_PX = 1.5
@@ -183,11 +184,11 @@ def frame_renderer(scene: SimScene, index: int, rig: RigConfig) -> FrameRenderer
 
 
 class SceneHead:
-    """A simulated pan-tilt head (implements :class:`fgloc.rig.PanTiltHead`).
+    """A simulated pan-tilt head (implements :class:`fgloc.core.hardware.PanTiltHead`).
 
     ``frames`` renders what the head sees (default: :func:`frame_renderer` for the rig)."""
 
-    def __init__(self, scene: SimScene, index: int, rig: RigConfig, generation: int, faults: "FaultPlan",
+    def __init__(self, scene: SimScene, index: int, rig: RigConfig, generation: int, faults: FaultPlan,
                  frames: FrameRenderer | None = None) -> None:
         self.scene = scene
         self.index = index
@@ -281,7 +282,7 @@ class FaultPlan:
 
 
 class SceneLeds:
-    """A simulated base station (implements :class:`fgloc.rig.LedController`)."""
+    """A simulated base station (implements :class:`fgloc.core.hardware.LedController`)."""
 
     def __init__(self, scene: SimScene, rig: RigConfig) -> None:
         self.scene = scene

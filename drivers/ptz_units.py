@@ -35,7 +35,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-from fgloc.model import FglocError
+from fgloc.core.errors import FglocError
 
 
 class PositionOutOfRangeError(FglocError):

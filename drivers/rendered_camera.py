@@ -2,10 +2,10 @@
 
 The truth source for tests and ``fgloc survey --simulate``. Model:
 
-* The camera base sits at ``pose`` (:class:`fgloc.model.CameraPose`, base -> world).
+* The camera base sits at ``pose`` (:class:`fgloc.core.model.CameraPose`, base -> world).
   The optical centre lies on the pan and tilt axes; the head rotation and the
-  optical frame are those of :mod:`fgloc.pixel_angles`.
-* Pinhole + OpenCV distortion from :class:`fgloc.intrinsics.CameraIntrinsics`
+  optical frame are those of :mod:`fgloc.camera.pixel_angles`.
+* Pinhole + OpenCV distortion from :class:`fgloc.camera.intrinsics.CameraIntrinsics`
   (``intrinsics.at_zoom`` for other zooms: focal length x1 ... x10).
 * Background: smooth random texture fixed to directions in the base frame (it
   moves across the image when the head turns), plus static bright lights
@@ -29,10 +29,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from fgloc.geometry import pan_tilt_bearing, world_to_base
-from fgloc.intrinsics import CameraIntrinsics
-from fgloc.model import CameraPose
-from fgloc.pixel_angles import base_to_pixel, in_image, optical_to_base, pixel_to_ray
+from fgloc.camera.intrinsics import CameraIntrinsics
+from fgloc.camera.pixel_angles import base_to_pixel, in_image, optical_to_base, pixel_to_ray
+from fgloc.core.geometry import pan_tilt_bearing, world_to_base
+from fgloc.core.model import CameraPose
 
 _erf = np.frompyfunc(math.erf, 1, 1)
 
@@ -48,7 +48,7 @@ class LedScene:
 
 
 class SimulatedLedController:
-    """:class:`fgloc.rig.LedController` twin: switches LEDs in a :class:`LedScene`."""
+    """:class:`fgloc.core.hardware.LedController` twin: switches LEDs in a :class:`LedScene`."""
 
     def __init__(self, scene: LedScene) -> None:
         self.scene = scene
@@ -217,7 +217,7 @@ class RenderedCamera:
 
 
 class SimulatedHead:
-    """:class:`fgloc.rig.PanTiltHead` twin, in process: angles are stored, ``grab_frame`` renders.
+    """:class:`fgloc.core.hardware.PanTiltHead` twin, in process: angles are stored, ``grab_frame`` renders.
 
     ``angle_step`` (radians, e.g. ``math.radians(1 / 14.4)`` for the EVI-D100) quantises
     where the head actually goes; ``position()`` reads back the quantised angles exactly.

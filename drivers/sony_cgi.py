@@ -7,7 +7,7 @@ Requests (protocols.md 2.1; spellings to be confirmed on the camera):
   **before** the motion ends;
 * zoom:      ``POST /command/ptzf.cgi`` form ``AbsoluteZoom=ZZZZ`` (hex);
 * inquiries: ``GET /command/visca-inquiry.cgi?visca=81090612FF`` -> body = VISCA reply as
-  hex text (``9050 0p0p0p0p 0t0t0t0t FF``), decoded with :mod:`drivers.visca`;
+  hex text (``9050 0p0p0p0p 0t0t0t0t FF``), decoded with :mod:`fgloc.drivers.visca`;
 * stop/home: VISCA tunnel ``GET /command/visca-ptzf.cgi?visca=8101...FF``;
 * snapshot:  ``GET /oneshotimage.jpg``.
 
@@ -32,10 +32,22 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from drivers.ptz_units import SNC_RZ25N, PanTiltUnits, PositionOutOfRangeError
-from drivers.visca import (
-    Reply, ReplyKind, ViscaDisconnected, ViscaError, ViscaProtocolError, ViscaTimeout, cmd_home, cmd_pan_tilt_position_inquiry,
-    cmd_pan_tilt_stop, cmd_zoom_position_inquiry, decode_pan_tilt, decode_zoom, error_for, parse_reply,
+from fgloc.drivers.ptz_units import SNC_RZ25N, PanTiltUnits, PositionOutOfRangeError
+from fgloc.drivers.visca import (
+    Reply,
+    ReplyKind,
+    ViscaDisconnected,
+    ViscaError,
+    ViscaProtocolError,
+    ViscaTimeout,
+    cmd_home,
+    cmd_pan_tilt_position_inquiry,
+    cmd_pan_tilt_stop,
+    cmd_zoom_position_inquiry,
+    decode_pan_tilt,
+    decode_zoom,
+    error_for,
+    parse_reply,
 )
 
 log = logging.getLogger(__name__)
@@ -178,7 +190,7 @@ def _parse_hex_reply(body: bytes) -> Reply:
 
 
 class SonyCgiHead:
-    """``fgloc.rig.PanTiltHead`` for a Sony network camera over HTTP CGI (spec radians)."""
+    """``fgloc.core.hardware.PanTiltHead`` for a Sony network camera over HTTP CGI (spec radians)."""
 
     def __init__(self, client: SonyCgiClient, units: PanTiltUnits | None = None, speed: int = 24,
                  poll_interval: float = 0.05, move_timeout_margin: float = 2.0, frames=None) -> None:

@@ -42,7 +42,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
-from fgloc.model import FglocError
+from fgloc.core.errors import FglocError
 
 if TYPE_CHECKING:
     import serial
@@ -583,7 +583,7 @@ def node_address(node_id: str | int, address_map: Mapping[str, int] | None = Non
 
 @dataclass
 class MoteNetwork:
-    """``fgloc.rig.LedController`` over a mote link (serial BaseStation or SerialForwarder).
+    """``fgloc.core.hardware.LedController`` over a mote link (serial BaseStation or SerialForwarder).
 
     ``set_led`` sends the LED command and returns True once the node's LED report
     with the requested state arrives (application-level confirmation), False when

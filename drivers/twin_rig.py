@@ -1,14 +1,14 @@
 """A simulated rig whose cameras speak real VISCA bytes: one pty twin per camera.
 
-Each camera of the rig gets a :class:`drivers.twins.visca_camera.ViscaSerialTwin`
+Each camera of the rig gets a :class:`fgloc.drivers.twins.visca_camera.ViscaSerialTwin`
 (the emulated camera on a pseudo-terminal, with the rig's fault rates) and is
-opened with the real driver, :func:`drivers.visca.open_serial_head`, through
+opened with the real driver, :func:`fgloc.drivers.visca.open_serial_head`, through
 pyserial. The emulator renders frames from the same scene as the in-process rig
-(:func:`drivers.inprocess_rig.frame_renderer`: ``spot`` or ``rendered`` per
+(:func:`fgloc.drivers.inprocess_rig.frame_renderer`: ``spot`` or ``rendered`` per
 ``simulation.frames``), converting its head counts to spec
-angles with the camera's :class:`~drivers.ptz_units.PanTiltUnits` (model and
+angles with the camera's :class:`~fgloc.drivers.ptz_units.PanTiltUnits` (model and
 mounting from rig.json). The LEDs go through the real TinyOS serial driver
-(:func:`drivers.tinyos_serial.open_mote_network`) to a base-station pty twin whose
+(:func:`fgloc.drivers.tinyos_serial.open_mote_network`) to a base-station pty twin whose
 motes light the scene's LEDs; dead nodes stay silent.
 
 Faults per camera and on the base station: ``drop_rate`` and ``garble_rate``
@@ -22,14 +22,14 @@ from __future__ import annotations
 import zlib
 from dataclasses import replace
 
-from drivers.inprocess_rig import FrameRenderer, build_scene, frame_renderer
-from drivers.tinyos_serial import open_mote_network
-from drivers.twins.base_station import BaseStationSerialTwin, MoteFieldEmulator
-from drivers.ptz_units import PanTiltUnits, camera_model, mounting
-from drivers.twins.faults import FaultConfig
-from drivers.twins.visca_camera import HeadPose, ViscaCameraEmulator, ViscaSerialTwin
-from drivers.visca import HeadSettings, Timeouts, ViscaHead, open_serial_head
-from fgloc.rig_config import RigConfig
+from fgloc.drivers.inprocess_rig import FrameRenderer, build_scene, frame_renderer
+from fgloc.drivers.ptz_units import PanTiltUnits, camera_model, mounting
+from fgloc.drivers.tinyos_serial import open_mote_network
+from fgloc.drivers.twins.base_station import BaseStationSerialTwin, MoteFieldEmulator
+from fgloc.drivers.twins.faults import FaultConfig
+from fgloc.drivers.twins.visca_camera import HeadPose, ViscaCameraEmulator, ViscaSerialTwin
+from fgloc.drivers.visca import HeadSettings, Timeouts, ViscaHead, open_serial_head
+from fgloc.files.rig_config import RigConfig
 
 
 class ViscaTwinRig:
@@ -116,7 +116,7 @@ class ViscaTwinRig:
         if self.base_station is not None:
             self.base_station.close()
 
-    def __enter__(self) -> "ViscaTwinRig":
+    def __enter__(self) -> ViscaTwinRig:
         return self
 
     def __exit__(self, *exc: object) -> None:

@@ -15,8 +15,8 @@ Layers (bottom up), all byte facts from ``shared/reference/protocols.md`` sectio
   inquiries wait for ``y0 50 data FF``; timeouts are retried (all commands used here
   are idempotent absolute commands, so a resend is safe); every error reply raises a
   :class:`ViscaErrorReply` subclass.
-* :class:`ViscaHead`: ``fgloc.rig.PanTiltHead`` in spec radians via
-  :class:`drivers.ptz_units.PanTiltUnits`.
+* :class:`ViscaHead`: ``fgloc.core.hardware.PanTiltHead`` in spec radians via
+  :class:`fgloc.drivers.ptz_units.PanTiltUnits`.
 """
 
 from __future__ import annotations
@@ -25,14 +25,14 @@ import logging
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from enum import Enum
 from typing import TYPE_CHECKING, Protocol, TypeVar
 
 import numpy as np
 
-from drivers.ptz_units import EVI_D100, CameraModel, PanTiltUnits, PositionOutOfRangeError
-from fgloc.model import FglocError
+from fgloc.core.errors import FglocError
+from fgloc.drivers.ptz_units import EVI_D100, CameraModel, PanTiltUnits, PositionOutOfRangeError
 
 if TYPE_CHECKING:
     import serial
@@ -728,7 +728,7 @@ class HeadSettings:
 
 
 class ViscaHead:
-    """``fgloc.rig.PanTiltHead`` over VISCA (any link): angles in spec radians.
+    """``fgloc.core.hardware.PanTiltHead`` over VISCA (any link): angles in spec radians.
 
     The read-back position is what ``position()`` returns (never the commanded one);
     with ``confirm_reads`` it is read until two successive inquiries agree, which

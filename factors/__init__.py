@@ -1,11 +1,7 @@
 """GTSAM factors for pan-tilt localization: bearing factors and gauge priors."""
 
-from factors.baseline_prior import BaselinePrior, baseline_length_factor, ground_point_factor
-from factors.pan_tilt_factor import (
-    pan_tilt_error,
-    pan_tilt_factor,
-    planar_pan_tilt_factor,
-)
+from fgloc.factors.baseline_prior import BaselinePrior, baseline_length_factor, ground_point_factor
+from fgloc.factors.pan_tilt_factor import pan_tilt_error, pan_tilt_factor, planar_pan_tilt_factor
 
 __all__ = [
     "BaselinePrior",

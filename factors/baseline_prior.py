@@ -14,7 +14,7 @@ satisfied exactly at the optimum whatever their sigma: they do not bias the
 solution. Their sigma only has to be small against the node covariances so
 that the gauge leaks nothing into the marginals (it adds O(sigma^2)), and not
 so small that Cholesky loses precision: the solver picks 1e-3 of a typical node
-standard deviation (``fgloc.joint_solver.auto_gauge_sigma``); ``GAUGE_SIGMA``
+standard deviation (``fgloc.solve.joint.auto_gauge_sigma``); ``GAUGE_SIGMA``
 is the default for direct use of these factors.
 """
 
@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 
-from fgloc.model import NodeMode
+from fgloc.core.model import NodeMode
 
 GAUGE_SIGMA = 1e-6
 

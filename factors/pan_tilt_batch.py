@@ -2,7 +2,7 @@
 
 Each reading is still its own GTSAM factor (one bearing, one camera, one node,
 its own noise model, robust or not), with the error and Jacobians of
-:func:`factors.pan_tilt_factor.pan_tilt_error`. What changes is where the
+:func:`fgloc.factors.pan_tilt_factor.pan_tilt_error`. What changes is where the
 arithmetic happens: :meth:`PanTiltFactorSet.prepare` computes the errors and
 Jacobians of every reading for one ``gtsam.Values`` in a vectorized pass, and
 each factor's callback only copies its row out. GTSAM hands the callbacks the
@@ -19,8 +19,8 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 
-from factors.pan_tilt_factor import pan_tilt_error
-from fgloc.geometry import FloatArray, bearing_pan_tilt, pan_tilt_jacobian, pan_tilt_residual, skew
+from fgloc.core.geometry import FloatArray, bearing_pan_tilt, pan_tilt_jacobian, pan_tilt_residual, skew
+from fgloc.factors.pan_tilt_factor import pan_tilt_error
 
 
 def batch_pan_tilt_error(

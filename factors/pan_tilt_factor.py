@@ -15,7 +15,7 @@ Error (2-vector, radians, unwhitened; the noise model divides by sigma)::
 Jacobians are analytic in GTSAM's conventions: Pose3 tangent ``xi = [omega, v]``
 (rotation first) with right perturbation ``T * Exp(xi)``, so
 ``dq/dxi = [skew(q) | -I]`` and ``dq/dx = R^T``; then ``de/dq = -D`` with D
-from :func:`fgloc.geometry.pan_tilt_jacobian`.
+from :func:`fgloc.core.geometry.pan_tilt_jacobian`.
 
 Near the pole. As the node approaches the vertical through the camera (tilt
 -> +-90 degrees, ``hypot(q_x, q_y) -> 0``) pan becomes undefined and its
@@ -29,7 +29,7 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 
-from fgloc.geometry import FloatArray, bearing_pan_tilt, pan_tilt_jacobian, pan_tilt_residual, skew
+from fgloc.core.geometry import FloatArray, bearing_pan_tilt, pan_tilt_jacobian, pan_tilt_residual, skew
 
 
 def pan_tilt_error(

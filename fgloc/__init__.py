@@ -13,48 +13,54 @@ The public API (survey in, result out; build the graph; add your own factors)::
     problem.add_factor(gtsam.PriorFactorPoint2(key, xy, gtsam.noiseModel.Isotropic.Sigma(2, 0.01)))
     result = fgloc.solve(problem)
 
-Frames, units and conventions: ``shared/spec/survey-format.md`` (angles in radians,
-positions in the gauge frame with the ground baseline as unit).
+Frames, units and conventions: ``docs/file-format.md`` (angles in radians, positions
+in the gauge frame with the ground baseline as unit). The layers of the package are
+described in ``docs/architecture.md``. ``import fgloc`` loads neither rerun, OpenCV,
+matplotlib nor pyserial.
 """
 
 from __future__ import annotations
 
-import importlib
-from typing import Any
+import logging
 
-# Public names and the module each lives in. Loaded on first use (PEP 562) so that
-# importing a bottom-layer module (``fgloc.geometry``, ``fgloc.model``) from
-# ``factors/`` does not pull in the solver, which imports ``factors/`` itself.
-_PUBLIC = {
-    "cramer_rao_bound": "fgloc.crlb",
-    "read_result": "fgloc.files", "read_survey": "fgloc.files",
-    "IncrementalLocalizer": "fgloc.incremental", "IncrementalParams": "fgloc.incremental",
-    "write_result": "fgloc.files", "write_survey": "fgloc.files",
-    "LocalizationProblem": "fgloc.joint_solver", "RobustKernel": "fgloc.joint_solver",
-    "SolveError": "fgloc.joint_solver", "SolverOptions": "fgloc.joint_solver",
-    "build_problem": "fgloc.joint_solver", "camera_key": "fgloc.joint_solver",
-    "initialize": "fgloc.joint_solver", "node_key": "fgloc.joint_solver",
-    "solve": "fgloc.joint_solver", "solve_survey": "fgloc.joint_solver",
-    "CameraPose": "fgloc.model", "FglocError": "fgloc.model", "FlaggedObservation": "fgloc.model",
-    "Gauge": "fgloc.model", "NodeEstimate": "fgloc.model", "NodeMode": "fgloc.model",
-    "Observation": "fgloc.model", "Result": "fgloc.model", "SolveStats": "fgloc.model",
-    "Survey": "fgloc.model", "Truth": "fgloc.model",
-    "Score": "fgloc.scoring", "score": "fgloc.scoring",
-    "PaperScenario": "fgloc.simulate", "RandomScene": "fgloc.simulate",
-    "paper_scenario": "fgloc.simulate", "random_scene": "fgloc.simulate",
-}
+from fgloc.core.errors import FglocError, FileFormatError
+from fgloc.core.model import (
+    CameraPose,
+    FlaggedObservation,
+    Gauge,
+    NodeEstimate,
+    NodeMode,
+    Observation,
+    Result,
+    SolveStats,
+    Survey,
+    Truth,
+)
+from fgloc.evaluate.crlb import cramer_rao_bound
+from fgloc.evaluate.score import Score, score
+from fgloc.files.survey_result import read_result, read_survey, write_result, write_survey
+from fgloc.sim.scenes import PaperScenario, RandomScene, paper_scenario, random_scene
+from fgloc.solve.incremental import IncrementalLocalizer, IncrementalParams
+from fgloc.solve.joint import (
+    LocalizationProblem,
+    RobustKernel,
+    SolveError,
+    SolverOptions,
+    build_problem,
+    camera_key,
+    initialize,
+    node_key,
+    solve,
+    solve_survey,
+)
 
-__all__ = sorted(_PUBLIC)
+logging.getLogger(__name__).addHandler(logging.NullHandler())
 
-
-def __getattr__(name: str) -> Any:
-    module = _PUBLIC.get(name)
-    if module is None:
-        raise AttributeError(f"module 'fgloc' has no attribute {name!r}")
-    value = getattr(importlib.import_module(module), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(_PUBLIC))
+__all__ = [
+    "CameraPose", "FglocError", "FileFormatError", "FlaggedObservation", "Gauge", "IncrementalLocalizer",
+    "IncrementalParams", "LocalizationProblem", "NodeEstimate", "NodeMode", "Observation", "PaperScenario",
+    "RandomScene", "Result", "RobustKernel", "Score", "SolveError", "SolveStats", "SolverOptions", "Survey",
+    "Truth", "build_problem", "camera_key", "cramer_rao_bound", "initialize", "node_key", "paper_scenario",
+    "random_scene", "read_result", "read_survey", "score", "solve", "solve_survey", "write_result",
+    "write_survey",
+]

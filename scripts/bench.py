@@ -3,7 +3,7 @@
 
 import sys
 
-from fgloc.bench import build_parser, run
+from fgloc.evaluate.bench import build_parser, run
 
 if __name__ == "__main__":
     sys.exit(run(build_parser().parse_args()))

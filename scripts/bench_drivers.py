@@ -16,15 +16,15 @@ import argparse
 import statistics
 import time
 
-from drivers.sony_cgi import open_cgi_head
-from drivers.tinyos_serial import open_mote_network
-from drivers.twins.base_station import BaseStationSerialTwin, SerialForwarderTwin
-from drivers.twins.faults import FaultConfig
-from drivers.twins.sony_cgi_camera import SonyCgiTwin
-from drivers.twins.visca_camera import ViscaSerialTwin
-from drivers.twins.visca_ip_camera import ViscaIpTwin
-from drivers.visca import Timeouts, open_serial_head
-from drivers.visca_ip import open_ip_head
+from fgloc.drivers.sony_cgi import open_cgi_head
+from fgloc.drivers.tinyos_serial import open_mote_network
+from fgloc.drivers.twins.base_station import BaseStationSerialTwin, SerialForwarderTwin
+from fgloc.drivers.twins.faults import FaultConfig
+from fgloc.drivers.twins.sony_cgi_camera import SonyCgiTwin
+from fgloc.drivers.twins.visca_camera import ViscaSerialTwin
+from fgloc.drivers.twins.visca_ip_camera import ViscaIpTwin
+from fgloc.drivers.visca import Timeouts, open_serial_head
+from fgloc.drivers.visca_ip import open_ip_head
 
 TIMEOUTS = Timeouts(ack=0.1, inquiry=0.1, completion_margin=0.2, retries=6)
 

@@ -18,9 +18,9 @@ import sys
 CHILD = r"""
 import json, sys, time
 import numpy as np
-from fgloc.simulate import PaperScenario, paper_scenario
-from fgloc.subset_newton import solve_subset_newton
-from fgloc.subset_schedule import subsets_for_coverage
+from fgloc.sim.scenes import PaperScenario, paper_scenario
+from fgloc.baselines.subset_newton import solve_subset_newton
+from fgloc.core.subsets import subsets_for_coverage
 out = {}
 for k in (5, 10, 20, 50):
     sv = paper_scenario(PaperScenario(seed=0, subset_schedule=(k, subsets_for_coverage(100, k, 5))))

@@ -16,13 +16,13 @@ import time
 
 import numpy as np
 
-from drivers.rendered_camera import LedScene, RenderSettings, SimulatedHead, SimulatedLedController
-from fgloc.geometry import base_rotation, pan_tilt_bearing, project_pan_tilt
-from fgloc.intrinsics import CameraIntrinsics
-from fgloc.led_detection import detect_led
-from fgloc.led_measurement import grab_led_pair, measurement_from_detection
-from fgloc.model import CameraPose
-from fgloc.pixel_angles import pixel_to_pan_tilt, undistort_normalized
+from fgloc.camera.intrinsics import CameraIntrinsics
+from fgloc.camera.led_detection import detect_led
+from fgloc.camera.led_measurement import grab_led_pair, measurement_from_detection
+from fgloc.camera.pixel_angles import pixel_to_pan_tilt, undistort_normalized
+from fgloc.core.geometry import base_rotation, pan_tilt_bearing, project_pan_tilt
+from fgloc.core.model import CameraPose
+from fgloc.drivers.rendered_camera import LedScene, RenderSettings, SimulatedHead, SimulatedLedController
 
 INTR = CameraIntrinsics(fx=503.0, fy=505.0, cx=321.3, cy=238.2, width=640, height=480, k1=-0.21, k2=0.05)
 POSE = CameraPose(position=np.array([1.0, 0.5, 3.0]), rotation=base_rotation(2.0, 0.04, -0.03))

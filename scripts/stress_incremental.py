@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Stress the live iSAM2 localizer on random scenes against the batch solve of the same readings.
 
-Each scene (30-250 nodes, 2-8 cameras, occlusions, `fgloc.bench_scenes`) is fed node by
+Each scene (30-250 nodes, 2-8 cameras, occlusions, `fgloc.sim.bench_scenes`) is fed node by
 node in a random order, a fifth of the nodes in two pieces (first reading, then the
 rest 1-40 nodes later: by then the node is often marginalized and has to come back), through a random node window (4, 16
 or 64 active nodes). The live estimate (no refine) is compared with `solve_survey`:
@@ -22,10 +22,10 @@ import sys
 
 import numpy as np
 
-from fgloc.bench_scenes import BenchScene, scene_survey
-from fgloc.incremental import IncrementalLocalizer, IncrementalParams
-from fgloc.joint_solver import SolverOptions, solve_survey
-from fgloc.model import Result
+from fgloc.core.model import Result
+from fgloc.sim.bench_scenes import BenchScene, scene_survey
+from fgloc.solve.incremental import IncrementalLocalizer, IncrementalParams
+from fgloc.solve.joint import SolverOptions, solve_survey
 
 
 def differences(live: Result, batch: Result) -> tuple[float, float]:
@@ -74,7 +74,7 @@ def main(argv: list[str] | None = None) -> int:
             live = loc.estimate()
             missing = set(batch.nodes) - set(live.nodes)
             pos, cov = differences(live, batch) if not missing else (float("inf"), float("inf"))
-        except Exception as exc:  # a stress tool reports every failure and goes on
+        except Exception as exc:  # a stress tool reports every failure and goes on  # noqa: BLE001 - a stress run records every failure
             print(f"| {k} | {n} | {cams} | {window} | - | {type(exc).__name__}: {exc} | | no |")
             failures += 1
             continue

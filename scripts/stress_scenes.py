@@ -19,10 +19,10 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 
-from fgloc.initialization import InitialEstimate  # noqa: E402
-from fgloc.joint_solver import build_problem, solve, solve_survey  # noqa: E402
-from fgloc.model import NodeMode, Survey  # noqa: E402
-from fgloc.simulate import RandomScene, random_scene  # noqa: E402
+from fgloc.core.model import NodeMode, Survey  # noqa: E402
+from fgloc.init.planar import InitialEstimate  # noqa: E402
+from fgloc.sim.scenes import RandomScene, random_scene  # noqa: E402
+from fgloc.solve.joint import build_problem, solve, solve_survey  # noqa: E402
 
 
 def scene(index: int, mode: NodeMode, outlier_share: float = 0.0) -> Survey:

@@ -1,7 +1,5 @@
 """The benchmark suite's scenes, its noise equivalence and its output (structure and consistency, never timing)."""
 
-import fgloc  # noqa: F401  (first: importing factors.* before fgloc is circular on main)
-
 import json
 import subprocess
 import sys
@@ -10,10 +8,11 @@ import gtsam
 import numpy as np
 import pytest
 
-from factors.pan_tilt_factor import pan_tilt_factor
-from fgloc.bench_methods import bearing_noise
-from fgloc.bench_scenes import BenchScene, scene_survey
-from fgloc.geometry import pan_tilt_bearing, project_pan_tilt
+import fgloc  # noqa: F401  (first: importing factors.* before fgloc is circular on main)
+from fgloc.core.geometry import pan_tilt_bearing, project_pan_tilt
+from fgloc.evaluate.bench_methods import bearing_noise
+from fgloc.factors.pan_tilt_factor import pan_tilt_factor
+from fgloc.sim.bench_scenes import BenchScene, scene_survey
 
 
 def test_scene_occlusions_and_coverage() -> None:
@@ -62,7 +61,7 @@ def test_bearing_noise_is_first_order_equivalent_to_pan_tilt_noise() -> None:
 def test_quick_bench_output_is_consistent(tmp_path) -> None:
     out = tmp_path / "bench.json"
     proc = subprocess.run(
-        [sys.executable, "-m", "fgloc.bench", "--quick", "--json", str(out)], capture_output=True, text=True, timeout=240
+        [sys.executable, "-m", "fgloc.evaluate.bench", "--quick", "--json", str(out)], capture_output=True, text=True, timeout=240
     )
     assert proc.returncode == 0, proc.stderr
     assert "| scene (nodes x cams) |" in proc.stdout

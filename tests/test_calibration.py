@@ -6,10 +6,11 @@ import cv2
 import numpy as np
 import pytest
 
-from drivers.checkerboard_renderer import board_poses, project_corners, render_checkerboard
-from fgloc.calibration import BoardSpec, CalibrationError, calibrate, find_corners
+from fgloc.camera.calibration import BoardSpec, CalibrationError, calibrate, find_corners
+from fgloc.camera.intrinsics import CameraIntrinsics
 from fgloc.cli import main
-from fgloc.intrinsics import CameraIntrinsics, read_intrinsics
+from fgloc.drivers.checkerboard_renderer import board_poses, project_corners, render_checkerboard
+from fgloc.files.camera_file import read_intrinsics
 
 TRUE = CameraIntrinsics(fx=540.0, fy=545.0, cx=322.0, cy=236.0, width=640, height=480,
                         k1=-0.22, k2=0.06, p1=0.001, p2=-0.0005)

@@ -1,11 +1,11 @@
-"""Camera pose covariances (fgloc.camera_uncertainty), checked against simulated truth."""
+"""Camera pose covariances (fgloc.solve.camera_uncertainty), checked against simulated truth."""
 
 import gtsam
 import numpy as np
 
-from fgloc.camera_uncertainty import camera_covariances
-from fgloc.joint_solver import solve_survey
-from fgloc.simulate import PaperScenario, paper_scenario
+from fgloc.sim.scenes import PaperScenario, paper_scenario
+from fgloc.solve.camera_uncertainty import camera_covariances
+from fgloc.solve.joint import solve_survey
 
 
 def test_baseline_camera_rotation_covariance_is_honest() -> None:

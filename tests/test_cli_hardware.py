@@ -8,13 +8,13 @@ import sys
 
 import pytest
 
-from drivers.ptz_units import EVI_D30
-from drivers.twins.base_station import BaseStationSerialTwin, MoteFieldEmulator, SerialForwarderTwin
-from drivers.twins.faults import FaultConfig
-from drivers.twins.sony_cgi_camera import SonyCgiTwin
-from drivers.twins.visca_camera import ViscaSerialTwin
-from drivers.twins.visca_ip_camera import ViscaIpTwin
 from fgloc.cli import main
+from fgloc.drivers.ptz_units import EVI_D30
+from fgloc.drivers.twins.base_station import BaseStationSerialTwin, MoteFieldEmulator, SerialForwarderTwin
+from fgloc.drivers.twins.faults import FaultConfig
+from fgloc.drivers.twins.sony_cgi_camera import SonyCgiTwin
+from fgloc.drivers.twins.visca_camera import ViscaSerialTwin
+from fgloc.drivers.twins.visca_ip_camera import ViscaIpTwin
 
 POS = re.compile(r"^pan (-?\d+\.\d{3}) deg  tilt (-?\d+\.\d{3}) deg$")
 

@@ -1,10 +1,10 @@
-"""Confidence ellipses/ellipsoids drawn from marginal covariances (fgloc.confidence)."""
+"""Confidence ellipses/ellipsoids drawn from marginal covariances (fgloc.core.confidence)."""
 
 import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from fgloc.confidence import (
+from fgloc.core.confidence import (
     FLAT_Z_FRACTION,
     confidence_ellipsoids,
     confidence_scale,

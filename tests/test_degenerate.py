@@ -7,11 +7,10 @@ import numpy as np
 import pytest
 
 from fgloc.cli import main
-from fgloc.files import write_survey
-from fgloc.homography import DegenerateGeometryError
-from fgloc.joint_solver import SolveError, solve_survey
-from fgloc.model import CameraPose, NodeMode, Survey
-from fgloc.simulate import (
+from fgloc.core.model import CameraPose, NodeMode, Survey
+from fgloc.files.survey_result import write_survey
+from fgloc.init.homography import DegenerateGeometryError
+from fgloc.sim.scenes import (
     PAPER_SIGMA,
     PaperScenario,
     RandomScene,
@@ -20,6 +19,7 @@ from fgloc.simulate import (
     random_scene,
     simulated_survey,
 )
+from fgloc.solve.joint import SolveError, solve_survey
 
 
 def survey_of(cameras: list[CameraPose], nodes: np.ndarray, mode=NodeMode.PLANAR, seed=0, sigma=PAPER_SIGMA):
@@ -74,7 +74,7 @@ def test_disconnected_cameras_are_named() -> None:
     visible[2, :] = False
     visible[2, :3] = True
     ids, node_ids = ["cam0", "cam1", "cam2"], [f"n{j:03d}" for j in range(40)]
-    from fgloc.model import Gauge
+    from fgloc.core.model import Gauge
     obs = observe(ids, cams, node_ids, nodes, PAPER_SIGMA, rng, visible=visible)
     survey = Survey(NodeMode.PLANAR, Gauge("cam0", "cam1"), PAPER_SIGMA, ids, node_ids, obs)
     with pytest.raises(DegenerateGeometryError, match="cam2"):

@@ -1,21 +1,20 @@
 """The fast solve path against the readable reference.
 
 Truths used: the reference per-reading factor built on
-``factors.pan_tilt_factor.pan_tilt_error`` (itself checked against numerical
+``fgloc.factors.pan_tilt_factor.pan_tilt_error`` (itself checked against numerical
 differentiation in test_pan_tilt_factor.py), and a tight reference solve
 (GTSAM's per-reading factors, small LM steps, 1e-14 tolerance) for the optimum
 and the marginal covariances.
 """
 
-import fgloc  # noqa: F401  (first: importing factors.* before fgloc is circular on main)
-
 import gtsam
 import numpy as np
 
-from factors.pan_tilt_factor import planar_pan_tilt_factor
-from fgloc.bench_scenes import BenchScene, scene_survey
-from fgloc.joint_solver import SolverOptions, build_problem, initialize, solve_problem, solve_survey
-from fgloc.levenberg_marquardt import LMParams, levenberg_marquardt
+import fgloc  # noqa: F401  (first: importing factors.* before fgloc is circular on main)
+from fgloc.factors.pan_tilt_factor import planar_pan_tilt_factor
+from fgloc.sim.bench_scenes import BenchScene, scene_survey
+from fgloc.solve.joint import SolverOptions, build_problem, initialize, solve_problem, solve_survey
+from fgloc.solve.levenberg_marquardt import LMParams, levenberg_marquardt
 
 
 def _reference_graph(problem):
@@ -78,7 +77,7 @@ def test_vectorized_error_equals_graph_error_with_extra_and_robust_factors() -> 
     problem.add_factor(gtsam.PriorFactorPoint2(keys[0], np.array([0.3, 0.4]), gtsam.noiseModel.Isotropic.Sigma(2, 0.01)))
     assert np.isclose(problem.error(values), problem.graph.error(values), rtol=1e-12)
     # Robust noise: the set cannot sum the loss itself and must defer to GTSAM.
-    from factors.pan_tilt_batch import PanTiltFactorSet
+    from fgloc.factors.pan_tilt_batch import PanTiltFactorSet
 
     robust = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(1.345), gtsam.noiseModel.Isotropic.Sigma(2, 0.01))
     ft = problem.pan_tilt

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from fgloc.cli import main
-from fgloc.files import read_result, read_survey, write_result, write_survey
-from fgloc.joint_solver import solve_survey
-from fgloc.simulate import PaperScenario, paper_scenario
+from fgloc.files.survey_result import read_result, read_survey, write_result, write_survey
+from fgloc.sim.scenes import PaperScenario, paper_scenario
+from fgloc.solve.joint import solve_survey
 
 
 @pytest.fixture(scope="module")

@@ -6,8 +6,14 @@ import cv2
 import numpy as np
 import pytest
 
-from drivers.frames import (
-    CallableFrameSource, FrameError, FrameSource, VideoCaptureSource, _redact, open_frame_source, synthetic_frames,
+from fgloc.drivers.frames import (
+    CallableFrameSource,
+    FrameError,
+    FrameSource,
+    VideoCaptureSource,
+    _redact,
+    open_frame_source,
+    synthetic_frames,
 )
 
 

@@ -4,11 +4,11 @@ import gtsam
 import numpy as np
 import pytest
 
-from factors.baseline_prior import BaselinePrior, ground_point_factor
-from fgloc.initialization import InitialEstimate
-from fgloc.model import CameraPose
-from fgloc.joint_solver import SolverOptions, build_problem, initialize, solve
-from fgloc.simulate import PaperScenario, paper_scenario
+from fgloc.core.model import CameraPose
+from fgloc.factors.baseline_prior import BaselinePrior, ground_point_factor
+from fgloc.init.planar import InitialEstimate
+from fgloc.sim.scenes import PaperScenario, paper_scenario
+from fgloc.solve.joint import SolverOptions, build_problem, initialize, solve
 
 
 @pytest.fixture(scope="module")
@@ -74,7 +74,8 @@ def test_without_gauge_the_marginals_are_indeterminate(survey) -> None:
 
 def test_gauge_factors_jacobians_numerical() -> None:
     from gtsam.utils.numerical_derivative import numericalDerivative11, numericalDerivative21, numericalDerivative22
-    from fgloc.model import NodeMode
+
+    from fgloc.core.model import NodeMode
 
     rng = np.random.default_rng(0)
     p0 = gtsam.Pose3(gtsam.Rot3.Expmap(rng.normal(size=3)), rng.normal(size=3))

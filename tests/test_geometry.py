@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from fgloc.geometry import (
+from fgloc.core.geometry import (
     base_rotation,
     bearing_pan_tilt,
     is_rotation,

@@ -1,6 +1,6 @@
 """IncrementalLocalizer (iSAM2) against the batch solve of the same readings.
 
-Truth used: :func:`fgloc.joint_solver.solve_survey` on the complete survey
+Truth used: :func:`fgloc.solve.joint.solve_survey` on the complete survey
 (itself checked against the reference factors in test_fast_solve.py). After
 ``refine()`` both minimize the same cost from a converged start, so positions
 and marginal covariances must agree to numerical tolerance; before it the
@@ -10,10 +10,10 @@ iSAM2 estimate carries only the linearization error of node placement.
 import numpy as np
 import pytest
 
-from fgloc.bench_scenes import BenchScene, scene_survey
-from fgloc.incremental import IncrementalLocalizer, IncrementalParams
-from fgloc.joint_solver import SolverOptions, solve_survey
-from fgloc.model import FglocError
+from fgloc.core.errors import FglocError
+from fgloc.sim.bench_scenes import BenchScene, scene_survey
+from fgloc.solve.incremental import IncrementalLocalizer, IncrementalParams
+from fgloc.solve.joint import SolverOptions, solve_survey
 
 
 def _feed_node_by_node(survey, loc, order=None):
@@ -133,8 +133,8 @@ def test_live_covariances_are_honest_over_monte_carlo() -> None:
     [1.8, 2.2] (chi-square, 2 dof) and 93-97 % of nodes inside their 95 % ellipse. The
     camera term matters: the conditional covariance alone (cameras taken as exact) gives
     ANEES ~3.4 on the same data, and that is asserted to fail the band."""
-    from fgloc.scoring import CHI2_95, nees
-    from fgloc.simulate import PaperScenario, paper_scenario
+    from fgloc.evaluate.score import CHI2_95, nees
+    from fgloc.sim.scenes import PaperScenario, paper_scenario
 
     rng = np.random.default_rng(2024)
     nees_all, conditional_only = [], []

@@ -3,13 +3,9 @@
 import numpy as np
 import pytest
 
-from fgloc.homography import (
-    DegenerateGeometryError,
-    decompose_bearing_homography,
-    estimate_bearing_homography,
-)
-from fgloc.initialization import initialize_planar
-from fgloc.simulate import PaperScenario, paper_scenario
+from fgloc.init.homography import DegenerateGeometryError, decompose_bearing_homography, estimate_bearing_homography
+from fgloc.init.planar import initialize_planar
+from fgloc.sim.scenes import PaperScenario, paper_scenario
 
 
 @pytest.mark.parametrize("seed", range(10))
@@ -36,7 +32,7 @@ def test_noisy_closed_form_is_close() -> None:
 
 def test_homography_decomposition_reproduces_h() -> None:
     survey = paper_scenario(PaperScenario(n_nodes=20, sigma=1e-15, seed=1))
-    from fgloc.initialization import BearingSet
+    from fgloc.init.planar import BearingSet
     bs = BearingSet.from_survey(survey)
     H = estimate_bearing_homography(bs.bearings[0], bs.bearings[1])
     for cand in decompose_bearing_homography(H):

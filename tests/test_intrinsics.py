@@ -4,7 +4,8 @@ import json
 
 import pytest
 
-from fgloc.intrinsics import CameraIntrinsics, IntrinsicsFormatError, read_intrinsics, write_intrinsics
+from fgloc.camera.intrinsics import CameraIntrinsics
+from fgloc.files.camera_file import IntrinsicsFormatError, read_intrinsics, write_intrinsics
 
 INTR = CameraIntrinsics(fx=540.5, fy=545.25, cx=322.0, cy=236.5, width=640, height=480,
                         k1=-0.22, k2=0.06, p1=0.001, p2=-0.0005, k3=0.0, zoom=0.0, rms_px=0.04,

@@ -3,12 +3,12 @@
 import numpy as np
 import pytest
 
-from fgloc.crlb import cramer_rao_bound
-from fgloc.initialization import InitialEstimate
-from fgloc.joint_solver import build_problem, solve, solve_survey
-from fgloc.model import CameraPose
-from fgloc.scoring import CHI2_95, nees, score
-from fgloc.simulate import PAPER_SIGMA, PaperScenario, paper_scenario
+from fgloc.core.model import CameraPose
+from fgloc.evaluate.crlb import cramer_rao_bound
+from fgloc.evaluate.score import CHI2_95, nees, score
+from fgloc.init.planar import InitialEstimate
+from fgloc.sim.scenes import PAPER_SIGMA, PaperScenario, paper_scenario
+from fgloc.solve.joint import build_problem, solve, solve_survey
 
 
 def test_noise_free_survey_recovers_truth_exactly() -> None:

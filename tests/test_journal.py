@@ -9,8 +9,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from fgloc.files import read_survey, survey_to_json, write_survey
-from fgloc.journal import (
+from fgloc.core.model import Gauge, NodeMode, Observation
+from fgloc.files.journal import (
     JournalError,
     JournalHeader,
     JournalObservation,
@@ -19,8 +19,8 @@ from fgloc.journal import (
     read_journal,
     survey_to_journal,
 )
-from fgloc.model import Gauge, NodeMode, Observation
-from fgloc.simulate import PaperScenario, paper_scenario
+from fgloc.files.survey_result import read_survey, survey_to_json, write_survey
+from fgloc.sim.scenes import PaperScenario, paper_scenario
 
 
 def _survey_with_overrides():

@@ -6,12 +6,12 @@ import cv2
 import numpy as np
 import pytest
 
-from drivers.rendered_camera import LedScene, SimulatedHead
-from fgloc.geometry import base_rotation, pan_tilt_bearing
-from fgloc.intrinsics import CameraIntrinsics
-from fgloc.led_detection import DetectionInputError, DetectionStatus, detect_led
-from fgloc.model import CameraPose
-from fgloc.pixel_angles import pixel_to_pan_tilt
+from fgloc.camera.intrinsics import CameraIntrinsics
+from fgloc.camera.led_detection import DetectionInputError, DetectionStatus, detect_led
+from fgloc.camera.pixel_angles import pixel_to_pan_tilt
+from fgloc.core.geometry import base_rotation, pan_tilt_bearing
+from fgloc.core.model import CameraPose
+from fgloc.drivers.rendered_camera import LedScene, SimulatedHead
 
 INTR = CameraIntrinsics.from_fov(640, 480, 65.0, k1=-0.2, k2=0.05)
 POSE = CameraPose(position=np.array([0.0, 0.0, 2.0]), rotation=base_rotation(0.3, 0.02, -0.01))
@@ -136,7 +136,7 @@ def test_mismatched_frames_raise_one_line_error():
 def test_centroid_is_unbiased_for_small_and_large_spots(spot_sigma):
     """Nearly noise-free spots at random sub-pixel positions: the windowed centroid's bias
     (window truncation, pixel phase) stays below 0.02 px for spot widths 0.8 ... 1.8 px."""
-    from drivers.rendered_camera import add_spot
+    from fgloc.drivers.rendered_camera import add_spot
 
     rng = np.random.default_rng(8)
     worst = 0.0
@@ -155,7 +155,7 @@ def test_noise_model_measures_and_extrapolates_shot_noise():
     """Frames with known noise variance 2 (2.25 + 0.2 I) DN^2 in their difference: the robust
     banded estimate is within 15 % in the measured range and when extrapolated to 230 DN,
     where only a handful of pixels exist (a bright static light)."""
-    from fgloc.led_detection import DetectorConfig, noise_model
+    from fgloc.camera.led_detection import DetectorConfig, noise_model
 
     rng = np.random.default_rng(12)
     level = np.tile(np.linspace(20.0, 120.0, 640, dtype=np.float32), (480, 1))
@@ -171,7 +171,7 @@ def test_noise_model_measures_and_extrapolates_shot_noise():
 
 
 def test_spot_cut_by_the_border_is_rejected():
-    from drivers.rendered_camera import add_spot
+    from fgloc.drivers.rendered_camera import add_spot
 
     off = np.full((60, 60), 40.0)
     on = off.copy()

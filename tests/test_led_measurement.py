@@ -5,19 +5,13 @@ import math
 import numpy as np
 import pytest
 
-from drivers.rendered_camera import LedScene, SimulatedHead, SimulatedLedController
-from fgloc.geometry import base_rotation, pan_tilt_bearing, project_pan_tilt
-from fgloc.intrinsics import CameraIntrinsics
-from fgloc.led_detection import DetectionStatus
-from fgloc.led_measurement import (
-    ZoomWarning,
-    centre_on_led,
-    grab_led_pair,
-    led_detector,
-    measure_led,
-)
-from fgloc.model import CameraPose
-from fgloc.pixel_angles import pixel_to_pan_tilt
+from fgloc.camera.intrinsics import CameraIntrinsics
+from fgloc.camera.led_detection import DetectionStatus
+from fgloc.camera.led_measurement import ZoomWarning, centre_on_led, grab_led_pair, led_detector, measure_led
+from fgloc.camera.pixel_angles import pixel_to_pan_tilt
+from fgloc.core.geometry import base_rotation, pan_tilt_bearing, project_pan_tilt
+from fgloc.core.model import CameraPose
+from fgloc.drivers.rendered_camera import LedScene, SimulatedHead, SimulatedLedController
 
 INTR = CameraIntrinsics(fx=503.0, fy=505.0, cx=321.3, cy=238.2, width=640, height=480,
                         k1=-0.21, k2=0.05, p1=0.0008, p2=-0.0004)
@@ -160,7 +154,7 @@ class _no_warning:
 
 
 def test_frames_of_another_size_than_calibrated_are_an_error():
-    from fgloc.led_measurement import FrameSizeError
+    from fgloc.camera.led_measurement import FrameSizeError
 
     scene = LedScene({"n": _points_in_view(0.0, 0.0, 1, np.random.default_rng(1))[0]})
     head = SimulatedHead(POSE, scene, INTR, seed=1)

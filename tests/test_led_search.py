@@ -7,19 +7,21 @@ import math
 import numpy as np
 import pytest
 
-from drivers.inprocess_rig import InProcessRig
-from fgloc.geometry import pan_tilt_bearing
-from fgloc.led_search import (
+from fgloc.camera.intrinsics import CameraIntrinsics
+from fgloc.camera.led_search import (
     LedLocator,
     PinholePixelModel,
+    SearchConfig,
     brightest_spot,
     nearest_first,
     search_cells,
 )
-from fgloc.rig_config import Intrinsics, SearchConfig, load_rig
+from fgloc.core.geometry import pan_tilt_bearing
+from fgloc.drivers.inprocess_rig import InProcessRig
+from fgloc.files.rig_config import load_rig
 from tests.test_rig_config import EXAMPLE
 
-K = Intrinsics(fx=100.0, fy=100.0, cx=0.0, cy=0.0, width=320, height=240)
+K = CameraIntrinsics(fx=100.0, fy=100.0, cx=0.0, cy=0.0, width=320, height=240)
 
 
 def test_pixel_offset_matches_the_worked_numbers():
@@ -51,7 +53,7 @@ def test_pixel_and_bearing_are_inverse():
 def test_search_cells_cover_the_range():
     """Every direction in the search range lands inside the frame of some grid cell."""
     search = SearchConfig(tilt_min=math.radians(-80), tilt_max=math.radians(10))
-    m = PinholePixelModel(Intrinsics(440, 440, 160, 120, 320, 240))
+    m = PinholePixelModel(CameraIntrinsics(440, 440, 160, 120, 320, 240))
     cells = search_cells(search, m.field_of_view())
     rng = np.random.default_rng(1)
     for _ in range(300):
@@ -101,10 +103,10 @@ def test_locator_finds_the_lit_led(method, tol):
 
 
 def test_pinhole_model_agrees_with_the_camera_pipeline():
-    """Two independent implementations of the same frames (this module and fgloc.pixel_angles)."""
-    from fgloc.pixel_angles import pixel_to_pan_tilt
+    """Two independent implementations of the same frames (this module and fgloc.camera.pixel_angles)."""
+    from fgloc.camera.pixel_angles import pixel_to_pan_tilt
 
-    k = Intrinsics(fx=440.0, fy=430.0, cx=161.0, cy=118.0, width=320, height=240)
+    k = CameraIntrinsics(fx=440.0, fy=430.0, cx=161.0, cy=118.0, width=320, height=240)
     m = PinholePixelModel(k)
     rng = np.random.default_rng(3)
     for _ in range(30):
@@ -116,7 +118,7 @@ def test_pinhole_model_agrees_with_the_camera_pipeline():
 def test_moves_are_clamped_to_the_search_range():
     search = SearchConfig(pan_min=math.radians(-170), pan_max=math.radians(170),
                           tilt_min=math.radians(-80), tilt_max=math.radians(20))
-    loc = LedLocator(search, PinholePixelModel(Intrinsics(440, 440, 160, 120, 320, 240)))
+    loc = LedLocator(search, PinholePixelModel(CameraIntrinsics(440, 440, 160, 120, 320, 240)))
     assert loc.clamp(math.radians(175), 0.0) == pytest.approx((math.radians(170), 0.0))
     assert loc.clamp(math.radians(-176), -1.5) == pytest.approx((math.radians(-170), math.radians(-80)))
     assert loc.clamp(0.3, 0.1) == pytest.approx((0.3, 0.1))

@@ -9,7 +9,7 @@ of ``(A^T A)^-1``). The store must reproduce them from per-node QR conditionals.
 import numpy as np
 import pytest
 
-from fgloc.node_conditionals import MarginalizedNodes
+from fgloc.solve.node_conditionals import MarginalizedNodes
 
 
 def _random_survey(rng: np.random.Generator, n_nodes: int, n_cams: int):

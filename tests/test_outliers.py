@@ -12,10 +12,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fgloc.geometry import project_pan_tilt
-from fgloc.joint_solver import RobustKernel, SolverOptions, build_problem, initialize, solve, solve_survey
-from fgloc.model import NodeMode, Observation, Survey
-from fgloc.simulate import PaperScenario, paper_scenario
+from fgloc.core.geometry import project_pan_tilt
+from fgloc.core.model import NodeMode, Observation, Survey
+from fgloc.sim.scenes import PaperScenario, paper_scenario
+from fgloc.solve.joint import RobustKernel, SolverOptions, build_problem, initialize, solve, solve_survey
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
 from stress_scenes import scene  # noqa: E402
@@ -90,8 +90,8 @@ def test_explicit_huber_kernel_still_reaches_clean_optimum() -> None:
 def test_cli_solve_with_gross_readings_always_writes_its_result(tmp_path, capsys, n_cameras, share):
     """Readings flagged with an infinite residual used to crash the JSON writer: nothing was written."""
     from fgloc.cli import main
-    from fgloc.files import read_result, write_survey
-    from fgloc.simulate import RandomScene, random_scene
+    from fgloc.files.survey_result import read_result, write_survey
+    from fgloc.sim.scenes import RandomScene, random_scene
 
     clean = random_scene(RandomScene(n_cameras=n_cameras, n_nodes=150, visibility=1.0, ceiling_share=0.0, seed=3))
     survey, bad = corrupt(clean, share, seed=4)

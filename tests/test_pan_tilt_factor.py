@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from gtsam.utils.numerical_derivative import numericalDerivative21, numericalDerivative22
 
-from factors.pan_tilt_factor import pan_tilt_error, pan_tilt_factor, planar_pan_tilt_factor
-from fgloc.geometry import bearing_pan_tilt, wrap_angle
+from fgloc.core.geometry import bearing_pan_tilt, wrap_angle
+from fgloc.factors.pan_tilt_factor import pan_tilt_error, pan_tilt_factor, planar_pan_tilt_factor
 
 C, L = gtsam.symbol_shorthand.C, gtsam.symbol_shorthand.L
 

@@ -6,9 +6,8 @@ import cv2
 import numpy as np
 import pytest
 
-from fgloc.geometry import bearing_pan_tilt, pan_tilt_bearing, wrap_angle
-from fgloc.intrinsics import CameraIntrinsics
-from fgloc.pixel_angles import (
+from fgloc.camera.intrinsics import CameraIntrinsics
+from fgloc.camera.pixel_angles import (
     OPTICAL_TO_HEAD,
     distort_normalized,
     optical_to_base,
@@ -18,6 +17,7 @@ from fgloc.pixel_angles import (
     ray_to_pixel,
     undistort_normalized,
 )
+from fgloc.core.geometry import bearing_pan_tilt, pan_tilt_bearing, wrap_angle
 
 INTR = CameraIntrinsics(fx=540.0, fy=545.0, cx=322.0, cy=236.0, width=640, height=480,
                         k1=-0.22, k2=0.06, p1=0.001, p2=-0.0005, k3=0.01)

@@ -7,12 +7,20 @@ import math
 import numpy as np
 import pytest
 
-from drivers.ptz_units import (
-    CEILING, DESK, EVI_D30, EVI_D70, EVI_D100, Mounting, PanTiltUnits, PositionOutOfRangeError, camera_model,
+from fgloc.core.errors import FglocError
+from fgloc.core.geometry import pan_tilt_bearing
+from fgloc.drivers.ptz_units import (
+    CEILING,
+    DESK,
+    EVI_D30,
+    EVI_D70,
+    EVI_D100,
+    Mounting,
+    PanTiltUnits,
+    PositionOutOfRangeError,
+    camera_model,
     mounting,
 )
-from fgloc.geometry import pan_tilt_bearing
-from fgloc.model import FglocError
 
 
 def test_d100_limits_are_plus_minus_100_and_25_degrees() -> None:

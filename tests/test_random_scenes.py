@@ -13,7 +13,7 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
 from stress_scenes import reaches_global_optimum, scene  # noqa: E402
 
-from fgloc.model import NodeMode  # noqa: E402
+from fgloc.core.model import NodeMode  # noqa: E402
 
 
 @pytest.mark.slow

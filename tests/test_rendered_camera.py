@@ -5,12 +5,12 @@ import math
 import numpy as np
 import pytest
 
-from drivers.rendered_camera import LedScene, RenderSettings, SimulatedHead, SimulatedLedController, add_spot
-from fgloc.geometry import base_rotation, project_pan_tilt
-from fgloc.intrinsics import CameraIntrinsics
-from fgloc.model import CameraPose
-from fgloc.pixel_angles import pan_tilt_to_pixel
-from fgloc.rig import LedController, PanTiltHead
+from fgloc.camera.intrinsics import CameraIntrinsics
+from fgloc.camera.pixel_angles import pan_tilt_to_pixel
+from fgloc.core.geometry import base_rotation, project_pan_tilt
+from fgloc.core.hardware import LedController, PanTiltHead
+from fgloc.core.model import CameraPose
+from fgloc.drivers.rendered_camera import LedScene, RenderSettings, SimulatedHead, SimulatedLedController, add_spot
 
 INTR = CameraIntrinsics.from_fov(640, 480, 65.0, k1=-0.2, k2=0.05)
 POSE = CameraPose(position=np.array([0.3, -0.2, 2.0]), rotation=base_rotation(0.4, 0.03, -0.02))
@@ -110,7 +110,7 @@ def test_background_is_fixed_to_the_world():
 def test_simulated_rig_shares_one_scene_between_cameras():
     """Two cameras of a simulated rig see the same LED switched by one controller, each where
     the spec geometry puts it."""
-    from drivers.rendered_camera import simulated_rig
+    from fgloc.drivers.rendered_camera import simulated_rig
 
     node = np.array([3.0, 1.0, 0.0])
     cams = {"cam0": POSE, "cam1": CameraPose(position=np.array([4.0, -3.0, 1.5]), rotation=base_rotation(1.9))}

@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from fgloc.cli import main
-from fgloc.rig_config import RigConfigError, load_rig, parse_rig
+from fgloc.files.rig_config import RigConfigError, load_rig, parse_rig
 
 EXAMPLE = Path(__file__).resolve().parent.parent / "examples" / "rig-simulated.json"
 
@@ -45,7 +45,8 @@ def test_hash_changes_with_content():
 
 def test_intrinsics_from_a_camera_json(tmp_path):
     """A calibrated camera.json (docs/camera-model.md) with distortion is read as is."""
-    from fgloc.intrinsics import CameraIntrinsics, write_intrinsics
+    from fgloc.camera.intrinsics import CameraIntrinsics
+    from fgloc.files.camera_file import write_intrinsics
 
     data = _example()
     write_intrinsics(CameraIntrinsics(450.0, 451.0, 160.5, 119.5, 320, 240, k1=-0.1), tmp_path / "cam0.json")

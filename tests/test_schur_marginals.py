@@ -7,9 +7,9 @@ Truth used: GTSAM's own marginal covariances of the same linearized graph
 import gtsam
 import numpy as np
 
-from fgloc.bench_scenes import BenchScene, scene_survey
-from fgloc.joint_solver import build_problem, initialize
-from fgloc.schur_marginals import node_marginals
+from fgloc.sim.bench_scenes import BenchScene, scene_survey
+from fgloc.solve.joint import build_problem, initialize
+from fgloc.solve.schur_marginals import node_marginals
 
 
 def _linearized(n: int, cams: int, seed: int):

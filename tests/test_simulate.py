@@ -2,8 +2,8 @@
 
 import numpy as np
 
-from fgloc.geometry import project_pan_tilt, wrap_angle
-from fgloc.simulate import PAPER_SIGMA, PaperScenario, paper_scenario
+from fgloc.core.geometry import project_pan_tilt, wrap_angle
+from fgloc.sim.scenes import PAPER_SIGMA, PaperScenario, paper_scenario
 
 
 def test_deterministic_by_seed() -> None:

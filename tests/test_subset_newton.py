@@ -1,4 +1,4 @@
-"""The paper's subset-averaging Newton baseline (fgloc.subset_newton)."""
+"""The paper's subset-averaging Newton baseline (fgloc.baselines.subset_newton)."""
 
 from __future__ import annotations
 
@@ -7,9 +7,9 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-import fgloc.subset_newton as sn
-from fgloc.model import Survey, Truth
-from fgloc.simulate import PaperScenario, observe, paper_scenario
+import fgloc.baselines.subset_newton as sn
+from fgloc.core.model import Survey, Truth
+from fgloc.sim.scenes import PaperScenario, observe, paper_scenario
 
 
 def _noise_free(survey: Survey, points: np.ndarray | None = None) -> Survey:

@@ -9,9 +9,10 @@ import numpy as np
 import pytest
 
 from fgloc.cli import main
-from fgloc.files import FileFormatError, read_survey, write_survey
-from fgloc.simulate import PaperScenario, paper_scenario
-from fgloc.subset_schedule import draw_subsets, subsets_for_coverage
+from fgloc.core.errors import FileFormatError
+from fgloc.core.subsets import draw_subsets, subsets_for_coverage
+from fgloc.files.survey_result import read_survey, write_survey
+from fgloc.sim.scenes import PaperScenario, paper_scenario
 
 
 def test_draw_subsets_distinct_and_even() -> None:

@@ -19,11 +19,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from drivers.inprocess_rig import InProcessRig
-from fgloc.files import read_survey
-from fgloc.journal import read_journal
-from fgloc.rig_config import load_rig
-from fgloc.survey_session import OpenedRig, run_survey
+from fgloc.drivers.inprocess_rig import InProcessRig
+from fgloc.files.journal import read_journal
+from fgloc.files.rig_config import load_rig
+from fgloc.files.survey_result import read_survey
+from fgloc.survey.session import OpenedRig, run_survey
 from tests.test_rig_config import EXAMPLE
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -79,7 +79,7 @@ def _kill_and_resume(tmp_path: Path, rig_path: Path, reference_journal: Path, n_
         if journal.exists() and journal.stat().st_size:
             try:
                 seen_lengths.append(read_journal(journal).records)  # never crashes, whatever the kill hit
-            except Exception as exc:  # only a journal torn inside its header is unreadable
+            except Exception as exc:  # noqa: BLE001 - only a journal torn inside its header is unreadable
                 assert "no complete header" in str(exc)
     print(f"\n{kills} kills; journal records after each kill: {seen_lengths} of {total_records}")
     assert kills == n_kills, f"only {kills} of {n_kills} processes were still running when killed"
@@ -154,8 +154,8 @@ def test_faulty_100_node_survey_matches_the_fault_free_one(tmp_path):
     only cost retries), and the faulty solve is consistent with the truth (ANEES < 4 for 2-dof
     positions; this scene gives 3.65 with ideal readings too, the solver's own spread over
     scenes being ~1.2-3.7)."""
-    from drivers.twin_rig import ViscaTwinRig
-    from fgloc.joint_solver import solve_survey
+    from fgloc.drivers.twin_rig import ViscaTwinRig
+    from fgloc.solve.joint import solve_survey
 
     common = {"occlusion": 0.05, "dead_nodes": ["n042"]}
     clean_rig = load_rig(visca_rig(tmp_path / "clean.json", 100, **common))

@@ -10,17 +10,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from drivers.inprocess_rig import build_scene, frame_renderer
+from fgloc.camera.led_search import brightest_spot
+from fgloc.camera.pixel_angles import base_to_pixel, in_image
 from fgloc.cli import main
-from fgloc.geometry import pan_tilt_bearing, world_to_base
-from fgloc.journal import read_journal
-from fgloc.led_search import brightest_spot
-from fgloc.pixel_angles import base_to_pixel, in_image
-from fgloc.rig_config import load_rig, parse_rig
+from fgloc.core.geometry import pan_tilt_bearing, world_to_base
+from fgloc.drivers.inprocess_rig import build_scene, frame_renderer
+from fgloc.files.journal import read_journal
+from fgloc.files.rig_config import load_rig, parse_rig
 from tests.test_rig_config import EXAMPLE
 
 WIDTH, HEIGHT, FOCAL_PX = 160, 120, 220.0  # small frames, 40 x 30 deg field of view
-#: 2-D RMS centroid error of fgloc.led_detection on the renderer's default LED spot (1500 DN,
+#: 2-D RMS centroid error of fgloc.camera.led_detection on the renderer's default LED spot (1500 DN,
 #: PSF 1.2 px, read noise 1.5 DN, shot 0.05 DN per DN): docs/camera-model.md, "Accuracy".
 CENTROID_RMS_PX = 0.070
 
@@ -97,7 +97,7 @@ def test_rendered_survey_with_on_off_detection_reads_every_visible_led(tmp_path,
 def test_rendered_survey_resumed_mid_node_repeats_the_same_readings(tmp_path):
     """Frame noise is seeded by the rig's state (camera, head angles, lit LEDs), so a survey
     killed between a node's first reading and its node_done resumes to the very same floats."""
-    from fgloc.survey_session import run_survey
+    from fgloc.survey.session import run_survey
 
     rig = load_rig(rendered_rig(tmp_path / "rig.json", "inprocess", "on-off", n_nodes=6))
     run_survey(rig, tmp_path / "full", simulate=True)

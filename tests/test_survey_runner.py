@@ -9,12 +9,12 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from drivers.inprocess_rig import InProcessRig
-from fgloc.journal import read_journal
-from fgloc.model import FglocError
-from fgloc.rig_config import parse_rig
-from fgloc.survey_runner import Progress, format_progress
-from fgloc.survey_session import OpenedRig, journal_survey, run_survey
+from fgloc.core.errors import FglocError
+from fgloc.drivers.inprocess_rig import InProcessRig
+from fgloc.files.journal import read_journal
+from fgloc.files.rig_config import parse_rig
+from fgloc.survey.runner import Progress, format_progress
+from fgloc.survey.session import OpenedRig, journal_survey, run_survey
 from tests.test_rig_config import EXAMPLE
 
 
@@ -121,7 +121,7 @@ class CountingEstimator:
         self.sizes = []
 
     def update(self, survey):
-        from fgloc.joint_solver import solve_survey
+        from fgloc.solve.joint import solve_survey
 
         self.sizes.append(len(survey.observations))
         return solve_survey(survey)
@@ -156,8 +156,8 @@ def test_journal_survey_reads_a_directory(tmp_path):
 def test_open_hardware_reaches_every_transport_through_rig_json(tmp_path):
     """rig.json port strings for VISCA serial, VISCA-IP, Sony CGI and a TinyOS base station open
     the real drivers (here against the issue-7a twins) and answer."""
-    from drivers.twins.rig import TwinCamera, TwinRig
-    from fgloc.survey_session import open_hardware
+    from fgloc.drivers.twins.rig import TwinCamera, TwinRig
+    from fgloc.survey.session import open_hardware
 
     cams = [TwinCamera("cam0", "serial"), TwinCamera("cam1", "udp", model="VISCA-IP"),
             TwinCamera("cam2", "http", model="SNC-RZ25N")]
@@ -207,7 +207,7 @@ def test_cli_survey_over_the_visca_twins_and_resume(tmp_path, capsys):
 
 
 def read_survey_file(path):
-    from fgloc.files import read_survey
+    from fgloc.files.survey_result import read_survey
 
     return read_survey(path)
 
@@ -216,14 +216,14 @@ def read_survey_file(path):
 def test_on_off_detection_on_rendered_frames_with_background_and_a_static_light(tmp_path):
     """Against the camera pipeline's renderer (drivers/rendered_camera.py: textured background,
     sensor noise, an always-on bright light in view of both cameras) the survey finds every
-    node with on/off frame pairs and fgloc.led_detection. Truth here is noise-free geometry, so
+    node with on/off frame pairs and fgloc.camera.led_detection. Truth here is noise-free geometry, so
     each reading must equal the true bearing to within the centroid error of a noisy spot
     (~0.05 px at ~400 px focal length: 1e-4 rad; tolerance 3e-4 rad). With "single" detection
     the same survey reads the background or the static light (errors of radians)."""
-    from drivers.rendered_camera import simulated_rig
-    from fgloc.geometry import project_pan_tilt
-    from fgloc.intrinsics import CameraIntrinsics
-    from fgloc.simulate import PaperScenario, paper_scenario
+    from fgloc.camera.intrinsics import CameraIntrinsics
+    from fgloc.core.geometry import project_pan_tilt
+    from fgloc.drivers.rendered_camera import simulated_rig
+    from fgloc.sim.scenes import PaperScenario, paper_scenario
 
     truth_survey = paper_scenario(PaperScenario(n_nodes=6, heights=(0.3, 0.35), seed=5))
     truth = truth_survey.truth
@@ -262,8 +262,8 @@ class FakeLocalizer:
         self.fed.append(list(observations))
 
     def estimate(self):
-        from fgloc.joint_solver import solve_survey
-        from fgloc.model import NodeMode, Survey
+        from fgloc.core.model import NodeMode, Survey
+        from fgloc.solve.joint import solve_survey
 
         obs = [o for batch in self.fed for o in batch]
         nodes = sorted({o.node for o in obs})
@@ -271,7 +271,7 @@ class FakeLocalizer:
 
 
 def test_incremental_estimator_feeds_each_reading_once(tmp_path):
-    from fgloc.survey_runner import IncrementalEstimator
+    from fgloc.survey.runner import IncrementalEstimator
 
     FakeLocalizer.instances.clear()
     rig = small_rig(8, occlusion=0.0, dead_nodes=[])
@@ -288,8 +288,8 @@ def test_incremental_estimator_with_isam2_tracks_the_batch_solve(tmp_path):
     """The default live estimator: batch estimates until iSAM2 bootstraps (12 shared nodes),
     then iSAM2's. Truth: the batch solve of the same journal; the live estimate may differ
     only by linearization error, a fraction of each node's sigma."""
-    from fgloc.joint_solver import SolverOptions, solve_survey
-    from fgloc.survey_runner import IncrementalEstimator
+    from fgloc.solve.joint import SolverOptions, solve_survey
+    from fgloc.survey.runner import IncrementalEstimator
 
     rig = small_rig(20, occlusion=0.0, dead_nodes=[])
     est = IncrementalEstimator()
@@ -311,7 +311,7 @@ def test_cli_survey_logs_live_estimates_to_rerun(tmp_path, capsys):
     """--rerun: every live estimate lands on the 'survey' timeline (step = observations so
     far), and the last one logged is the estimate.json the survey wrote."""
     from fgloc.cli import main
-    from fgloc.files import read_result
+    from fgloc.files.survey_result import read_result
     from tests.rrd_reading import load_rrd
 
     rig = EXAMPLE  # examples/rig-simulated.json: 20 nodes, 2 cameras
@@ -332,10 +332,10 @@ def test_cli_survey_logs_live_estimates_to_rerun(tmp_path, capsys):
 def test_incremental_estimator_solves_3d_surveys_in_batch():
     """IncrementalLocalizer is planar only; a 3d journal (a real rig with "nodes": "3d") must
     get 3d estimates, the batch solve's, never planar ones."""
-    from fgloc.joint_solver import solve_survey
-    from fgloc.model import NodeMode
-    from fgloc.simulate import RandomScene, random_scene
-    from fgloc.survey_runner import IncrementalEstimator
+    from fgloc.core.model import NodeMode
+    from fgloc.sim.scenes import RandomScene, random_scene
+    from fgloc.solve.joint import solve_survey
+    from fgloc.survey.runner import IncrementalEstimator
 
     survey = random_scene(RandomScene(n_cameras=3, n_nodes=40, mode=NodeMode.THREE_D, seed=3))
     est = IncrementalEstimator()
@@ -358,7 +358,7 @@ class FailingOnceLocalizer(FakeLocalizer):
 def test_a_failing_live_estimate_never_stops_the_survey(tmp_path):
     """A GTSAM failure inside the incremental estimator is one logged line; the survey goes
     on, and the next estimate starts a new localizer fed every reading once."""
-    from fgloc.survey_runner import IncrementalEstimator
+    from fgloc.survey.runner import IncrementalEstimator
 
     FakeLocalizer.instances.clear()
     rig = small_rig(8, occlusion=0.0, dead_nodes=[])
@@ -383,7 +383,7 @@ class DegenerateStartLocalizer(FakeLocalizer):
 
 def test_any_exception_in_a_live_estimate_is_logged_and_the_survey_goes_on(tmp_path):
     """Only FglocError used to be caught: a ValueError from the start ended the survey (and every resume)."""
-    from fgloc.survey_runner import IncrementalEstimator
+    from fgloc.survey.runner import IncrementalEstimator
 
     FakeLocalizer.instances.clear()
     rig = small_rig(8, occlusion=0.0, dead_nodes=[])

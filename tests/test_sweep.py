@@ -4,8 +4,8 @@ from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
 
-from fgloc.bench_scenes import BenchScene
-from fgloc.sweep import run_sweep
+from fgloc.evaluate.sweep import run_sweep
+from fgloc.sim.bench_scenes import BenchScene
 
 
 def test_process_pool_sweep_equals_serial_sweep() -> None:

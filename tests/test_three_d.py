@@ -1,21 +1,21 @@
 """3d nodes (heights unknown): essential-matrix start, resection, triangulation, 3x3 covariances.
 
-Truth used: simulated scenes (fgloc.simulate.random_scene) in the spec's 3d gauge
+Truth used: simulated scenes (fgloc.sim.scenes.random_scene) in the spec's 3d gauge
 (origin camera's base = world frame, baseline camera at distance 1).
 """
 
 import numpy as np
 import pytest
 
-from fgloc.crlb import cramer_rao_bound
-from fgloc.essential import decompose_essential, estimate_essential, resect_camera
-from fgloc.homography import DegenerateGeometryError
-from fgloc.initialization import BearingSet
-from fgloc.initialization3d import initialize_3d
-from fgloc.joint_solver import solve_survey
-from fgloc.model import NodeMode
-from fgloc.scoring import nees
-from fgloc.simulate import PAPER_SIGMA, RandomScene, random_scene
+from fgloc.core.model import NodeMode
+from fgloc.evaluate.crlb import cramer_rao_bound
+from fgloc.evaluate.score import nees
+from fgloc.init.essential import decompose_essential, estimate_essential, resect_camera
+from fgloc.init.homography import DegenerateGeometryError
+from fgloc.init.planar import BearingSet
+from fgloc.init.three_d import initialize_3d
+from fgloc.sim.scenes import PAPER_SIGMA, RandomScene, random_scene
+from fgloc.solve.joint import solve_survey
 
 
 def scene3d(seed: int, n_cameras: int = 3, sigma: float = PAPER_SIGMA, **kw):

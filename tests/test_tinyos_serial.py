@@ -7,14 +7,33 @@ import time
 
 import pytest
 
-from drivers.tinyos_serial import (
-    AM_LED_COMMAND, PROTO_ACK, PROTO_PACKET_ACK, AmPacket, Deframer, MoteDisconnected, MoteError, MoteNetwork,
-    MoteProtocolError, MoteTimeout, SerialForwarderLink, SerialMoteLink, ack_frame, crc16, data_frame, frame,
-    led_command, led_report, node_address, open_mote_network, parse_body, parse_led_report,
+from fgloc.core.hardware import LedController
+from fgloc.drivers.tinyos_serial import (
+    AM_LED_COMMAND,
+    PROTO_ACK,
+    PROTO_PACKET_ACK,
+    AmPacket,
+    Deframer,
+    MoteDisconnected,
+    MoteError,
+    MoteNetwork,
+    MoteProtocolError,
+    MoteTimeout,
+    SerialForwarderLink,
+    SerialMoteLink,
+    ack_frame,
+    crc16,
+    data_frame,
+    frame,
+    led_command,
+    led_report,
+    node_address,
+    open_mote_network,
+    parse_body,
+    parse_led_report,
 )
-from drivers.twins.base_station import BaseStationSerialTwin, MoteFieldEmulator, SerialForwarderTwin
-from drivers.twins.faults import FaultConfig
-from fgloc.rig import LedController
+from fgloc.drivers.twins.base_station import BaseStationSerialTwin, MoteFieldEmulator, SerialForwarderTwin
+from fgloc.drivers.twins.faults import FaultConfig
 
 H = bytes.fromhex
 EX1 = AmPacket(dest=0x0005, src=0x0000, am_type=0x89, payload=H("01 07"), group=0x22)

@@ -7,9 +7,9 @@ import math
 import numpy as np
 import pytest
 
-from drivers.twins.faults import FaultConfig
-from drivers.twins.rig import TwinCamera, TwinRig
-from fgloc.rig import LedController, PanTiltHead
+from fgloc.core.hardware import LedController, PanTiltHead
+from fgloc.drivers.twins.faults import FaultConfig
+from fgloc.drivers.twins.rig import TwinCamera, TwinRig
 
 
 def _scene_recorder():

@@ -7,10 +7,10 @@ import socket
 import threading
 import time
 
-from drivers.twins.base_station import BaseStationSerialTwin, SerialForwarderTwin
-from drivers.twins.sony_cgi_camera import SonyCgiTwin
-from drivers.twins.visca_camera import ViscaSerialTwin
-from drivers.twins.visca_ip_camera import ViscaIpTwin
+from fgloc.drivers.twins.base_station import BaseStationSerialTwin, SerialForwarderTwin
+from fgloc.drivers.twins.sony_cgi_camera import SonyCgiTwin
+from fgloc.drivers.twins.visca_camera import ViscaSerialTwin
+from fgloc.drivers.twins.visca_ip_camera import ViscaIpTwin
 
 TWIN_THREADS = ("visca-serial-twin", "visca-ip-twin", "sony-cgi-twin", "basestation-twin", "sf-twin")
 

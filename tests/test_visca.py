@@ -6,14 +6,37 @@ import math
 
 import pytest
 
-from drivers.ptz_units import CEILING, EVI_D30, EVI_D100, PanTiltUnits, PositionOutOfRangeError
-from drivers.twins.faults import FaultConfig
-from drivers.twins.visca_camera import ViscaCameraEmulator, ViscaSerialTwin
-from drivers.visca import (
-    CommandBufferFull, CommandNotExecutable, HeadSettings, PacketSplitter, ReplyKind, Timeouts, ViscaDisconnected,
-    ViscaProtocolError, ViscaSyntaxError, ViscaTimeout, cmd_address_set, cmd_cancel, cmd_focus_auto, cmd_focus_manual, cmd_home, cmd_if_clear,
-    cmd_if_clear_broadcast, cmd_pan_tilt_absolute, cmd_pan_tilt_position_inquiry, cmd_pan_tilt_stop, cmd_zoom_direct,
-    cmd_zoom_position_inquiry, decode_nibbles, decode_pan_tilt, encode_nibbles, error_for, open_serial_head,
+from fgloc.drivers.ptz_units import CEILING, EVI_D30, EVI_D100, PanTiltUnits, PositionOutOfRangeError
+from fgloc.drivers.twins.faults import FaultConfig
+from fgloc.drivers.twins.visca_camera import ViscaCameraEmulator, ViscaSerialTwin
+from fgloc.drivers.visca import (
+    CommandBufferFull,
+    CommandNotExecutable,
+    HeadSettings,
+    PacketSplitter,
+    ReplyKind,
+    Timeouts,
+    ViscaDisconnected,
+    ViscaProtocolError,
+    ViscaSyntaxError,
+    ViscaTimeout,
+    cmd_address_set,
+    cmd_cancel,
+    cmd_focus_auto,
+    cmd_focus_manual,
+    cmd_home,
+    cmd_if_clear,
+    cmd_if_clear_broadcast,
+    cmd_pan_tilt_absolute,
+    cmd_pan_tilt_position_inquiry,
+    cmd_pan_tilt_stop,
+    cmd_zoom_direct,
+    cmd_zoom_position_inquiry,
+    decode_nibbles,
+    decode_pan_tilt,
+    encode_nibbles,
+    error_for,
+    open_serial_head,
     parse_reply,
 )
 
@@ -288,8 +311,8 @@ def test_line_noise_one_percent_of_bytes() -> None:
 
 
 def test_heads_satisfy_the_rig_protocol() -> None:
-    from drivers.sony_cgi import SonyCgiClient, SonyCgiHead
-    from fgloc.rig import PanTiltHead
+    from fgloc.core.hardware import PanTiltHead
+    from fgloc.drivers.sony_cgi import SonyCgiClient, SonyCgiHead
 
     with ViscaSerialTwin() as twin, _head(twin) as head:
         assert isinstance(head, PanTiltHead)

@@ -7,14 +7,28 @@ import socket
 
 import pytest
 
-from drivers.twins.faults import FaultConfig
-from drivers.twins.visca_ip_camera import ViscaIpTwin
-from drivers.visca import (
-    CommandNotExecutable, Timeouts, ViscaDisconnected, ViscaError, ViscaTimeout, cmd_pan_tilt_absolute,
-    cmd_pan_tilt_position_inquiry, decode_pan_tilt, parse_reply,
+from fgloc.drivers.twins.faults import FaultConfig
+from fgloc.drivers.twins.visca_ip_camera import ViscaIpTwin
+from fgloc.drivers.visca import (
+    CommandNotExecutable,
+    Timeouts,
+    ViscaDisconnected,
+    ViscaError,
+    ViscaTimeout,
+    cmd_pan_tilt_absolute,
+    cmd_pan_tilt_position_inquiry,
+    decode_pan_tilt,
+    parse_reply,
 )
-from drivers.visca_ip import (
-    TYPE_COMMAND, TYPE_INQUIRY, TYPE_REPLY, ViscaIpLink, decode_message, encode_message, open_ip_head, parse_udp_url,
+from fgloc.drivers.visca_ip import (
+    TYPE_COMMAND,
+    TYPE_INQUIRY,
+    TYPE_REPLY,
+    ViscaIpLink,
+    decode_message,
+    encode_message,
+    open_ip_head,
+    parse_udp_url,
     reset_message,
 )
 

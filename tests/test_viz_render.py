@@ -17,9 +17,9 @@ import cv2
 import numpy as np
 import pytest
 
-from fgloc import viz
-from fgloc.joint_solver import solve_survey
-from fgloc.simulate import PaperScenario, paper_scenario
+import fgloc.viz.rerun_log as viz
+from fgloc.sim.scenes import PaperScenario, paper_scenario
+from fgloc.solve.joint import solve_survey
 
 pytestmark = pytest.mark.slow
 

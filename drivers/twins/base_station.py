@@ -1,7 +1,7 @@
 """A simulated MicaZ BaseStation + motes: on a pty (HDLC frames) and as a SerialForwarder (TCP).
 
 :class:`MoteFieldEmulator` is the radio side: nodes that execute the LED command
-(:data:`drivers.tinyos_serial.AM_LED_COMMAND`) and answer with an LED report after
+(:data:`fgloc.drivers.tinyos_serial.AM_LED_COMMAND`) and answer with an LED report after
 ``radio_delay`` seconds. Nodes listed in ``silent`` never answer (a dead mote or
 one out of radio range); ``led_on`` holds every node's LED state and ``on_led`` is
 called on each change, so a simulated scene can light the LED in rendered frames.
@@ -10,7 +10,7 @@ called on each change, so a simulated scene can light the LED in rendered frames
 0x44 frame whose CRC is right (as SerialP does, before the application sees it),
 ignores frames with a bad CRC, and sends reports as 0x45 frames.
 :class:`SerialForwarderTwin` is a SerialForwarder on 127.0.0.1 (``U `` handshake,
-length-prefixed packets). Both take a :class:`~drivers.twins.faults.FaultConfig`:
+length-prefixed packets). Both take a :class:`~fgloc.drivers.twins.faults.FaultConfig`:
 ``drop`` loses an outgoing ACK/report, ``garble`` corrupts one byte of it, ``error``
 answers with an unknown-protocol (0xFF) frame (serial) or drops the command (SF),
 ``slow`` delays it, ``disconnect`` closes the pty / TCP connection.
@@ -23,12 +23,26 @@ import threading
 import time
 from collections.abc import Callable, Iterable
 
-from drivers.tinyos_serial import (
-    AM_LED_COMMAND, LED_OFF, LED_ON, PROTO_ACK, PROTO_PACKET_ACK, PROTO_PACKET_NOACK, PROTO_UNKNOWN, SF_HELLO, AmPacket,
-    Deframer, MoteProtocolError, ack_frame, data_frame, frame, led_report, parse_body,
+from fgloc.drivers.tinyos_serial import (
+    AM_LED_COMMAND,
+    LED_OFF,
+    LED_ON,
+    PROTO_ACK,
+    PROTO_PACKET_ACK,
+    PROTO_PACKET_NOACK,
+    PROTO_UNKNOWN,
+    SF_HELLO,
+    AmPacket,
+    Deframer,
+    MoteProtocolError,
+    ack_frame,
+    data_frame,
+    frame,
+    led_report,
+    parse_body,
 )
-from drivers.twins.faults import FaultConfig, FaultInjector
-from drivers.twins.pty_twin import PtyTwin
+from fgloc.drivers.twins.faults import FaultConfig, FaultInjector
+from fgloc.drivers.twins.pty_twin import PtyTwin
 
 
 class MoteFieldEmulator:

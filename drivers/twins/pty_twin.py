@@ -1,7 +1,7 @@
 """The skeleton the serial (pseudo-terminal) twins share: a reply queue and a served pty.
 
 :class:`ScheduledReplies` is a time-ordered queue of outgoing bytes (the UDP twin
-uses it too). :class:`PtyTwin` is a device on a :class:`~drivers.twins.pty_port.PtyPort`
+uses it too). :class:`PtyTwin` is a device on a :class:`~fgloc.drivers.twins.pty_port.PtyPort`
 served from a background thread: it reads what the driver wrote, hands it to the
 subclass (:meth:`PtyTwin._on_bytes`), writes scheduled replies when they are due,
 and pulls/plugs the cable on :meth:`PtyTwin.disconnect`. Subclasses hold the
@@ -16,8 +16,8 @@ import threading
 import time
 from typing import Self
 
-from drivers.twins.faults import FaultConfig, FaultInjector
-from drivers.twins.pty_port import PtyPort
+from fgloc.drivers.twins.faults import FaultConfig, FaultInjector
+from fgloc.drivers.twins.pty_port import PtyPort
 
 
 class ScheduledReplies:

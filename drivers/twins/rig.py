@@ -5,7 +5,7 @@ loop. A scene plugs in with two hooks in the **spec convention** (no counts):
 
 * ``render(camera_id, pan, tilt, zoom) -> ndarray``: what camera ``camera_id`` sees
   with its head at spec (pan, tilt) radians and zoom fraction; the twin converts
-  its device counts through the camera's :class:`~drivers.ptz_units.PanTiltUnits`
+  its device counts through the camera's :class:`~fgloc.drivers.ptz_units.PanTiltUnits`
   (model and mounting), so the scene never deals with signs or counts;
 * ``on_led(node, on)``: called when a mote's LED changes; ``node`` is the fgloc node id
   when ``node_ids`` is given (mote address = the id's trailing number, and only those
@@ -30,15 +30,15 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from drivers.ptz_units import PanTiltUnits, camera_model, mounting
-from drivers.frames import FrameSource
-from drivers.tinyos_serial import MoteNetwork, node_address
-from fgloc.rig import PanTiltHead
-from drivers.twins.base_station import BaseStationSerialTwin, MoteFieldEmulator, SerialForwarderTwin
-from drivers.twins.faults import FaultConfig
-from drivers.twins.sony_cgi_camera import SonyCgiTwin
-from drivers.twins.visca_camera import HeadPose, ViscaCameraEmulator, ViscaSerialTwin
-from drivers.twins.visca_ip_camera import ViscaIpTwin
+from fgloc.core.hardware import PanTiltHead
+from fgloc.drivers.frames import FrameSource
+from fgloc.drivers.ptz_units import PanTiltUnits, camera_model, mounting
+from fgloc.drivers.tinyos_serial import MoteNetwork, node_address
+from fgloc.drivers.twins.base_station import BaseStationSerialTwin, MoteFieldEmulator, SerialForwarderTwin
+from fgloc.drivers.twins.faults import FaultConfig
+from fgloc.drivers.twins.sony_cgi_camera import SonyCgiTwin
+from fgloc.drivers.twins.visca_camera import HeadPose, ViscaCameraEmulator, ViscaSerialTwin
+from fgloc.drivers.twins.visca_ip_camera import ViscaIpTwin
 
 SpecRenderer = Callable[[str, float, float, float], np.ndarray]
 
@@ -130,7 +130,7 @@ class TwinRig:
     def open_head(self, camera_id: str, timeout: float = 0.1, retries: int = 5,
                   completion_margin: float = 0.2) -> PanTiltHead:
         """The real driver for ``camera_id`` on its twin (frames from the scene when a renderer is set)."""
-        from drivers.connect import HeadOptions, open_head
+        from fgloc.drivers.connect import HeadOptions, open_head
 
         cam = self.cameras[camera_id]
         frames = self.frame_source(camera_id) if self._render else None
@@ -144,7 +144,7 @@ class TwinRig:
     def open_leds(self, timeout: float = 0.05, retries: int = 8, report_timeout: float = 0.1,
                   attempts: int = 5) -> MoteNetwork:
         """The real MoteNetwork on the base-station twin."""
-        from drivers.connect import open_leds
+        from fgloc.drivers.connect import open_leds
 
         net = open_leds(self.mote_port, None, timeout, retries, report_timeout, attempts)
         self._opened.append(net)

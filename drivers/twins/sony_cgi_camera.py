@@ -1,7 +1,7 @@
 """A simulated Sony network camera (SNC-RZ25N CGI) on http://127.0.0.1:PORT.
 
-Serves the requests :mod:`drivers.sony_cgi` sends, backed by the same
-:class:`~drivers.twins.visca_camera.ViscaCameraEmulator` as the serial and UDP
+Serves the requests :mod:`fgloc.drivers.sony_cgi` sends, backed by the same
+:class:`~fgloc.drivers.twins.visca_camera.ViscaCameraEmulator` as the serial and UDP
 twins (so head state, limits, motion time and error replies are shared):
 
 * ``POST /command/ptzf.cgi`` ``AbsolutePanTilt=PPPP,TTTT,S`` / ``AbsoluteZoom=ZZZZ`` -> 204
@@ -26,10 +26,10 @@ import threading
 import time
 import urllib.parse
 
-from drivers.ptz_units import SNC_RZ25N, CameraModel
-from drivers.twins.faults import FaultConfig, FaultInjector
-from drivers.twins.visca_camera import Renderer, ViscaCameraEmulator
-from drivers.visca import cmd_pan_tilt_absolute, cmd_zoom_direct
+from fgloc.drivers.ptz_units import SNC_RZ25N, CameraModel
+from fgloc.drivers.twins.faults import FaultConfig, FaultInjector
+from fgloc.drivers.twins.visca_camera import Renderer, ViscaCameraEmulator
+from fgloc.drivers.visca import cmd_pan_tilt_absolute, cmd_zoom_direct
 
 
 def _signed16(text: str) -> int:

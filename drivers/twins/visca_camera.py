@@ -3,19 +3,19 @@
 :class:`ViscaCameraEmulator` is the camera: it takes one request packet
 (``8x ... FF`` or a broadcast) and returns the reply packets with their delays,
 keeping a head state (pan/tilt counts, zoom counts) that moves at the speed the
-command asked for (speed table of the :class:`~drivers.ptz_units.CameraModel`,
+command asked for (speed table of the :class:`~fgloc.drivers.ptz_units.CameraModel`,
 scaled by ``time_scale``; 0 = instantaneous). It enforces what a real D100 does:
 two sockets (a third concurrent command gets "buffer full"), legal speed bytes and
 position limits (else "syntax error"), ACK then Completion on the same socket,
 inquiries answered without a socket, cancel.
 
 :class:`ViscaSerialTwin` serves it on a pty (pyserial opens :attr:`port`) from a
-background thread with fault injection; :mod:`drivers.twins.visca_ip_camera` and
-:mod:`drivers.twins.sony_cgi_camera` serve the same emulator over UDP and HTTP.
+background thread with fault injection; :mod:`fgloc.drivers.twins.visca_ip_camera` and
+:mod:`fgloc.drivers.twins.sony_cgi_camera` serve the same emulator over UDP and HTTP.
 
 Scene hook: ``renderer(pose) -> ndarray`` renders what the camera sees for a
 :class:`HeadPose`; :meth:`ViscaCameraEmulator.frame_source` wraps it as a
-``FrameSource`` for :class:`drivers.visca.ViscaHead`.
+``FrameSource`` for :class:`fgloc.drivers.visca.ViscaHead`.
 """
 
 from __future__ import annotations
@@ -27,17 +27,17 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from drivers.frames import CallableFrameSource
-from drivers.ptz_units import EVI_D100, CameraModel
-from drivers.twins.faults import FaultConfig, FaultInjector
-from drivers.twins.pty_port import PtyPort
-from drivers.twins.pty_twin import PtyTwin, ScheduledReplies
-from drivers.visca import PacketSplitter, ViscaProtocolError, decode_nibbles, encode_nibbles
+from fgloc.drivers.frames import CallableFrameSource
+from fgloc.drivers.ptz_units import EVI_D100, CameraModel
+from fgloc.drivers.twins.faults import FaultConfig, FaultInjector
+from fgloc.drivers.twins.pty_port import PtyPort
+from fgloc.drivers.twins.pty_twin import PtyTwin, ScheduledReplies
+from fgloc.drivers.visca import PacketSplitter, ViscaProtocolError, decode_nibbles, encode_nibbles
 
 
 @dataclass(frozen=True)
 class HeadPose:
-    """The emulated head's state in device counts (see drivers.ptz_units for conversion)."""
+    """The emulated head's state in device counts (see fgloc.drivers.ptz_units for conversion)."""
 
     pan_counts: int
     tilt_counts: int

@@ -1,6 +1,6 @@
 """A simulated VISCA-over-IP camera on a UDP socket bound to 127.0.0.1.
 
-Serves :class:`drivers.twins.visca_camera.ViscaCameraEmulator` with the real
+Serves :class:`fgloc.drivers.twins.visca_camera.ViscaCameraEmulator` with the real
 datagrams: RESET handling, sequence-number checking (a repeat of the last
 executed number gets ``0F 01`` and is not executed again, like a Sony SRG), a
 ``0F 02`` for a payload-type mismatch, replies echoing the request's sequence
@@ -14,14 +14,24 @@ import socket
 import threading
 import time
 
-from drivers.ptz_units import VISCA_IP_GENERIC, CameraModel
-from drivers.twins.faults import FaultConfig, FaultInjector
-from drivers.twins.pty_twin import ScheduledReplies
-from drivers.twins.visca_camera import Renderer, ViscaCameraEmulator, apply_reply_faults
-from drivers.visca import is_inquiry
-from drivers.visca_ip import (
-    CONTROL_ACK, CONTROL_RESET, ERROR_MESSAGE_TYPE, ERROR_SEQUENCE, TYPE_COMMAND, TYPE_CONTROL, TYPE_CONTROL_REPLY,
-    TYPE_INQUIRY, TYPE_REPLY, ViscaProtocolError, decode_message, encode_message,
+from fgloc.drivers.ptz_units import VISCA_IP_GENERIC, CameraModel
+from fgloc.drivers.twins.faults import FaultConfig, FaultInjector
+from fgloc.drivers.twins.pty_twin import ScheduledReplies
+from fgloc.drivers.twins.visca_camera import Renderer, ViscaCameraEmulator, apply_reply_faults
+from fgloc.drivers.visca import is_inquiry
+from fgloc.drivers.visca_ip import (
+    CONTROL_ACK,
+    CONTROL_RESET,
+    ERROR_MESSAGE_TYPE,
+    ERROR_SEQUENCE,
+    TYPE_COMMAND,
+    TYPE_CONTROL,
+    TYPE_CONTROL_REPLY,
+    TYPE_INQUIRY,
+    TYPE_REPLY,
+    ViscaProtocolError,
+    decode_message,
+    encode_message,
 )
 
 

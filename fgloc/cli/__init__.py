@@ -1,6 +1,6 @@
 """The ``fgloc`` command line: one module per command, registered in ``COMMANDS``.
 
-Every user-facing failure is an :class:`fgloc.model.FglocError` (or an OS error
+Every user-facing failure is an :class:`fgloc.core.model.FglocError` (or an OS error
 on a named file) and ends as one line on stderr with exit status 2 (bad input)
 or 1 (I/O), never a traceback.
 """
@@ -18,7 +18,7 @@ for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
 from fgloc.cli import bench, calibrate, demo, motes, ptz, report, score, simulate, solve, survey, view  # noqa: E402
-from fgloc.model import FglocError  # noqa: E402
+from fgloc.core.errors import FglocError  # noqa: E402
 
 COMMANDS: list[ModuleType] = [simulate, solve, score, demo, view, report, survey, calibrate, ptz, motes, bench]
 

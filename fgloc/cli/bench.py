@@ -1,10 +1,10 @@
-"""``fgloc bench``: the benchmark suite (see :mod:`fgloc.bench`)."""
+"""``fgloc bench``: the benchmark suite (see :mod:`fgloc.evaluate.bench`)."""
 
 from __future__ import annotations
 
 import argparse
 
-from fgloc import bench
+from fgloc.evaluate import bench
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -5,12 +5,6 @@ from __future__ import annotations
 import argparse
 import sys
 
-import cv2
-
-from fgloc.calibration import BoardSpec, CalibrationError, calibrate
-from fgloc.intrinsics import write_intrinsics
-from fgloc.led_measurement import ZOOM_TOLERANCE
-
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
@@ -31,6 +25,12 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    import cv2
+
+    from fgloc.camera.calibration import BoardSpec, CalibrationError, calibrate
+    from fgloc.camera.led_measurement import ZOOM_TOLERANCE
+    from fgloc.files.camera_file import write_intrinsics
+
     board = BoardSpec.parse(args.board, args.square)
     if not 0.0 <= args.zoom <= 1.0:
         raise CalibrationError(f"--zoom: must lie in [0, 1], got {args.zoom!r}")

@@ -7,18 +7,12 @@ from __future__ import annotations
 import argparse
 import time
 from pathlib import Path
-
-import numpy as np
-
-from fgloc.cli.solve import describe, subset_cloud
-from fgloc.crlb import cramer_rao_bound
-from fgloc.files import write_result, write_survey
-from fgloc.joint_solver import solve_survey
-from fgloc.scoring import PAPER_BASELINE_METRES, format_score_table, score
-from fgloc.simulate import PaperScenario, paper_scenario
-from fgloc.subset_newton import SubsetNewtonOptions, solve_subset_newton
+from typing import TYPE_CHECKING
 
 SUBSET_SIZE, SUBSETS = 10, 50
+
+if TYPE_CHECKING:
+    import numpy as np
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -31,6 +25,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def bound_error_draws(covariances: list[np.ndarray], replicates: int = 200, seed: int = 0) -> np.ndarray:
     """Error norms an efficient estimator would show: (replicates, nodes) Gaussian draws from the bound."""
+    import numpy as np
+
     rng = np.random.default_rng(seed)
     chol = np.linalg.cholesky(np.array(covariances))
     z = rng.standard_normal((replicates, len(covariances), chol.shape[-1]))
@@ -42,6 +38,10 @@ def comparison_table(rows: list[tuple[str, np.ndarray, float | None, float | Non
 
     A 2-D ``err`` (replicates, nodes) is summarized per replicate and averaged.
     """
+    import numpy as np
+
+    from fgloc.evaluate.score import PAPER_BASELINE_METRES
+
     lines = [
         "| method | median m | 95% m | max m | RMS m | ANEES | time s |",
         "|---|---:|---:|---:|---:|---:|---:|",
@@ -58,6 +58,16 @@ def comparison_table(rows: list[tuple[str, np.ndarray, float | None, float | Non
 
 
 def run(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from fgloc.baselines.subset_newton import SubsetNewtonOptions, solve_subset_newton
+    from fgloc.cli.solve import describe, subset_cloud
+    from fgloc.evaluate.crlb import cramer_rao_bound
+    from fgloc.evaluate.score import PAPER_BASELINE_METRES, format_score_table, score
+    from fgloc.files.survey_result import write_result, write_survey
+    from fgloc.sim.scenes import PaperScenario, paper_scenario
+    from fgloc.solve.joint import solve_survey
+
     out = Path(args.out_dir)
     survey = paper_scenario(PaperScenario(seed=args.seed))
     write_survey(survey, out / "survey.json")
@@ -66,7 +76,7 @@ def run(args: argparse.Namespace) -> int:
 
     recorder = None
     if not args.no_rerun:
-        from fgloc.viz import IterationRecorder  # keeps `import fgloc.cli` free of rerun
+        from fgloc.viz.rerun_log import IterationRecorder  # keeps `import fgloc.cli` free of rerun
 
         recorder = IterationRecorder(survey)
     t0 = time.perf_counter()
@@ -101,7 +111,7 @@ def run(args: argparse.Namespace) -> int:
 
     files = [out / "survey.json", out / "result.json", out / "result-subset-newton.json"]
     if recorder is not None:
-        from fgloc.viz import camera_covariances_or_none, write_rrd
+        from fgloc.viz.rerun_log import camera_covariances_or_none, write_rrd
 
         write_rrd(out / "fgloc.rrd", joint, survey, recorder=recorder, subsets=subset_cloud(survey, baseline),
                   camera_covariances=camera_covariances_or_none(survey, joint))

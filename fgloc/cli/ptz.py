@@ -9,7 +9,7 @@ from __future__ import annotations
 import argparse
 import math
 
-from fgloc.model import FglocError
+from fgloc.core.errors import FglocError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -41,7 +41,7 @@ def format_position(pan: float, tilt: float) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from drivers.connect import HeadOptions, open_head
+    from fgloc.drivers.connect import HeadOptions, open_head
 
     if args.timeout <= 0 or args.retries < 0:
         raise FglocError("ptz: --timeout must be > 0 and --retries >= 0")

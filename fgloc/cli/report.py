@@ -19,8 +19,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
-    from fgloc.model import FglocError
-    from fgloc.report import ReportConfig, require_matplotlib, run_experiment, write_report
+    from fgloc.core.errors import FglocError
+    from fgloc.evaluate.report import ReportConfig, require_matplotlib, run_experiment, write_report
 
     require_matplotlib()
     config = ReportConfig.quick() if args.quick else ReportConfig()

@@ -5,9 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from fgloc.files import read_result, read_survey
-from fgloc.model import FglocError
-from fgloc.scoring import format_score_table, score
+from fgloc.core.errors import FglocError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -20,6 +18,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from fgloc.evaluate.score import format_score_table, score
+    from fgloc.files.survey_result import read_result, read_survey
+
     survey = read_survey(args.survey)
     if survey.truth is None:
         raise FglocError(f"{args.survey}: truth: missing (only simulated surveys can be scored)")

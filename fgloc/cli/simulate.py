@@ -3,12 +3,12 @@
 from __future__ import annotations
 
 import argparse
+from typing import TYPE_CHECKING
 
-import numpy as np
+from fgloc.core.errors import FglocError
 
-from fgloc.files import write_survey
-from fgloc.model import FglocError
-from fgloc.simulate import PaperScenario, paper_scenario
+if TYPE_CHECKING:
+    from fgloc.sim.scenes import PaperScenario
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -32,6 +32,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def scenario_from_args(args: argparse.Namespace) -> PaperScenario:
+    import numpy as np
+
+    from fgloc.sim.scenes import PaperScenario, paper_scenario
+
     for flag, value in (("--sigma-deg", args.sigma_deg), ("--heights", args.heights[0]),
                         ("--heights", args.heights[1]), ("--roll-pitch-deg", args.roll_pitch_deg)):
         if not np.isfinite(value):
@@ -59,6 +63,9 @@ def scenario_from_args(args: argparse.Namespace) -> PaperScenario:
 
 
 def run(args: argparse.Namespace) -> int:
+    from fgloc.files.survey_result import write_survey
+    from fgloc.sim.scenes import paper_scenario
+
     survey = paper_scenario(scenario_from_args(args))
     write_survey(survey, args.output)
     print(f"wrote {args.output}: {len(survey.node_ids)} nodes, {len(survey.camera_ids)} cameras, "

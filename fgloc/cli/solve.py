@@ -5,14 +5,9 @@ from __future__ import annotations
 import argparse
 from typing import TYPE_CHECKING
 
-import numpy as np
-
-from fgloc.files import read_survey, write_result
-from fgloc.joint_solver import solve_survey
-from fgloc.model import Result, Survey
-
 if TYPE_CHECKING:
-    from fgloc.subset_newton import SubsetNewtonResult
+    from fgloc.baselines.subset_newton import SubsetNewtonResult
+    from fgloc.core.model import Result, Survey
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -48,8 +43,10 @@ def describe(result: Result) -> str:
     return "\n".join(lines)
 
 
-def subset_cloud(survey: Survey, outcome: "SubsetNewtonResult") -> tuple:
+def subset_cloud(survey: Survey, outcome: SubsetNewtonResult) -> tuple:
     """The baseline's subset solutions as ``(node_ids, positions, node_index, mean)`` for Rerun."""
+    import numpy as np
+
     mean = np.full((len(survey.node_ids), 3), np.nan)
     for j, nid in enumerate(survey.node_ids):
         if nid in outcome.result.nodes:
@@ -59,11 +56,14 @@ def subset_cloud(survey: Survey, outcome: "SubsetNewtonResult") -> tuple:
 
 
 def run(args: argparse.Namespace) -> int:
+    from fgloc.files.survey_result import read_survey, write_result
+    from fgloc.solve.joint import solve_survey
+
     survey = read_survey(args.survey)
     recorder = None
     subsets = None
     if args.method == "subset-newton":
-        from fgloc.subset_newton import SubsetNewtonOptions, solve_subset_newton
+        from fgloc.baselines.subset_newton import SubsetNewtonOptions, solve_subset_newton
 
         outcome = solve_subset_newton(
             survey, SubsetNewtonOptions(subset_size=args.subset_size, n_subsets=args.subsets, seed=args.seed)
@@ -74,7 +74,7 @@ def run(args: argparse.Namespace) -> int:
         subsets = subset_cloud(survey, outcome)
     else:
         if args.rerun:
-            from fgloc.viz import IterationRecorder  # rerun is imported only when asked for
+            from fgloc.viz.rerun_log import IterationRecorder  # rerun is imported only when asked for
 
             recorder = IterationRecorder(survey)
         result = solve_survey(survey, on_iteration=recorder)
@@ -82,7 +82,7 @@ def run(args: argparse.Namespace) -> int:
     print(describe(result))
     print(f"wrote {args.output}")
     if args.rerun:
-        from fgloc.viz import camera_covariances_or_none, write_rrd
+        from fgloc.viz.rerun_log import camera_covariances_or_none, write_rrd
 
         write_rrd(args.rerun, result, survey, recorder=recorder, subsets=subsets,
                   camera_covariances=camera_covariances_or_none(survey, result) if subsets is None else None)

@@ -5,10 +5,12 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from typing import TYPE_CHECKING
 
-from fgloc.model import FglocError
-from fgloc.rig_config import load_rig
-from fgloc.survey_runner import BatchEstimator, IncrementalEstimator, LiveEstimate, Progress, format_estimate, format_progress
+from fgloc.core.errors import FglocError
+
+if TYPE_CHECKING:
+    from fgloc.survey.runner import LiveEstimate, Progress
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -41,6 +43,8 @@ class _ProgressLine:
     def __call__(self, p: Progress) -> None:
         if not self.enabled:
             return
+        from fgloc.survey.runner import format_progress
+
         line = format_progress(p)
         if self.tty:
             now = time.monotonic()
@@ -55,7 +59,13 @@ class _ProgressLine:
 
 
 def run(args: argparse.Namespace) -> int:
-    from fgloc.survey_session import run_survey
+    from fgloc.files.rig_config import load_rig
+    from fgloc.survey.runner import (
+        BatchEstimator,
+        IncrementalEstimator,
+        format_estimate,
+    )
+    from fgloc.survey.session import run_survey
 
     if args.live_every < 1:
         raise FglocError(f"--live-every must be >= 1, got {args.live_every}")
@@ -67,7 +77,7 @@ def run(args: argparse.Namespace) -> int:
 
     recording = None
     if args.rerun:
-        from fgloc import viz  # rerun only when asked
+        import fgloc.viz.rerun_log as viz  # rerun only when asked
 
         recording = viz.open_recording(args.rerun)
         logger = viz.SurveyLogger(recording)

@@ -6,8 +6,7 @@ import argparse
 import tempfile
 from pathlib import Path
 
-from fgloc.files import read_result, read_survey
-from fgloc.model import FglocError
+from fgloc.core.errors import FglocError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -25,7 +24,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from fgloc import viz  # rerun is imported only by this command
+    import fgloc.viz.rerun_log as viz  # rerun is imported only by this command
+    from fgloc.files.survey_result import read_result, read_survey
 
     result = read_result(args.result)
     survey = read_survey(args.survey) if args.survey else None

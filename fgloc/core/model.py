@@ -1,0 +1,169 @@
+"""Survey and result data model: small dataclasses, no I/O.
+
+Frames and units follow ``shared/spec/survey-format.md`` (version 1): angles in
+radians, positions in the gauge frame (planar: nodes on z = 0, origin camera
+above (0, 0), baseline camera above (1, 0)).
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass, field
+from functools import cached_property
+
+import numpy as np
+
+from fgloc.core.errors import FglocError
+from fgloc.core.geometry import FloatArray
+
+
+class NodeMode(str, enum.Enum):
+    """Whether nodes are constrained to the ground plane z = 0 or free in 3D."""
+
+    PLANAR = "planar"
+    THREE_D = "3d"
+
+    @property
+    def position_dim(self) -> int:
+        """Dimension of a node's estimated position (2 for planar, 3 for 3d)."""
+        return 2 if self is NodeMode.PLANAR else 3
+
+
+@dataclass(frozen=True)
+class Gauge:
+    """The two cameras that fix the normalized frame (see the spec's Gauge section)."""
+
+    origin: str
+    baseline: str
+
+
+@dataclass(frozen=True)
+class CameraPose:
+    """A camera base: position ``c`` (world, 3,) and rotation ``R`` (base -> world, 3x3)."""
+
+    position: FloatArray
+    rotation: FloatArray
+
+
+@dataclass(frozen=True)
+class Observation:
+    """One (pan, tilt) reading in radians of ``node`` by ``camera``.
+
+    ``sigma`` (radians) overrides the survey's default noise when not None.
+    ``subset`` (optional, >= 0) tags a reading taken for one subset of a
+    re-measured survey (the subset-Newton baseline solves each tag on its own
+    readings; every other solver ignores it).
+    """
+
+    camera: str
+    node: str
+    pan: float
+    tilt: float
+    sigma: float | None = None
+    subset: int | None = None
+
+
+@dataclass(frozen=True)
+class ObservationTable:
+    """Observations as parallel arrays (indices into the survey's id lists)."""
+
+    camera_index: np.ndarray  # (M,) int
+    node_index: np.ndarray  # (M,) int
+    pan: FloatArray  # (M,) radians
+    tilt: FloatArray  # (M,) radians
+    sigma: FloatArray  # (M,) radians, default already applied
+
+    def __len__(self) -> int:
+        return int(self.pan.shape[0])
+
+
+@dataclass
+class Truth:
+    """Ground truth of a simulated survey, in the gauge frame. Solvers never read it."""
+
+    cameras: dict[str, CameraPose]
+    nodes: dict[str, FloatArray]
+
+
+@dataclass
+class Survey:
+    """A survey: cameras, nodes and their pan-tilt observations."""
+
+    mode: NodeMode
+    gauge: Gauge
+    sigma: float
+    camera_ids: list[str]
+    node_ids: list[str]
+    observations: list[Observation]
+    truth: Truth | None = None
+
+    @cached_property
+    def observation_table(self) -> ObservationTable:
+        """The observations as arrays; computed once (treat the survey as immutable)."""
+        cam_index = {c: i for i, c in enumerate(self.camera_ids)}
+        node_index = {n: i for i, n in enumerate(self.node_ids)}
+        obs = self.observations
+        return ObservationTable(
+            camera_index=np.array([cam_index[o.camera] for o in obs], dtype=np.int64),
+            node_index=np.array([node_index[o.node] for o in obs], dtype=np.int64),
+            pan=np.array([o.pan for o in obs], dtype=float),
+            tilt=np.array([o.tilt for o in obs], dtype=float),
+            sigma=np.array([self.sigma if o.sigma is None else o.sigma for o in obs], dtype=float),
+        )
+
+    def truth_node_array(self) -> FloatArray:
+        """True node positions (N, 3) in ``node_ids`` order. Raises if there is no truth."""
+        if self.truth is None:
+            raise FglocError("survey has no truth")
+        return np.array([self.truth.nodes[n] for n in self.node_ids], dtype=float)
+
+
+@dataclass(frozen=True)
+class NodeEstimate:
+    """A localized node: position (3,) in the gauge frame and its marginal covariance.
+
+    ``covariance`` is 2x2 over (x, y) for planar surveys, 3x3 for 3d surveys.
+    """
+
+    position: FloatArray
+    covariance: FloatArray
+
+
+@dataclass(frozen=True)
+class FlaggedObservation:
+    """A reading whose residual is implausible under the noise model.
+
+    ``whitened_residual`` is the square root of the deletion residual's
+    Mahalanobis norm (chi-square, 2 dof, for a good reading), or inf when the
+    reading's node could not be placed without it.
+    """
+
+    camera: str
+    node: str
+    index: int  # position in Survey.observations
+    whitened_residual: float  # norm of the 2-vector residual / sigma
+
+
+@dataclass
+class SolveStats:
+    """What the optimizer did: iterations, costs and wall time per stage (seconds)."""
+
+    method: str
+    iterations: int
+    initial_error: float
+    final_error: float
+    converged: bool
+    stage_seconds: dict[str, float] = field(default_factory=dict)
+    error_history: list[float] = field(default_factory=list)
+
+
+@dataclass
+class Result:
+    """A solved survey in the gauge frame."""
+
+    mode: NodeMode
+    nodes: dict[str, NodeEstimate]
+    cameras: dict[str, CameraPose]
+    unlocalized: dict[str, str] = field(default_factory=dict)
+    flagged: list[FlaggedObservation] = field(default_factory=list)
+    stats: SolveStats | None = None

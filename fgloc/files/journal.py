@@ -1,0 +1,405 @@
+"""Append-only survey journal (JSON Lines) that survives being killed at any moment.
+
+A journal is the primary record of a survey; ``survey.json`` is derived from it
+(:func:`journal_to_survey`). Each line is one JSON object with a ``"type"``:
+
+* ``header`` (first line, exactly once): ``format``, ``version``, the survey's
+  ``nodes`` mode, ``gauge``, ``sigma`` (radians), ``camera_ids``, ``node_ids``,
+  ``rig_hash`` (sha256 of the rig configuration) and free-form ``meta``.
+* ``node_started`` ``{node}``: the node's LED is about to be lit.
+* ``observation`` ``{node, camera, index, pan, tilt[, sigma]}``: one reading in
+  radians (spec convention). ``(node, camera, index)`` is its identity:
+  ``index`` counts a camera's readings of that node from 0.
+* ``not_found`` ``{node, camera, reason}``: the camera gave up on the node.
+* ``led_failed`` ``{node, reason}``: the node never acknowledged the LED command.
+* ``node_done`` ``{node}``: every camera has a final outcome for the node.
+* ``truth`` ``{cameras, nodes}``: ground truth of a simulated survey (gauge frame).
+
+Every record is written with one ``os.write`` of a complete line, then
+``os.fsync``. A torn last line (power loss or kill mid-write) has no trailing
+newline: readers ignore it and writers truncate it before appending, so earlier
+records are never lost. Replay is idempotent: a repeated observation key, a
+repeated ``not_found`` or ``node_done`` is ignored, so a survey killed between
+recording an observation and marking its node done resumes without loss or
+duplication. All records also carry ``t``, the wall-clock time (Unix seconds).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from fgloc.core.errors import FglocError
+from fgloc.core.model import CameraPose, Gauge, NodeMode, Observation, Survey, Truth
+
+JOURNAL_FORMAT = "fgloc-journal"
+JOURNAL_VERSION = 1
+
+
+class JournalError(FglocError):
+    """A journal that cannot be read or appended to as asked."""
+
+
+@dataclass(frozen=True)
+class JournalHeader:
+    """Survey metadata recorded once at the top of a journal. ``sigma`` in radians."""
+
+    mode: NodeMode
+    gauge: Gauge
+    sigma: float
+    camera_ids: list[str]
+    node_ids: list[str]
+    rig_hash: str = ""
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    def to_record(self) -> dict[str, Any]:
+        return {
+            "type": "header",
+            "format": JOURNAL_FORMAT,
+            "version": JOURNAL_VERSION,
+            "nodes": self.mode.value,
+            "gauge": {"origin": self.gauge.origin, "baseline": self.gauge.baseline},
+            "sigma": self.sigma,
+            "camera_ids": list(self.camera_ids),
+            "node_ids": list(self.node_ids),
+            "rig_hash": self.rig_hash,
+            "meta": self.meta,
+        }
+
+
+ObservationKey = tuple[str, str, int]  # (node, camera, index)
+
+
+@dataclass(frozen=True)
+class JournalObservation:
+    """An observation with its identity within the survey."""
+
+    node: str
+    camera: str
+    index: int
+    pan: float
+    tilt: float
+    sigma: float | None = None
+
+    @property
+    def key(self) -> ObservationKey:
+        return (self.node, self.camera, self.index)
+
+    def to_observation(self) -> Observation:
+        return Observation(camera=self.camera, node=self.node, pan=self.pan, tilt=self.tilt, sigma=self.sigma)
+
+
+@dataclass
+class JournalState:
+    """Everything a journal says, replayed idempotently (first record of a key wins)."""
+
+    header: JournalHeader
+    observations: dict[ObservationKey, JournalObservation] = field(default_factory=dict)
+    started: list[str] = field(default_factory=list)  # nodes in order first started
+    done: set[str] = field(default_factory=set)
+    led_failed: dict[str, str] = field(default_factory=dict)
+    not_found: dict[tuple[str, str], str] = field(default_factory=dict)  # (node, camera) -> reason
+    truth: Truth | None = None
+    records: int = 0
+    torn_tail_bytes: int = 0
+    duplicates_ignored: int = 0
+    # Indexes kept by add_observation (constant-time lookups for long surveys).
+    _by_pair: dict[tuple[str, str], list[JournalObservation]] = field(default_factory=dict, repr=False)
+    _last: dict[str, JournalObservation] = field(default_factory=dict, repr=False)
+    _cameras_of: dict[str, set[str]] = field(default_factory=dict, repr=False)
+
+    def add_observation(self, obs: JournalObservation) -> bool:
+        """Record a reading unless its key is known (replay is idempotent); True when added."""
+        if obs.key in self.observations:
+            self.duplicates_ignored += 1
+            return False
+        self.observations[obs.key] = obs
+        self._by_pair.setdefault((obs.node, obs.camera), []).append(obs)
+        self._last[obs.camera] = obs
+        self._cameras_of.setdefault(obs.node, set()).add(obs.camera)
+        return True
+
+    def observations_of(self, node: str, camera: str) -> list[JournalObservation]:
+        """This camera's readings of this node, by index."""
+        return sorted(self._by_pair.get((node, camera), []), key=lambda o: o.index)
+
+    def nodes_seen_by(self, n_cameras: int) -> int:
+        """How many nodes have readings from at least ``n_cameras`` cameras."""
+        return sum(1 for cams in self._cameras_of.values() if len(cams) >= n_cameras)
+
+    def camera_finished(self, node: str, camera: str, repeats: int) -> bool:
+        """True when the camera has a final outcome for the node (all readings or gave up)."""
+        return (node, camera) in self.not_found or len(self.observations_of(node, camera)) >= repeats
+
+    def last_observation(self, camera: str) -> JournalObservation | None:
+        """The camera's most recent reading in journal order (None before the first)."""
+        return self._last.get(camera)
+
+    def ordered_observations(self) -> list[JournalObservation]:
+        """Canonical order: node as in ``node_ids``, then camera as in ``camera_ids``, then index.
+
+        Independent of thread timing and of how often the survey was resumed.
+        """
+        node_rank = {n: i for i, n in enumerate(self.header.node_ids)}
+        cam_rank = {c: i for i, c in enumerate(self.header.camera_ids)}
+        return sorted(self.observations.values(), key=lambda o: (node_rank[o.node], cam_rank[o.camera], o.index))
+
+
+def rig_hash(config: Any) -> str:
+    """sha256 of a JSON-serializable configuration in canonical form (sorted keys)."""
+    text = json.dumps(config, sort_keys=True, separators=(",", ":"), allow_nan=False)
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()
+
+
+def _finite(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+class _Parser:
+    """Turns journal lines into a :class:`JournalState`, naming ``file:line`` on errors."""
+
+    def __init__(self, path: str) -> None:
+        self.path = path
+
+    def fail(self, line: int, problem: str) -> JournalError:
+        return JournalError(f"{self.path}: line {line}: {problem}")
+
+    def header(self, rec: dict, line: int) -> JournalHeader:
+        if rec.get("type") != "header":
+            raise self.fail(line, f"first record must be the header, got type {rec.get('type')!r}")
+        if rec.get("format") != JOURNAL_FORMAT:
+            raise self.fail(line, f"format: expected {JOURNAL_FORMAT!r}, got {rec.get('format')!r}")
+        if rec.get("version") != JOURNAL_VERSION:
+            raise self.fail(line, f"version: unsupported {rec.get('version')!r}")
+        try:
+            mode = NodeMode(rec["nodes"])
+            gauge = Gauge(origin=str(rec["gauge"]["origin"]), baseline=str(rec["gauge"]["baseline"]))
+            sigma = float(rec["sigma"])
+            camera_ids = [str(c) for c in rec["camera_ids"]]
+            node_ids = [str(n) for n in rec["node_ids"]]
+        except (KeyError, TypeError, ValueError) as exc:
+            raise self.fail(line, f"header: missing or bad field {exc}") from None
+        return JournalHeader(mode, gauge, sigma, camera_ids, node_ids, str(rec.get("rig_hash", "")), dict(rec.get("meta") or {}))
+
+    def apply(self, state: JournalState, rec: dict, line: int) -> None:
+        kind = rec.get("type")
+        cams, nodes = set(state.header.camera_ids), set(state.header.node_ids)
+        node = rec.get("node")
+        if kind in ("node_started", "observation", "not_found", "led_failed", "node_done") and node not in nodes:
+            raise self.fail(line, f"{kind}.node: unknown node {node!r}")
+        if kind in ("observation", "not_found") and rec.get("camera") not in cams:
+            raise self.fail(line, f"{kind}.camera: unknown camera {rec.get('camera')!r}")
+        if kind == "node_started":
+            if node not in state.started:
+                state.started.append(node)
+        elif kind == "observation":
+            for name in ("pan", "tilt"):
+                if not _finite(rec.get(name)):
+                    raise self.fail(line, f"observation.{name}: expected a finite number, got {rec.get(name)!r}")
+            index = rec.get("index")
+            if not isinstance(index, int) or isinstance(index, bool) or index < 0:
+                raise self.fail(line, f"observation.index: expected an integer >= 0, got {index!r}")
+            sigma = rec.get("sigma")
+            if sigma is not None and not (_finite(sigma) and sigma > 0):
+                raise self.fail(line, f"observation.sigma: expected a number > 0, got {sigma!r}")
+            state.add_observation(JournalObservation(node, rec["camera"], index, float(rec["pan"]),
+                                                     float(rec["tilt"]), None if sigma is None else float(sigma)))
+        elif kind == "not_found":
+            state.not_found.setdefault((node, rec["camera"]), str(rec.get("reason", "")))
+        elif kind == "led_failed":
+            state.led_failed.setdefault(node, str(rec.get("reason", "")))
+        elif kind == "node_done":
+            state.done.add(node)
+        elif kind == "truth":
+            try:
+                state.truth = Truth(
+                    cameras={k: CameraPose(np.array(v["position"], float), np.array(v["rotation"], float))
+                             for k, v in rec["cameras"].items()},
+                    nodes={k: np.array(v, float) for k, v in rec["nodes"].items()},
+                )
+            except (KeyError, TypeError, ValueError) as exc:
+                raise self.fail(line, f"truth: bad field {exc}") from None
+        elif kind == "header":
+            raise self.fail(line, "a second header record")
+        # Unknown record types are ignored (forward compatibility), like unknown fields.
+
+
+def _split_complete(data: bytes) -> tuple[list[bytes], int]:
+    """Complete lines and the length in bytes of the torn tail (no trailing newline)."""
+    end = data.rfind(b"\n") + 1
+    return data[:end].splitlines(), len(data) - end
+
+
+def read_journal(path: str | os.PathLike[str]) -> JournalState:
+    """Replay a journal. A torn last line is ignored; any other bad line is a :class:`JournalError`."""
+    p = Path(path)
+    try:
+        data = p.read_bytes()
+    except FileNotFoundError:
+        raise JournalError(f"{path}: file not found") from None
+    except OSError as exc:
+        raise JournalError(f"{path}: cannot read: {exc.strerror or exc}") from None
+    lines, torn = _split_complete(data)
+    parser = _Parser(str(path))
+    state: JournalState | None = None
+    for number, raw in enumerate(lines, start=1):
+        if not raw.strip():
+            continue
+        try:
+            rec = json.loads(raw)
+        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+            raise parser.fail(number, f"not valid JSON ({exc})") from None
+        if not isinstance(rec, dict):
+            raise parser.fail(number, "record is not a JSON object")
+        if state is None:
+            state = JournalState(header=parser.header(rec, number))
+        else:
+            parser.apply(state, rec, number)
+        state.records += 1
+    if state is None:
+        raise JournalError(f"{path}: no complete header record (empty or torn journal)")
+    state.torn_tail_bytes = torn
+    return state
+
+
+def journal_to_survey(state: JournalState) -> Survey:
+    """The survey a journal records: every distinct observation, in canonical order, plus truth."""
+    h = state.header
+    return Survey(
+        mode=h.mode,
+        gauge=h.gauge,
+        sigma=h.sigma,
+        camera_ids=list(h.camera_ids),
+        node_ids=list(h.node_ids),
+        observations=[o.to_observation() for o in state.ordered_observations()],
+        truth=state.truth,
+    )
+
+
+class JournalWriter:
+    """Appends records durably; thread-safe (camera threads share one writer).
+
+    Open with :meth:`create` for a new survey or :meth:`open_existing` to resume.
+    """
+
+    def __init__(self, path: Path, fd: int) -> None:
+        self.path = path
+        self._fd = fd
+        self._lock = threading.Lock()
+
+    @classmethod
+    def create(cls, path: str | os.PathLike[str], header: JournalHeader) -> JournalWriter:
+        """Start a new journal; refuses to overwrite one that holds a header."""
+        p = Path(path)
+        p.parent.mkdir(parents=True, exist_ok=True)
+        if p.exists() and p.stat().st_size > 0:
+            try:
+                read_journal(p)
+            except JournalError:
+                pass  # torn or garbage-only header from a kill during creation: start over
+            else:
+                raise JournalError(f"{p}: journal already exists (use --resume to continue it)")
+        fd = os.open(p, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_APPEND, 0o644)
+        writer = cls(p, fd)
+        writer.append(header.to_record())
+        dir_fd = os.open(p.parent, os.O_RDONLY)
+        try:
+            os.fsync(dir_fd)
+        finally:
+            os.close(dir_fd)
+        return writer
+
+    @classmethod
+    def open_existing(cls, path: str | os.PathLike[str]) -> tuple[JournalWriter, JournalState]:
+        """Replay a journal and open it for appending, cutting off a torn last line first."""
+        p = Path(path)
+        state = read_journal(p)
+        fd = os.open(p, os.O_WRONLY | os.O_APPEND)
+        if state.torn_tail_bytes:
+            os.ftruncate(fd, p.stat().st_size - state.torn_tail_bytes)
+            os.fsync(fd)
+        return cls(p, fd), state
+
+    def append(self, record: dict[str, Any]) -> None:
+        """Write one record as a complete line, then fsync."""
+        rec = {"t": round(time.time(), 3)} | record
+        line = (json.dumps(rec, allow_nan=False, separators=(",", ":")) + "\n").encode("utf-8")
+        with self._lock:
+            view = memoryview(line)
+            while view:
+                written = os.write(self._fd, view)
+                view = view[written:]
+            os.fsync(self._fd)
+
+    def node_started(self, node: str) -> None:
+        self.append({"type": "node_started", "node": node})
+
+    def observation(self, obs: JournalObservation) -> None:
+        rec: dict[str, Any] = {"type": "observation", "node": obs.node, "camera": obs.camera,
+                               "index": obs.index, "pan": obs.pan, "tilt": obs.tilt}
+        if obs.sigma is not None:
+            rec["sigma"] = obs.sigma
+        self.append(rec)
+
+    def not_found(self, node: str, camera: str, reason: str) -> None:
+        self.append({"type": "not_found", "node": node, "camera": camera, "reason": reason})
+
+    def led_failed(self, node: str, reason: str) -> None:
+        self.append({"type": "led_failed", "node": node, "reason": reason})
+
+    def node_done(self, node: str) -> None:
+        self.append({"type": "node_done", "node": node})
+
+    def truth(self, truth: Truth) -> None:
+        self.append({
+            "type": "truth",
+            "cameras": {k: {"position": [float(x) for x in v.position],
+                            "rotation": np.asarray(v.rotation, float).tolist()} for k, v in truth.cameras.items()},
+            "nodes": {k: [float(x) for x in v] for k, v in truth.nodes.items()},
+        })
+
+    def close(self) -> None:
+        with self._lock:
+            if self._fd >= 0:
+                os.close(self._fd)
+                self._fd = -1
+
+    def __enter__(self) -> JournalWriter:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def survey_to_journal(survey: Survey, path: str | os.PathLike[str], rig_hash_value: str = "") -> None:
+    """Write a complete survey as a journal (every node started, observed and done).
+
+    With :func:`journal_to_survey` this is the identity on surveys whose
+    observations are in canonical order and hold at most one reading per
+    (camera, node) index, i.e. the conversion is lossless.
+    """
+    header = JournalHeader(survey.mode, survey.gauge, survey.sigma, list(survey.camera_ids),
+                           list(survey.node_ids), rig_hash_value)
+    counts: dict[tuple[str, str], int] = {}
+    with JournalWriter.create(path, header) as w:
+        if survey.truth is not None:
+            w.truth(survey.truth)
+        by_node: dict[str, list[Observation]] = {}
+        for o in survey.observations:
+            by_node.setdefault(o.node, []).append(o)
+        for node in survey.node_ids:
+            w.node_started(node)
+            for o in by_node.get(node, []):
+                k = counts.get((o.node, o.camera), 0)
+                counts[(o.node, o.camera)] = k + 1
+                w.observation(JournalObservation(o.node, o.camera, k, o.pan, o.tilt, o.sigma))
+            w.node_done(node)

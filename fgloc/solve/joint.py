@@ -1,0 +1,567 @@
+"""The joint solve: every pan-tilt reading is a factor in one GTSAM graph.
+
+Variables: one ``Pose3`` per camera base (key ``c<i>``, i = index in
+``Survey.camera_ids``) and one node position per observed node (key ``l<j>``,
+j = index in ``Survey.node_ids``): ``Point2`` on z = 0 for planar surveys,
+``Point3`` for 3d surveys. The :class:`~factors.BaselinePrior` pins the gauge.
+
+The initial estimate comes from the bearings alone
+(:mod:`fgloc.init.planar`), the optimizer is Levenberg-Marquardt
+(:mod:`fgloc.solve.levenberg_marquardt`), and the marginal covariances come from
+``gtsam.Marginals`` on the final linearization. Camera pose covariances are
+6x6 in GTSAM's body-frame tangent ``[omega, v]``.
+"""
+
+from __future__ import annotations
+
+import enum
+import re
+import time
+from dataclasses import dataclass, field, replace
+
+import gtsam
+import numpy as np
+
+from fgloc.core.errors import FglocError
+from fgloc.core.geometry import bearing_pan_tilt, pan_tilt_bearing, pan_tilt_jacobian, pan_tilt_residual
+from fgloc.core.model import CameraPose, FlaggedObservation, NodeEstimate, NodeMode, Result, SolveStats, Survey
+from fgloc.factors.baseline_prior import BaselinePrior
+from fgloc.factors.pan_tilt_batch import PanTiltFactorSet
+from fgloc.init.planar import InitialEstimate, consensus_ground_point, ground_hits, initialize_planar
+from fgloc.init.three_d import initialize_3d
+from fgloc.solve.levenberg_marquardt import IterationCallback, LMOutcome, LMParams, levenberg_marquardt
+from fgloc.solve.schur_marginals import node_marginals
+
+camera_key = gtsam.symbol_shorthand.C
+node_key = gtsam.symbol_shorthand.L
+
+
+class SolveError(FglocError):
+    """The survey cannot be solved as given."""
+
+
+class RobustKernel(str, enum.Enum):
+    """Noise model of the pan-tilt factors. AUTO: Cauchy when RANSAC found outliers, else Gaussian."""
+
+    AUTO = "auto"
+    NONE = "none"
+    HUBER = "huber"
+    CAUCHY = "cauchy"
+
+
+#: chi-square quantile (2 dof) above which a reading's squared whitened residual is
+#: implausible: P = 1 - 1e-6 (about 5.3 sigma), so clean surveys lose no readings
+#: while gross detection errors (degrees, i.e. tens of sigma) stand out.
+FLAG_CHI2 = 2.0 * np.log(1e6)
+
+
+@dataclass(frozen=True)
+class SolverOptions:
+    """Settings of the joint solve."""
+
+    lm: LMParams = LMParams()
+    compute_marginals: bool = True
+    robust: RobustKernel = RobustKernel.AUTO
+    #: Kernel width in whitened units (multiples of sigma).
+    robust_scale: float = 3.0
+    #: Flag readings whose squared whitened residual exceeds this after the solve.
+    flag_chi2: float = FLAG_CHI2
+    #: Sigma of the gauge priors in baseline units; None scales it to the problem
+    #: (see :func:`auto_gauge_sigma`).
+    gauge_sigma: float | None = None
+
+
+def auto_gauge_sigma(survey: Survey, initial: InitialEstimate) -> float:
+    """A gauge sigma 1e-3 times a typical node standard deviation (sigma x camera range).
+
+    Small enough that the gauge leaks ~1e-6 (relative) into the marginals, large
+    enough that Cholesky stays well conditioned when cameras stand far away or
+    high above a short baseline. The positions do not depend on it.
+    """
+    table = survey.observation_table
+    ranges = []
+    for cid, cam in initial.cameras.items():
+        i = survey.camera_ids.index(cid)
+        js = np.unique(table.node_index[table.camera_index == i])
+        pts = [initial.nodes[survey.node_ids[j]] for j in js if survey.node_ids[j] in initial.nodes]
+        if pts:
+            ranges.append(np.linalg.norm(np.asarray(pts) - cam.position, axis=1))
+    typical_range = float(np.median(np.concatenate(ranges))) if ranges else 1.0
+    return float(max(1e-3 * np.median(table.sigma) * typical_range, 1e-9))
+
+
+@dataclass
+class LocalizationProblem:
+    """A survey as a factor graph, ready to optimize. Add your own factors to ``graph``.
+
+    ``camera_keys`` / ``node_keys`` map ids to GTSAM keys; ``initial`` holds the
+    starting values of every variable. Nodes without observations have no key.
+    """
+
+    survey: Survey
+    graph: gtsam.NonlinearFactorGraph
+    initial: gtsam.Values
+    camera_keys: dict[str, int]
+    node_keys: dict[str, int]
+    pan_tilt: PanTiltFactorSet
+    #: Index in ``survey.observations`` of each pan-tilt factor, in factor order.
+    observation_index: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    unlocalized: dict[str, str] = field(default_factory=dict)
+
+    def prepare(self, values: gtsam.Values) -> None:
+        """Evaluate the pan-tilt factors at ``values`` in one vectorized pass.
+
+        Call before ``graph.linearize(values)`` or ``graph.error(values)`` for
+        speed; without it the factors compute one reading at a time.
+        """
+        self.pan_tilt.prepare(values)
+
+    def error(self, values: gtsam.Values) -> float:
+        """``graph.error(values)``, with the pan-tilt part summed in one numpy pass.
+
+        Relies on :func:`build_problem` adding the pan-tilt factors first (indices
+        0..len-1); every other factor (gauge, user factors) is evaluated by GTSAM.
+        Falls back to ``graph.error`` when the pan-tilt noise is not plain Gaussian.
+        """
+        pan_tilt = self.pan_tilt.error(values)
+        if pan_tilt is None:
+            return float(self.graph.error(values))
+        rest = sum(self.graph.at(i).error(values) for i in range(len(self.pan_tilt), self.graph.size()))
+        return pan_tilt + float(rest)
+
+    def add_factor(self, factor: gtsam.NonlinearFactor) -> None:
+        """Add a user factor (e.g. a GPS anchor on a node key, a radio range between nodes)."""
+        self.graph.add(factor)
+
+    def elimination_ordering(self) -> gtsam.Ordering:
+        """Nodes first, cameras last: eliminating the many small node blocks first
+        leaves a dense but tiny camera system (a Schur complement)."""
+        ordering = gtsam.Ordering()
+        in_values = set(self.initial.keys())
+        camera_set = set(self.camera_keys.values())
+        for k in sorted(in_values - camera_set):
+            ordering.push_back(k)
+        for k in self.camera_keys.values():
+            ordering.push_back(k)
+        return ordering
+
+
+def _pose3(cam: CameraPose) -> gtsam.Pose3:
+    return gtsam.Pose3(gtsam.Rot3(cam.rotation), np.asarray(cam.position, dtype=float))
+
+
+def _noise_model(sigma: float, kernel: RobustKernel, scale: float) -> gtsam.noiseModel.Base:
+    base = gtsam.noiseModel.Isotropic.Sigma(2, sigma)
+    if kernel is RobustKernel.HUBER:
+        return gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(scale), base)
+    if kernel is RobustKernel.CAUCHY:
+        return gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Cauchy.Create(scale), base)
+    return base
+
+
+def build_problem(
+    survey: Survey,
+    initial: InitialEstimate,
+    options: SolverOptions = SolverOptions(),
+    exclude: frozenset[int] = frozenset(),
+) -> LocalizationProblem:
+    """One factor per observation, the gauge prior, and initial values from ``initial``.
+
+    ``exclude`` lists observation indices to leave out (flagged outliers).
+    Nodes left without observations get no variable. The kernel is
+    ``options.robust`` (AUTO counts as NONE here; :func:`solve_survey` resolves it).
+    """
+    planar = survey.mode is NodeMode.PLANAR
+    graph = gtsam.NonlinearFactorGraph()
+    values = gtsam.Values()
+    table = survey.observation_table
+    kept = np.ones(len(table), dtype=bool)
+    kept[list(exclude)] = False
+    observed = set(np.asarray(survey.node_ids)[table.node_index[kept]].tolist()) if kept.any() else set()
+    camera_keys = {cid: camera_key(i) for i, cid in enumerate(survey.camera_ids) if cid in initial.cameras}
+    node_keys = {nid: node_key(j) for j, nid in enumerate(survey.node_ids) if nid in initial.nodes and nid in observed}
+    for cid, key in camera_keys.items():
+        values.insert(key, _pose3(initial.cameras[cid]))
+    for nid, key in node_keys.items():
+        p = np.asarray(initial.nodes[nid], dtype=float)
+        if planar:
+            values.insert(key, p[:2].copy())
+        else:
+            values.insert(key, p.copy())
+    cam_key_of = np.array([camera_keys.get(c, -1) for c in survey.camera_ids], dtype=np.int64)
+    node_key_of = np.array([node_keys.get(n, -1) for n in survey.node_ids], dtype=np.int64)
+    obs_cam_keys = cam_key_of[table.camera_index]
+    obs_node_keys = node_key_of[table.node_index]
+    used = (obs_cam_keys >= 0) & (obs_node_keys >= 0) & kept
+    kernel = RobustKernel.NONE if options.robust is RobustKernel.AUTO else options.robust
+    noise_cache = {float(s): _noise_model(float(s), kernel, options.robust_scale) for s in np.unique(table.sigma[used])}
+    pan_tilt = PanTiltFactorSet(
+        obs_cam_keys[used],
+        obs_node_keys[used],
+        table.pan[used],
+        table.tilt[used],
+        [noise_cache[float(s)] for s in table.sigma[used]],
+        planar=planar,
+    )
+    for f in pan_tilt.factors:
+        graph.add(f)
+    gauge_sigma = options.gauge_sigma if options.gauge_sigma is not None else auto_gauge_sigma(survey, initial)
+    gauge = BaselinePrior(survey.mode, camera_keys[survey.gauge.origin], camera_keys[survey.gauge.baseline], gauge_sigma)
+    for f in gauge.factors():
+        graph.add(f)
+    return LocalizationProblem(
+        survey=survey,
+        graph=graph,
+        initial=values,
+        camera_keys=camera_keys,
+        node_keys=node_keys,
+        pan_tilt=pan_tilt,
+        observation_index=np.flatnonzero(used),
+        unlocalized=dict(initial.unlocalized),
+    )
+
+
+def initialize(survey: Survey) -> InitialEstimate:
+    """Closed-form initial estimate for the survey's mode."""
+    if survey.mode is NodeMode.PLANAR:
+        return initialize_planar(survey)
+    return initialize_3d(survey)
+
+
+@dataclass
+class Solution:
+    """An optimized problem: the GTSAM values and the result built from them."""
+
+    values: gtsam.Values
+    result: Result
+
+
+def solve(
+    problem: LocalizationProblem,
+    options: SolverOptions = SolverOptions(),
+    on_iteration: IterationCallback | None = None,
+) -> Result:
+    """Optimize a built problem (e.g. one you added factors to) and return the result with marginals."""
+    return solve_problem(problem, options, on_iteration).result
+
+
+def solve_problem(
+    problem: LocalizationProblem,
+    options: SolverOptions = SolverOptions(),
+    on_iteration: IterationCallback | None = None,
+    stage_seconds: dict[str, float] | None = None,
+    start: gtsam.Values | None = None,
+) -> Solution:
+    """Optimize a built problem and collect estimates and (optionally) marginal covariances."""
+    stages = {} if stage_seconds is None else stage_seconds
+    outcome = optimize(problem, options, on_iteration, stages, start)
+    return Solution(values=outcome.values, result=collect_result(problem, outcome, options, stages))
+
+
+def optimize(
+    problem: LocalizationProblem,
+    options: SolverOptions = SolverOptions(),
+    on_iteration: IterationCallback | None = None,
+    stage_seconds: dict[str, float] | None = None,
+    start: gtsam.Values | None = None,
+) -> LMOutcome:
+    """Run Levenberg-Marquardt on a built problem from ``start`` (default: its initial values)."""
+    stages = {} if stage_seconds is None else stage_seconds
+    t0 = time.perf_counter()
+    outcome = levenberg_marquardt(
+        problem.graph,
+        problem.initial if start is None else start,
+        problem.elimination_ordering(),
+        options.lm,
+        on_iteration,
+        problem.prepare,
+        problem.error,
+    )
+    stages["optimize"] = stages.get("optimize", 0.0) + time.perf_counter() - t0
+    return outcome
+
+
+def _variable_named_in(message: str, problem: LocalizationProblem) -> str:
+    """The camera or node id GTSAM's indeterminate-system message points at."""
+    match = re.search(r"\(Symbol: ([a-z])(\d+)\)", message)
+    if match is None:
+        return "every variable"
+    index = int(match.group(2))
+    if match.group(1) == "c" and index < len(problem.survey.camera_ids):
+        return f"camera {problem.survey.camera_ids[index]}"
+    if match.group(1) == "l" and index < len(problem.survey.node_ids):
+        return f"node {problem.survey.node_ids[index]}"
+    return "every variable"
+
+
+def collect_result(
+    problem: LocalizationProblem,
+    outcome: LMOutcome,
+    options: SolverOptions = SolverOptions(),
+    stage_seconds: dict[str, float] | None = None,
+) -> Result:
+    """Estimates at the optimizer's values, with marginal covariances when asked."""
+    stages = {} if stage_seconds is None else stage_seconds
+    values = outcome.values
+    survey = problem.survey
+    planar = survey.mode is NodeMode.PLANAR
+    covariances: dict[str, np.ndarray] = {}
+    if options.compute_marginals:
+        t0 = time.perf_counter()
+        try:
+            problem.prepare(values)
+            linear = problem.graph.linearize(values)
+            # Batched Schur-complement marginals (fgloc.solve.schur_marginals); None when a
+            # factor couples two nodes, then GTSAM's per-key Marginals. If the batched
+            # Cholesky fails, GTSAM runs too, to name the undetermined variable.
+            try:
+                fast = node_marginals(linear, values.dims(), list(problem.node_keys.values()))
+            except np.linalg.LinAlgError:
+                fast = None
+            if fast is not None:
+                covariances = {nid: fast[key] for nid, key in problem.node_keys.items()}
+            else:
+                marginals = gtsam.Marginals(linear, values)
+                covariances = {nid: marginals.marginalCovariance(key) for nid, key in problem.node_keys.items()}
+        except RuntimeError as exc:
+            raise SolveError(
+                "marginal covariances are undefined: the readings do not determine "
+                f"{_variable_named_in(str(exc), problem)} (too few or degenerate readings, "
+                "or gauge cameras on one vertical)"
+            ) from None
+        stages["marginals"] = stages.get("marginals", 0.0) + time.perf_counter() - t0
+    nodes: dict[str, NodeEstimate] = {}
+    for nid, key in problem.node_keys.items():
+        p = values.atPoint2(key) if planar else values.atPoint3(key)
+        position = np.array([p[0], p[1], 0.0]) if planar else np.asarray(p, dtype=float)
+        dim = 2 if planar else 3
+        cov = covariances.get(nid, np.full((dim, dim), np.nan))
+        nodes[nid] = NodeEstimate(position=position, covariance=np.asarray(cov, dtype=float))
+    cameras = {}
+    for cid, key in problem.camera_keys.items():
+        pose = values.atPose3(key)
+        cameras[cid] = CameraPose(position=np.asarray(pose.translation(), float), rotation=pose.rotation().matrix())
+    stats = SolveStats(
+        method="joint",
+        iterations=outcome.iterations,
+        initial_error=outcome.error_history[0],
+        final_error=outcome.error_history[-1],
+        converged=outcome.converged,
+        stage_seconds=stages,
+        error_history=outcome.error_history,
+    )
+    return Result(mode=survey.mode, nodes=nodes, cameras=cameras, unlocalized=dict(problem.unlocalized), stats=stats)
+
+
+def estimate_from_values(problem: LocalizationProblem, values: gtsam.Values) -> InitialEstimate:
+    """The problem's current values as an :class:`InitialEstimate` (gauge frame)."""
+    planar = problem.survey.mode is NodeMode.PLANAR
+    cameras = {}
+    for cid, key in problem.camera_keys.items():
+        pose = values.atPose3(key)
+        cameras[cid] = CameraPose(np.asarray(pose.translation(), float), pose.rotation().matrix())
+    nodes = {}
+    for nid, key in problem.node_keys.items():
+        p = values.atPoint2(key) if planar else values.atPoint3(key)
+        nodes[nid] = np.array([p[0], p[1], 0.0]) if planar else np.asarray(p, float)
+    return InitialEstimate(cameras=cameras, nodes=nodes, unlocalized=dict(problem.unlocalized))
+
+
+def _flag(
+    problem: LocalizationProblem, values: gtsam.Values, options: SolverOptions
+) -> tuple[list[FlaggedObservation], dict[str, str]]:
+    """Readings with an implausible residual, and nodes whose readings cannot be told apart.
+
+    A node read exactly twice (planar: either reading alone places it; 3d: two
+    readings are the minimum) cannot say which of its two readings is wrong:
+    both are flagged and the node is reported unlocalized rather than guessed.
+    """
+    survey = problem.survey
+    obs_index = problem.observation_index
+    included = np.zeros(len(survey.observations), dtype=bool)
+    included[obs_index] = True
+    m2 = deletion_residuals(survey, estimate_from_values(problem, values), included)[obs_index]
+    r = np.sqrt(m2)
+    bad = m2 > options.flag_chi2
+    node_of = survey.observation_table.node_index[obs_index]
+    counts = np.bincount(node_of, minlength=len(survey.node_ids))
+    ambiguous_nodes = set(node_of[bad & (counts[node_of] <= 2)].tolist())
+    bad |= np.isin(node_of, list(ambiguous_nodes))
+    flagged = [
+        FlaggedObservation(
+            camera=survey.observations[k].camera,
+            node=survey.observations[k].node,
+            index=int(k),
+            whitened_residual=float(r[i]),
+        )
+        for i, k in enumerate(obs_index)
+        if bad[i]
+    ]
+    reasons = {
+        survey.node_ids[j]: "its two readings disagree (a gross error in one of them) and cannot be told apart"
+        for j in sorted(ambiguous_nodes)
+    }
+    return flagged, reasons
+
+
+#: Rounds of "solve without the flagged readings, re-check all readings".
+MAX_FLAG_ROUNDS = 4
+
+
+def deletion_residuals(survey: Survey, estimate: InitialEstimate, included: np.ndarray) -> np.ndarray:
+    """Squared Mahalanobis norm of every reading's residual with the reading itself left out.
+
+    For reading k of node j: ``r^T S^-1 r`` with ``S = sigma^2 I + J Sigma_j J^T``,
+    where J is d(pan, tilt)/d(node position) and ``Sigma_j`` the node's
+    covariance from its other included readings (cameras held fixed). Under the
+    noise model it is chi-square with 2 degrees of freedom, also where a reading
+    is very sensitive to the node (near the pole, pan moves a lot for a small
+    shift). NaN where the camera or node has no estimate or no other reading
+    determines the node.
+    """
+    t = survey.observation_table
+    dim = survey.mode.position_dim
+    n_obs = len(t)
+    r = np.full((n_obs, 2), np.nan)
+    jac = np.full((n_obs, 2, dim), np.nan)
+    for i, cid in enumerate(survey.camera_ids):
+        cam = estimate.cameras.get(cid)
+        if cam is None:
+            continue
+        rows = np.flatnonzero(t.camera_index == i)
+        have = np.array([survey.node_ids[j] in estimate.nodes for j in t.node_index[rows]], dtype=bool)
+        rows = rows[have]
+        if not len(rows):
+            continue
+        pts = np.array([estimate.nodes[survey.node_ids[j]] for j in t.node_index[rows]])
+        q = (pts - cam.position) @ cam.rotation
+        pan, tilt = bearing_pan_tilt(q)
+        r[rows] = pan_tilt_residual(t.pan[rows], t.tilt[rows], pan, tilt)
+        jac[rows] = (pan_tilt_jacobian(q) @ cam.rotation.T)[:, :, :dim]
+    valid = np.all(np.isfinite(r), axis=1)
+    info = np.zeros((n_obs, dim, dim))
+    info[valid] = np.einsum("mki,mkj->mij", jac[valid], jac[valid]) / t.sigma[valid, None, None] ** 2
+    node_info = np.zeros((len(survey.node_ids), dim, dim))
+    use = valid & included
+    np.add.at(node_info, t.node_index[use], info[use])
+    loo = node_info[t.node_index] - np.where(use[:, None, None], info, 0.0)
+    out = np.full(n_obs, np.nan)
+    k = np.flatnonzero(valid)
+    if not len(k):
+        return out
+    # Batched: eigenvalues tell whether the other readings determine the node.
+    eig = np.linalg.eigvalsh(loo[k])
+    ok = eig[:, 0] > 1e-12 * np.maximum(eig[:, -1], 1e-300)
+    k = k[ok]
+    cov = np.linalg.inv(loo[k])
+    S = t.sigma[k, None, None] ** 2 * np.eye(2) + jac[k] @ cov @ np.transpose(jac[k], (0, 2, 1))
+    out[k] = np.einsum("mi,mi->m", r[k], np.linalg.solve(S, r[k][..., None])[..., 0])
+    return out
+
+
+def _replace_by_consensus(survey: Survey, estimate: InitialEstimate) -> None:
+    t = survey.observation_table
+    cam_ids = survey.camera_ids
+    for j in np.flatnonzero(np.bincount(t.node_index, minlength=len(survey.node_ids)) >= 3):
+        rows = np.flatnonzero(t.node_index == j)
+        rows = rows[[cam_ids[c] in estimate.cameras for c in t.camera_index[rows]]]
+        if len(rows) < 3:
+            continue
+        cams = [estimate.cameras[cam_ids[c]] for c in t.camera_index[rows]]
+        dirs = np.array([c.rotation @ b for c, b in zip(cams, pan_tilt_bearing(t.pan[rows], t.tilt[rows]))])
+        pts, tol, ok = ground_hits(np.array([c.position for c in cams]), dirs, float(np.median(t.sigma[rows])))
+        if ok.sum() >= 3:
+            xy, inliers = consensus_ground_point(pts[ok], tol[ok])
+            if inliers.sum() >= 2:
+                estimate.nodes[survey.node_ids[j]] = np.array([xy[0], xy[1], 0.0])
+
+
+def _reflag(
+    survey: Survey,
+    estimate: InitialEstimate,
+    previous: frozenset[int],
+    ambiguous: dict[str, str],
+    options: SolverOptions,
+) -> tuple[list[FlaggedObservation], dict[str, str]]:
+    """Flag readings implausible under ``estimate``; readings of undecidable nodes stay flagged.
+
+    Planar nodes with three or more readings are first re-placed by consensus of
+    all their readings' ground points under the estimated cameras, so a node the
+    robust solve left at a bad reading's ray is pulled back to where its good
+    readings agree (``estimate`` is updated in place).
+    """
+    t = survey.observation_table
+    if survey.mode is NodeMode.PLANAR:
+        _replace_by_consensus(survey, estimate)
+    included = ~np.isin(np.arange(len(t)), list(previous))
+    m2 = deletion_residuals(survey, estimate, included)
+    r = np.sqrt(m2)
+    amb_idx = {survey.node_ids.index(n) for n in ambiguous}
+    bad = (m2 > options.flag_chi2) | (np.isnan(m2) & ~included)
+    bad |= np.isin(t.node_index, list(amb_idx))
+    flagged = [
+        FlaggedObservation(survey.observations[k].camera, survey.observations[k].node, int(k),
+                           float(r[k]) if np.isfinite(r[k]) else float("inf"))
+        for k in np.flatnonzero(bad)
+    ]
+    return flagged, ambiguous
+
+
+def solve_survey(
+    survey: Survey, options: SolverOptions = SolverOptions(), on_iteration: IterationCallback | None = None
+) -> Result:
+    """Initialize from the bearings, optimize, flag implausible readings, and compute marginals.
+
+    1. Closed-form start (RANSAC inside). 2. Levenberg-Marquardt, with a Cauchy
+    kernel when the start found outliers (``RobustKernel.AUTO``) or as asked.
+    3. Flag readings whose whitened residual is implausible (chi-square, 2 dof);
+    if a Gaussian solve flags any, re-solve robustly and flag again. 4. When
+    anything was flagged or a kernel was used, a final Gaussian solve without
+    the flagged readings gives the estimates and honest marginal covariances.
+    Flagged readings are listed in ``Result.flagged``, never silently dropped.
+    """
+    stages: dict[str, float] = {}
+    t0 = time.perf_counter()
+    init = initialize(survey)
+    stages["initialize"] = time.perf_counter() - t0
+    kernel = options.robust
+    if kernel is RobustKernel.AUTO:
+        kernel = RobustKernel.CAUCHY if init.suspected_outliers > 0 else RobustKernel.NONE
+    t0 = time.perf_counter()
+    problem = build_problem(survey, init, replace(options, robust=kernel))
+    stages["build"] = time.perf_counter() - t0
+    first = optimize(problem, options, on_iteration, stages)
+    values = first.values
+    flagged, ambiguous = _flag(problem, values, options)
+    if flagged and kernel is RobustKernel.NONE and options.robust is RobustKernel.AUTO:
+        kernel = RobustKernel.CAUCHY
+        problem = build_problem(survey, estimate_from_values(problem, values), replace(options, robust=kernel))
+        values = optimize(problem, options, None, stages).values
+        flagged, ambiguous = _flag(problem, values, options)
+    if not flagged and kernel is RobustKernel.NONE:
+        return collect_result(problem, first, options, stages)
+    start = estimate_from_values(problem, values)
+    robust = replace(options, robust=kernel if kernel is not RobustKernel.NONE else RobustKernel.CAUCHY)
+    for _ in range(MAX_FLAG_ROUNDS):
+        # Re-check every reading, flagged ones included, against a robust solve
+        # without the flagged ones: a misjudged reading is restored, a missed one caught.
+        refl, ambiguous = _reflag(survey, start, frozenset(f.index for f in flagged), ambiguous, options)
+        if {f.index for f in refl} == {f.index for f in flagged}:
+            break
+        flagged = refl
+        loop_problem = build_problem(survey, start, robust, frozenset(f.index for f in flagged))
+        start = estimate_from_values(loop_problem, optimize(loop_problem, options, None, stages).values)
+    exclude = frozenset(f.index for f in flagged)
+    final_problem = build_problem(survey, start, replace(options, robust=RobustKernel.NONE), exclude)
+    final_problem.unlocalized.update(ambiguous)
+    for nid in start.nodes:
+        if nid not in final_problem.node_keys and nid not in final_problem.unlocalized:
+            final_problem.unlocalized[nid] = "all its readings were flagged as outliers"
+    result = solve_problem(final_problem, options, None, stages).result
+    result.flagged = flagged
+    if result.stats is not None:
+        result.stats.method = f"joint ({kernel.value} kernel, then Gaussian without flagged readings)"
+        result.stats.initial_error = first.error_history[0]
+        result.stats.error_history = first.error_history + result.stats.error_history[1:]
+        result.stats.iterations += first.iterations
+    return result

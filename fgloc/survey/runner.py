@@ -1,0 +1,431 @@
+"""Run a survey: light each node's LED, let every camera find and measure it, journal it all.
+
+Per node: ``node_started`` is journaled, the LED is lit (retried; a node that
+never acknowledges is journaled ``led_failed``), every camera that has no final
+outcome for the node yet locates it in parallel (one thread per camera) and
+journals each reading the moment it is taken (fsynced, from the camera's
+thread) or a ``not_found``; then the LED goes off and
+``node_done`` is journaled. Nothing is ever rewritten: resuming replays the
+journal and redoes only what has no record, so no reading is lost or duplicated
+wherever the process was killed.
+
+Each camera's search for a node starts where that camera's last journaled
+reading points (or at pan 0 and mid tilt), so a resumed survey drives a
+deterministic rig through exactly the same moves as an uninterrupted one.
+
+Head errors are retried ``retry.head_attempts`` times with a back-off, then the
+head is reopened (``open_head``) up to ``retry.reconnects`` times; a camera that
+still fails is journaled ``not_found`` with the error for that node and tried
+again on the next one.
+
+Live estimates: after each node (once at least five nodes are seen by two
+cameras) an :class:`Estimator` solves the journal so far; the default is the
+batch joint solve. An incremental (iSAM2) estimator can be passed instead.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from typing import Protocol
+
+from fgloc.camera.led_search import LedLocator, PinholePixelModel
+from fgloc.core.errors import FglocError
+from fgloc.core.hardware import LedController, PanTiltHead
+from fgloc.core.model import NodeMode, Result, Survey
+from fgloc.files.journal import JournalObservation, JournalState, JournalWriter, journal_to_survey
+from fgloc.files.rig_config import RigConfig
+
+# Planar, two cameras: 8 camera unknowns after the gauge + 2 per node against 4 readings per
+# node, so four nodes are exactly determined (and degenerate in practice); five is the first
+# redundant case.
+MIN_SHARED_NODES = 5
+
+
+class Estimator(Protocol):
+    """Turns the survey recorded so far into current estimates."""
+
+    def update(self, survey: Survey) -> Result | None:
+        """Estimates for ``survey`` (the journal so far), or None when there are none yet."""
+        ...
+
+
+class BatchEstimator:
+    """Re-solves the whole survey with :func:`fgloc.solve.joint.solve_survey` each time."""
+
+    def __init__(self, compute_marginals: bool = True) -> None:
+        self.compute_marginals = compute_marginals
+
+    def update(self, survey: Survey) -> Result:
+        from fgloc.solve.joint import SolverOptions, solve_survey  # gtsam only when asked
+
+        return solve_survey(survey, SolverOptions(compute_marginals=self.compute_marginals))
+
+
+class IncrementalEstimator:
+    """Live estimates from an incremental (iSAM2) localizer, fed each reading exactly once.
+
+    ``factory(camera_ids, gauge, sigma)`` builds the localizer (default:
+    ``fgloc.solve.incremental.IncrementalLocalizer``); it must offer
+    ``add_observations(list[Observation])`` and ``estimate() -> Result`` (and may say
+    ``bootstrapped``: until it does, estimates come from a batch solve). The localizer is
+    planar: a 3d survey is always solved in batch. Each update
+    passes only the readings the localizer has not seen: the survey's observations only
+    ever grow, so within each (node, camera) group the first ones were fed before.
+    """
+
+    def __init__(self, factory: Callable[..., object] | None = None) -> None:
+        self.factory = factory
+        self.localizer: object | None = None
+        self._batch = BatchEstimator()
+        self._fed: dict[tuple[str, str], int] = {}
+
+    def update(self, survey: Survey) -> Result:
+        if survey.mode is not NodeMode.PLANAR:
+            # The iSAM2 localizer is planar only: a 3d survey is re-solved in batch.
+            return self._batch.update(survey)
+        if self.localizer is None:
+            factory = self.factory
+            if factory is None:
+                from fgloc.solve.incremental import IncrementalLocalizer  # type: ignore[import-not-found]
+
+                factory = IncrementalLocalizer
+            self.localizer = factory(list(survey.camera_ids), survey.gauge, survey.sigma)
+        seen: dict[tuple[str, str], int] = {}
+        new = []
+        for o in survey.observations:
+            k = (o.node, o.camera)
+            seen[k] = seen.get(k, 0) + 1
+            if seen[k] > self._fed.get(k, 0):
+                new.append(o)
+        self._fed = seen
+        try:
+            if new:
+                self.localizer.add_observations(new)  # type: ignore[attr-defined]
+            if not getattr(self.localizer, "bootstrapped", True):
+                # iSAM2 starts from a batch solve once the gauge pair shares enough nodes
+                # (12 by default); until then a batch solve of the few readings is cheap.
+                return self._batch.update(survey)
+            return self.localizer.estimate()  # type: ignore[attr-defined]
+        except Exception as exc:  # noqa: BLE001 - GTSAM's RuntimeError, a degenerate start's ValueError, ...
+            # The localizer's state is not trusted any more (e.g. GTSAM found an
+            # indeterminate system), so the next update starts a new one from every reading.
+            self.localizer = None
+            self._fed = {}
+            raise FglocError(f"incremental estimate: {exc}") from None
+
+
+@dataclass(frozen=True)
+class LiveEstimate:
+    """Estimates after ``nodes_done`` nodes, and how long the solve took (seconds)."""
+
+    nodes_done: int
+    survey: Survey
+    result: Result
+    seconds: float
+
+
+@dataclass(frozen=True)
+class Progress:
+    """Survey progress for a progress bar. ``eta_s`` is None until one node was timed."""
+
+    nodes_done: int
+    nodes_total: int
+    observations: int
+    failures: int
+    eta_s: float | None
+
+
+class CameraFailed(Exception):
+    """A camera kept failing after all retries and reconnects."""
+
+
+@dataclass
+class RunnerStats:
+    """Counts of what happened during this run (this process only)."""
+
+    nodes_measured: int = 0
+    nodes_skipped: int = 0
+    observations: int = 0
+    not_found: int = 0
+    led_failed: int = 0
+    head_errors: int = 0
+    reconnects: int = 0
+    led_retries: int = 0
+    estimates: int = 0
+    estimate_errors: list[str] = field(default_factory=list)
+
+
+class CameraWorker:
+    """Owns one camera's head: retries, reconnects, and the LED locator."""
+
+    def __init__(self, camera_id: str, open_head: Callable[[], PanTiltHead], rig: RigConfig, stats: RunnerStats,
+                 log: Callable[[str], None]) -> None:
+        self.camera_id = camera_id
+        self.open_head = open_head
+        self.retry = rig.retry
+        self.stats = stats
+        self.log = log
+        cam = rig.cameras[rig.camera_ids.index(camera_id)]
+        self.locator = LedLocator(rig.search, PinholePixelModel(cam.intrinsics))
+        self.home = (0.0, 0.5 * (rig.search.tilt_min + rig.search.tilt_max))
+        self.zoom = cam.zoom
+        self.head: PanTiltHead | None = None
+        self.lock = threading.Lock()
+
+    def _reopen(self) -> None:
+        old, self.head = self.head, None
+        close = getattr(old, "close", None)
+        if callable(close):
+            try:
+                close()
+            except Exception:  # noqa: BLE001 - a broken link may fail to close; we are replacing it
+                pass
+        head = self.open_head()
+        try:
+            head.set_zoom(self.zoom)  # the zoom the intrinsics were calibrated at
+        except BaseException:
+            close = getattr(head, "close", None)
+            if callable(close):
+                close()
+            raise
+        self.head = head
+
+    def call(self, op: Callable[[PanTiltHead], object]) -> object:
+        """Run one head operation with retries, then reconnects."""
+        last: BaseException | None = None
+        for round_ in range(self.retry.reconnects + 1):
+            if round_ > 0 or self.head is None:
+                try:
+                    if round_ > 0:
+                        self.stats.reconnects += 1
+                        self.log(f"{self.camera_id}: reconnecting after: {last}")
+                    self._reopen()
+                except Exception as exc:  # noqa: BLE001 - any driver failure to open is retried
+                    last = exc
+                    time.sleep(self.retry.backoff_s)
+                    continue
+            for attempt in range(self.retry.head_attempts):
+                try:
+                    return op(self.head)  # type: ignore[arg-type]
+                except Exception as exc:  # noqa: BLE001 - drivers raise their own error types
+                    last = exc
+                    self.stats.head_errors += 1
+                    if isinstance(exc, ConnectionError):
+                        break
+                    time.sleep(self.retry.backoff_s * (attempt + 1))
+        raise CameraFailed(f"{type(last).__name__}: {last}")
+
+    def measure(self, node: str, indices: list[int], start: tuple[float, float] | None,
+                record: Callable[[int, float, float], None],
+                blink: Callable[[Callable[[], object]], tuple] | None = None) -> str | None:
+        """Take the readings ``indices`` of the lit node, handing each to ``record(index, pan, tilt)``
+        the moment it is taken; returns None, or the reason the camera gave up. ``blink`` grabs
+        an (LED-on, LED-off) frame pair for on-off detection."""
+        self.locator.blink = blink  # type: ignore[assignment]
+        try:
+            for index in indices:
+                found = self.locator.locate(self.call, start or self.home)
+                if found is None:
+                    return "not in view anywhere in the search pattern"
+                record(index, found[0], found[1])
+                start = found
+        except CameraFailed as exc:
+            return f"camera error: {exc}"
+        return None
+
+    def close(self) -> None:
+        close = getattr(self.head, "close", None)
+        if callable(close):
+            close()
+
+
+class SurveyRunner:
+    """Drives a rig through a survey, appending everything to a journal."""
+
+    def __init__(
+        self,
+        rig: RigConfig,
+        open_head: Callable[[str], PanTiltHead],
+        leds: LedController,
+        journal: JournalWriter,
+        state: JournalState,
+        estimator: Estimator | None = None,
+        live_every: int = 1,
+        on_estimate: Callable[[LiveEstimate], None] | None = None,
+        on_progress: Callable[[Progress], None] | None = None,
+        log: Callable[[str], None] = lambda message: None,
+    ) -> None:
+        if state.header.camera_ids != rig.camera_ids or state.header.node_ids != rig.node_ids:
+            raise FglocError(f"{journal.path}: header: cameras or node ids differ from {rig.path}")
+        self.rig = rig
+        self.leds = leds
+        self.journal = journal
+        self.state = state
+        self.estimator = estimator
+        self.live_every = max(1, live_every)
+        self.on_estimate = on_estimate
+        self.on_progress = on_progress
+        self.log = log
+        self.stats = RunnerStats()
+        self.workers = {c: CameraWorker(c, (lambda c=c: open_head(c)), rig, self.stats, log) for c in rig.camera_ids}
+        self.latest: LiveEstimate | None = None
+        self._state_lock = threading.Lock()
+        self._led_lock = threading.Lock()
+        self._node_seconds: list[float] = []
+
+    # -- journal helpers: every record also updates the in-memory state the same way replay would
+    def _record_observation(self, obs: JournalObservation) -> None:
+        """Journal one reading at once (called from the camera threads)."""
+        with self._state_lock:
+            self.journal.observation(obs)
+            self.state.add_observation(obs)
+            self.stats.observations += 1
+
+    def _set_led(self, node: str, on: bool) -> bool:
+        for attempt in range(self.rig.retry.led_attempts):
+            try:
+                if self.leds.set_led(node, on):
+                    return True
+            except Exception as exc:  # noqa: BLE001 - base-station driver errors are retried
+                self.log(f"{node}: LED {'on' if on else 'off'} failed: {exc}")
+            self.stats.led_retries += 1
+            time.sleep(self.rig.retry.backoff_s * (attempt + 1))
+        return False
+
+    def _blink(self, node: str, grab: Callable[[], object]) -> tuple[object, object]:
+        """(LED-on, LED-off) frames of one camera; cameras take turns so no frame sees a blink."""
+        with self._led_lock:
+            try:
+                self._set_led(node, False)
+                off = grab()
+            finally:
+                self._set_led(node, True)
+            return grab(), off
+
+    def _start_for(self, camera: str) -> tuple[float, float] | None:
+        last = self.state.last_observation(camera)
+        return None if last is None else (last.pan, last.tilt)
+
+    def run_node(self, node: str, pool: ThreadPoolExecutor) -> None:
+        """Measure one node with every camera that still needs it."""
+        st = self.state
+        if node not in st.started:
+            self.journal.node_started(node)
+            st.started.append(node)
+        if node not in st.led_failed:
+            if not self._set_led(node, True):
+                reason = f"no acknowledgement after {self.rig.retry.led_attempts} attempts"
+                self.journal.led_failed(node, reason)
+                st.led_failed[node] = reason
+                self.stats.led_failed += 1
+                self.log(f"{node}: LED failed: {reason}")
+            else:
+                if self.rig.search.led_wait_s > 0:
+                    time.sleep(self.rig.search.led_wait_s)
+                jobs = []  # decided before any camera starts recording into the state
+                for cam in self.rig.camera_ids:
+                    if st.camera_finished(node, cam, self.rig.repeats):
+                        continue
+                    have = {o.index for o in st.observations_of(node, cam)}
+                    indices = [k for k in range(self.rig.repeats) if k not in have]
+                    jobs.append((cam, indices, self._start_for(cam)))
+                blink = (lambda grab: self._blink(node, grab)) if self.rig.search.detection == "on-off" else None
+                pending = {
+                    cam: pool.submit(self.workers[cam].measure, node, indices, start,
+                                     lambda index, pan, tilt, cam=cam: self._record_observation(
+                                         JournalObservation(node, cam, index, pan, tilt)), blink)
+                    for cam, indices, start in jobs
+                }
+                for cam, future in pending.items():
+                    reason = future.result()
+                    if reason is not None:
+                        self.journal.not_found(node, cam, reason)
+                        st.not_found[(node, cam)] = reason
+                        self.stats.not_found += 1
+                        self.log(f"{node}: not found by {cam}: {reason}")
+                if not self._set_led(node, False):
+                    self.journal.append({"type": "led_off_failed", "node": node})
+                    self.log(f"{node}: LED did not acknowledge switching off")
+        self.journal.node_done(node)
+        st.done.add(node)
+
+    def estimate(self) -> LiveEstimate | None:
+        """Solve the journal so far (None until MIN_SHARED_NODES nodes are seen by two cameras)."""
+        if self.estimator is None or self.state.nodes_seen_by(2) < MIN_SHARED_NODES:
+            return None
+        survey = journal_to_survey(self.state)
+        t0 = time.perf_counter()
+        try:
+            result = self.estimator.update(survey)
+        except Exception as exc:  # noqa: BLE001 - a live estimate is advisory; the survey must go on
+            message = " ".join(str(exc).split())  # GTSAM's messages span lines
+            self.stats.estimate_errors.append(message)
+            self.log(f"live estimate failed: {message[:200]}")
+            return None
+        if result is None:
+            return None
+        live = LiveEstimate(len(self.state.done), survey, result, time.perf_counter() - t0)
+        self.latest = live
+        self.stats.estimates += 1
+        if self.on_estimate is not None:
+            self.on_estimate(live)
+        return live
+
+    def progress(self) -> Progress:
+        remaining = sum(1 for n in self.rig.node_ids if n not in self.state.done)
+        eta = None
+        if self._node_seconds:
+            recent = self._node_seconds[-20:]
+            eta = remaining * sum(recent) / len(recent)
+        failures = len(self.state.not_found) + len(self.state.led_failed)
+        return Progress(len(self.state.done), len(self.rig.node_ids), len(self.state.observations), failures, eta)
+
+    def run(self) -> Survey:
+        """Survey every node not yet done; returns the survey recorded in the journal."""
+        todo = [n for n in self.rig.node_ids if n not in self.state.done]
+        self.stats.nodes_skipped = len(self.rig.node_ids) - len(todo)
+        if self.on_progress is not None:
+            self.on_progress(self.progress())
+        with ThreadPoolExecutor(max_workers=len(self.rig.camera_ids), thread_name_prefix="camera") as pool:
+            for k, node in enumerate(todo):
+                t0 = time.perf_counter()
+                self.run_node(node, pool)
+                self.stats.nodes_measured += 1
+                self._node_seconds.append(time.perf_counter() - t0)
+                if (k + 1) % self.live_every == 0 or k + 1 == len(todo):
+                    self.estimate()
+                if self.on_progress is not None:
+                    self.on_progress(self.progress())
+        for w in self.workers.values():
+            try:
+                w.close()
+            except Exception:  # noqa: BLE001 - closing a dead link must not lose the survey
+                pass
+        return journal_to_survey(self.state)
+
+
+def format_progress(p: Progress, width: int = 24) -> str:
+    """One progress line: a bar, nodes done, observations, failures and time left."""
+    frac = p.nodes_done / p.nodes_total if p.nodes_total else 1.0
+    filled = int(round(frac * width))
+    eta = "--:--" if p.eta_s is None else f"{int(p.eta_s // 60):02d}:{int(p.eta_s % 60):02d}"
+    return (f"[{'#' * filled}{'.' * (width - filled)}] {p.nodes_done}/{p.nodes_total} nodes  "
+            f"{p.observations} obs  {p.failures} failed  left {eta}")
+
+
+def format_estimate(live: LiveEstimate, limit: int = 5) -> str:
+    """A short multi-line summary of a live estimate: node count, worst 1-sigma, a few nodes."""
+    r = live.result
+    sig = [math.sqrt(max(float(e.covariance[0, 0] + e.covariance[1, 1]), 0.0)) for e in r.nodes.values()
+           if e.covariance.size and math.isfinite(float(e.covariance[0, 0]))]
+    lines = [f"estimate after {live.nodes_done} nodes: {len(r.nodes)} localized, "
+             f"{len(r.unlocalized)} unlocalized, median 1-sigma {sorted(sig)[len(sig) // 2] if sig else float('nan'):.4f}, "
+             f"solve {live.seconds:.2f} s"]
+    for nid, e in list(r.nodes.items())[-limit:]:
+        lines.append(f"  {nid}: ({e.position[0]:.4f}, {e.position[1]:.4f}, {e.position[2]:.4f})")
+    return "\n".join(lines)
