@@ -5,7 +5,7 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.fgloc-installed
 
-.PHONY: demo test bench clean
+.PHONY: demo test lint bench clean
 
 $(STAMP): pyproject.toml
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -19,5 +19,21 @@ demo: $(STAMP)
 test: $(STAMP)
 	$(PY) -m pytest
 
+# Static checks on the installed layout (a plain, non-editable install into build/pkg):
+# the wheel's only top-level package is fgloc, the old names do not import, the
+# layers contract holds, ruff and mypy are clean.
+PKG := build/pkg
+lint: $(STAMP)
+	$(VENV)/bin/ruff check .
+	rm -rf $(PKG) && $(PY) -m pip install -q --no-deps --target $(PKG) . 2>&1 | grep -v '^WARNING: Location' || true
+	test "$$(cat $(PKG)/fgloc-*.dist-info/top_level.txt)" = fgloc
+	cd /tmp && PYTHONPATH=$(CURDIR)/$(PKG) $(CURDIR)/$(PY) -c "import fgloc.factors, fgloc.drivers, sys; \
+	  assert fgloc.__file__.startswith('$(CURDIR)/$(PKG)/'), fgloc.__file__; \
+	  bad = [m for m in ('factors', 'drivers') if __import__('importlib.util').util.find_spec(m)]; \
+	  sys.exit(f'importable old top-level names: {bad}' if bad else 0)"
+	cd $(PKG) && $(CURDIR)/$(VENV)/bin/lint-imports --no-cache $(CURDIR)/pyproject.toml
+	cd $(PKG) && $(CURDIR)/$(VENV)/bin/mypy --config-file $(CURDIR)/pyproject.toml -p fgloc
+	MYPYPATH=$(PKG) $(VENV)/bin/mypy tests scripts
+
 clean:
-	rm -rf out .pytest_cache
+	rm -rf out .pytest_cache build
