@@ -32,8 +32,8 @@ lint: $(STAMP)
 	  bad = [m for m in ('factors', 'drivers') if __import__('importlib.util').util.find_spec(m)]; \
 	  sys.exit(f'importable old top-level names: {bad}' if bad else 0)"
 	cd $(PKG) && $(CURDIR)/$(VENV)/bin/lint-imports --no-cache $(CURDIR)/pyproject.toml
-	cd $(PKG) && $(CURDIR)/$(VENV)/bin/mypy --config-file $(CURDIR)/pyproject.toml -p fgloc
-	MYPYPATH=$(PKG) $(VENV)/bin/mypy tests scripts
+	cp -r tests scripts $(PKG)/  # type-check tests and scripts against the installed layout too
+	cd $(PKG) && $(CURDIR)/$(VENV)/bin/mypy --config-file $(CURDIR)/pyproject.toml fgloc tests scripts
 
 clean:
 	rm -rf out .pytest_cache build

@@ -49,12 +49,13 @@ class CameraIntrinsics:
 
     @classmethod
     def from_fov(
-        cls, width: int, height: int, hfov_deg: float, zoom: float = 0.0, **distortion: float
+        cls, width: int, height: int, hfov_deg: float, zoom: float = 0.0,
+        k1: float = 0.0, k2: float = 0.0, p1: float = 0.0, p2: float = 0.0, k3: float = 0.0,
     ) -> CameraIntrinsics:
         """Square-pixel camera with principal point at the image centre and a horizontal FOV in degrees."""
         fx = (width / 2.0) / math.tan(math.radians(hfov_deg) / 2.0)
         return cls(fx=fx, fy=fx, cx=(width - 1) / 2.0, cy=(height - 1) / 2.0, width=width, height=height,
-                   zoom=zoom, **distortion)
+                   zoom=zoom, k1=k1, k2=k2, p1=p1, p2=p2, k3=k3)
 
     @property
     def camera_matrix(self) -> np.ndarray:

@@ -104,6 +104,7 @@ def measurement_from_detection(
     if not detection.found:
         return LedMeasurement(detection, head_pan, head_tilt)
     d = detection.detection
+    assert d is not None  # found
     pan, tilt = pixel_to_pan_tilt(intrinsics, [d.u, d.v], head_pan, head_tilt)
     sigma = d.sigma_px / math.sqrt(intrinsics.fx * intrinsics.fy)
     return LedMeasurement(detection, head_pan, head_tilt, float(pan), float(tilt), sigma)
@@ -189,6 +190,7 @@ def centre_on_led(
         if not result.found:
             return CentringResult(False, None, None, residual, moves, last, f"LED {result.status.value}")
         d = result.detection
+        assert d is not None and last.pan is not None and last.tilt is not None  # found
         residual = math.hypot(d.u - cx, d.v - cy)
         if residual <= tolerance_px:
             return CentringResult(True, head_pan, head_tilt, residual, moves, last, "centred")

@@ -94,7 +94,7 @@ def pixel_to_ray(intr: CameraIntrinsics, uv: ArrayLike) -> FloatArray:
     return ray / np.linalg.norm(ray, axis=-1, keepdims=True)
 
 
-def ray_to_pixel(intr: CameraIntrinsics, ray: ArrayLike) -> tuple[FloatArray, FloatArray]:
+def ray_to_pixel(intr: CameraIntrinsics, ray: ArrayLike) -> tuple[FloatArray, np.ndarray]:
     """Project optical-frame ray(s) (..., 3) to pixels: ``(uv (..., 2), in_front (...))``.
 
     Rays with z <= 0 are behind the camera: their ``uv`` is NaN and ``in_front`` False.

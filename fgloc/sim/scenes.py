@@ -198,7 +198,7 @@ def random_scene(config: RandomScene = RandomScene()) -> Survey:
     planar = config.mode is NodeMode.PLANAR
     nodes = rng.uniform(0.0, 1.0, size=(config.n_nodes, 3))
     nodes[:, 2] = 0.0 if planar else nodes[:, 2] * config.max_node_height
-    cameras = []
+    cameras: list[CameraPose] = []
     for i in range(config.n_cameras):
         while True:
             xy = rng.uniform(-0.3, 1.3, size=2)
