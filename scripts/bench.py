@@ -3,7 +3,7 @@
 
 import sys
 
-from fgloc.evaluate.bench import build_parser, run
+from fgloc.cli import main
 
 if __name__ == "__main__":
-    sys.exit(run(build_parser().parse_args()))
+    sys.exit(main(["bench", *sys.argv[1:]]))

@@ -15,6 +15,7 @@ timeline with ``fgloc.viz.rerun_log.SurveyLogger`` (open the file with ``rerun F
 from __future__ import annotations
 
 import argparse
+import logging
 import sys
 
 from fgloc.core.errors import FglocError
@@ -41,6 +42,8 @@ def main(argv: list[str] | None = None) -> int:
                    help="re-solve everything for each estimate instead of updating iSAM2 with the new readings")
     p.add_argument("--rerun", metavar="FILE.rrd", help="log live estimates to a Rerun recording (fgloc.viz.rerun_log)")
     args = p.parse_args(argv)
+    # fgloc logs what goes wrong (LED and camera failures, failed live estimates) on the "fgloc" logger.
+    logging.basicConfig(level=logging.WARNING, format="live_survey: %(message)s", stream=sys.stderr)
 
     hooks = []
     recording = None
@@ -66,8 +69,7 @@ def main(argv: list[str] | None = None) -> int:
         rig = load_rig(args.rig)
         survey, runner = run_survey(rig, args.output, simulate=args.simulate, resume=args.resume,
                                     estimator=BatchEstimator() if args.batch else IncrementalEstimator(), live_every=args.every,
-                                    on_estimate=on_estimate, on_progress=on_progress,
-                                    log=lambda m: print(f"live_survey: {m}", file=sys.stderr))
+                                    on_estimate=on_estimate, on_progress=on_progress)
     except FglocError as exc:
         print(f"live_survey: error: {exc}", file=sys.stderr)
         return 2

@@ -17,36 +17,8 @@ import time
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-import numpy as np  # noqa: E402
-
-from fgloc.core.model import NodeMode, Survey  # noqa: E402
-from fgloc.init.planar import InitialEstimate  # noqa: E402
-from fgloc.sim.scenes import RandomScene, random_scene  # noqa: E402
-from fgloc.solve.joint import build_problem, solve, solve_survey  # noqa: E402
-
-
-def scene(index: int, mode: NodeMode, outlier_share: float = 0.0) -> Survey:
-    """The index-th stress scene (deterministic)."""
-    rng = np.random.default_rng(index)
-    return random_scene(
-        RandomScene(
-            n_cameras=int(rng.integers(2, 9)),
-            n_nodes=int(rng.integers(20, 401)),
-            mode=mode,
-            visibility=float(rng.uniform(0.5, 1.0)),
-            seed=index,
-        )
-    )
-
-
-def reaches_global_optimum(survey: Survey, rel_tol: float = 1e-6) -> tuple[bool, float, float]:
-    """(ok, our final error, final error from the truth)."""
-    ours = solve_survey(survey)
-    truth = survey.truth
-    start = InitialEstimate(cameras=dict(truth.cameras), nodes={n: truth.nodes[n] for n in ours.nodes})
-    ref = solve(build_problem(survey, start))
-    ok = ours.stats.final_error <= ref.stats.final_error * (1 + rel_tol) + 1e-6
-    return ok, ours.stats.final_error, ref.stats.final_error
+from fgloc.core.model import NodeMode  # noqa: E402
+from fgloc.testing import reaches_global_optimum, stress_scene  # noqa: E402
 
 
 def main() -> int:
@@ -58,7 +30,7 @@ def main() -> int:
     failures = 0
     t0 = time.perf_counter()
     for k in range(args.scenes):
-        ok, ours, ref = reaches_global_optimum(scene(k, mode))
+        ok, ours, ref = reaches_global_optimum(stress_scene(k, mode))
         if not ok:
             failures += 1
             print(f"scene {k}: final error {ours:.6g} > {ref:.6g} from truth")

@@ -61,7 +61,7 @@ def test_bearing_noise_is_first_order_equivalent_to_pan_tilt_noise() -> None:
 def test_quick_bench_output_is_consistent(tmp_path) -> None:
     out = tmp_path / "bench.json"
     proc = subprocess.run(
-        [sys.executable, "-m", "fgloc.evaluate.bench", "--quick", "--json", str(out)], capture_output=True, text=True, timeout=240
+        [sys.executable, "-m", "fgloc", "bench", "--quick", "--json", str(out)], capture_output=True, text=True, timeout=240
     )
     assert proc.returncode == 0, proc.stderr
     assert "| scene (nodes x cams) |" in proc.stdout

@@ -6,8 +6,6 @@ point of the field (an LED confused with another light).
 """
 
 import json
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -16,9 +14,7 @@ from fgloc.core.geometry import project_pan_tilt
 from fgloc.core.model import NodeMode, Observation, Survey
 from fgloc.sim.scenes import PaperScenario, paper_scenario
 from fgloc.solve.joint import RobustKernel, SolverOptions, build_problem, initialize, solve, solve_survey
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
-from stress_scenes import scene  # noqa: E402
+from fgloc.testing import stress_scene as scene
 
 
 def corrupt(survey: Survey, share: float, seed: int) -> tuple[Survey, set[int]]:

@@ -5,15 +5,11 @@ into another basin ends with a higher cost. The full 200-scene run is
 ``scripts/stress_scenes.py``; this test runs a seeded sample of it.
 """
 
-import sys
-from pathlib import Path
-
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
-from stress_scenes import reaches_global_optimum, scene  # noqa: E402
-
-from fgloc.core.model import NodeMode  # noqa: E402
+from fgloc.core.model import NodeMode
+from fgloc.testing import reaches_global_optimum
+from fgloc.testing import stress_scene as scene
 
 
 @pytest.mark.slow

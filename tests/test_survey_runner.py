@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import logging
 import math
 from dataclasses import replace
 
@@ -98,7 +99,7 @@ def test_faults_are_retried_and_a_disconnect_reconnected(tmp_path):
     assert {(c, n) for (n, c, _) in state.observations} == sim.scene.visible_pairs()
 
 
-def test_a_dead_camera_is_recorded_not_fatal(tmp_path):
+def test_a_dead_camera_is_recorded_not_fatal(tmp_path, caplog):
     rig = small_rig(5)
     rig_opened, sim = opened(rig)
 
@@ -107,10 +108,18 @@ def test_a_dead_camera_is_recorded_not_fatal(tmp_path):
             raise ConnectionError("no such port")
         return sim.open_head(cid)
 
-    run_survey(rig, tmp_path, opened=replace(rig_opened, open_head=open_head))
+    with caplog.at_level(logging.INFO, logger="fgloc"):
+        run_survey(rig, tmp_path, opened=replace(rig_opened, open_head=open_head))
     state = read_journal(tmp_path / "journal.jsonl")
     assert all(c == "cam0" for (_, c, _) in state.observations)
     assert all("camera error" in r for (n, c), r in state.not_found.items() if c == "cam1")
+    # Each outcome is a log record: a failing camera is a warning, an occluded pair only information.
+    logged = {(r.levelname, r.getMessage()) for r in caplog.records if r.name == "fgloc.survey.runner"}
+    assert {m for lvl, m in logged if lvl == "WARNING" and "not found by cam1" in m} == {
+        f"{n}: not found by cam1: {r}" for (n, c), r in state.not_found.items() if c == "cam1"}
+    assert {m for lvl, m in logged if lvl == "INFO"} == {
+        f"{n}: not found by cam0: {r}" for (n, c), r in state.not_found.items() if c == "cam0"}
+    assert ("WARNING", f"n003: LED failed: {state.led_failed['n003']}") in logged
     assert state.done == set(rig.node_ids)
 
 
@@ -355,7 +364,7 @@ class FailingOnceLocalizer(FakeLocalizer):
             raise RuntimeError("Indeterminant linear system detected while working near variable 7")
 
 
-def test_a_failing_live_estimate_never_stops_the_survey(tmp_path):
+def test_a_failing_live_estimate_never_stops_the_survey(tmp_path, caplog):
     """A GTSAM failure inside the incremental estimator is one logged line; the survey goes
     on, and the next estimate starts a new localizer fed every reading once."""
     from fgloc.survey.runner import IncrementalEstimator
@@ -363,7 +372,11 @@ def test_a_failing_live_estimate_never_stops_the_survey(tmp_path):
     FakeLocalizer.instances.clear()
     rig = small_rig(8, occlusion=0.0, dead_nodes=[])
     est = IncrementalEstimator(FailingOnceLocalizer)
-    survey, runner = run_survey(rig, tmp_path, opened=opened(rig)[0], estimator=est)
+    with caplog.at_level(logging.INFO, logger="fgloc"):
+        survey, runner = run_survey(rig, tmp_path, opened=opened(rig)[0], estimator=est)
+    failed = [r for r in caplog.records if "live estimate failed" in r.getMessage()]
+    assert len(failed) == 1 and failed[0].levelno == logging.WARNING and failed[0].name == "fgloc.survey.runner"
+    assert "Indeterminant linear system" in failed[0].getMessage() and "\n" not in failed[0].getMessage()
     assert len(survey.observations) == 16  # every node surveyed despite the failure
     assert len(runner.stats.estimate_errors) == 1 and "Indeterminant" in runner.stats.estimate_errors[0]
     first, second = FakeLocalizer.instances
@@ -381,14 +394,17 @@ class DegenerateStartLocalizer(FakeLocalizer):
             raise ValueError("RANSAC found no consistent model")
 
 
-def test_any_exception_in_a_live_estimate_is_logged_and_the_survey_goes_on(tmp_path):
+def test_any_exception_in_a_live_estimate_is_logged_and_the_survey_goes_on(tmp_path, caplog):
     """Only FglocError used to be caught: a ValueError from the start ended the survey (and every resume)."""
     from fgloc.survey.runner import IncrementalEstimator
 
     FakeLocalizer.instances.clear()
     rig = small_rig(8, occlusion=0.0, dead_nodes=[])
-    survey, runner = run_survey(rig, tmp_path, opened=opened(rig)[0],
-                                estimator=IncrementalEstimator(DegenerateStartLocalizer))
+    with caplog.at_level(logging.WARNING, logger="fgloc.survey"):
+        survey, runner = run_survey(rig, tmp_path, opened=opened(rig)[0],
+                                    estimator=IncrementalEstimator(DegenerateStartLocalizer))
+    assert [r.getMessage() for r in caplog.records] == [
+        "live estimate failed: incremental estimate: RANSAC found no consistent model"]
     assert len(survey.observations) == 16
     assert len(runner.stats.estimate_errors) == 1 and "RANSAC" in runner.stats.estimate_errors[0]
     assert len(FakeLocalizer.instances) == 2  # a fresh localizer after the failure

@@ -12,7 +12,7 @@ taken at (zoom is an explicit part of the model, see docs/camera-model.md).
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import cv2
@@ -107,18 +107,20 @@ def calibrate(
     outlier_factor: float = 3.0,
     fit_k3: bool = False,
     min_images: int = 5,
+    progress: Callable[[int, int], None] | None = None,
 ) -> CalibrationResult:
     """Calibrate from ``(name, image)`` pairs taken at ``zoom`` (0 widest ... 1 tele).
 
     An image is rejected when its RMS reprojection error (px) exceeds both ``max_image_rms``
     and ``outlier_factor`` x the median; ``k3`` is fixed at 0 unless ``fit_k3``.
+    ``progress(done, total)`` is called after the board search in each image (the slow part).
     """
     if not 0.0 <= zoom <= 1.0:
         raise CalibrationError(f"--zoom: must lie in [0, 1], got {zoom!r}")
     size: tuple[int, int] | None = None
     found: list[tuple[str, np.ndarray]] = []
     reports: dict[str, ImageReport] = {}
-    for name, image in images:
+    for done, (name, image) in enumerate(images, 1):
         h, w = image.shape[:2]
         if size is None:
             size = (w, h)
@@ -129,6 +131,8 @@ def calibrate(
             reports[name] = ImageReport(name, False, None, False, "board not found")
         else:
             found.append((name, corners))
+        if progress is not None:
+            progress(done, len(images))
     if len(found) < min_images:
         raise CalibrationError(
             f"board {board.cols}x{board.rows} found in {len(found)} of {len(images)} images, need at least {min_images}"

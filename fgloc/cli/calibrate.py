@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import argparse
-import sys
+import logging
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -29,6 +29,7 @@ def run(args: argparse.Namespace) -> int:
 
     from fgloc.camera.calibration import BoardSpec, CalibrationError, calibrate
     from fgloc.camera.led_measurement import ZOOM_TOLERANCE
+    from fgloc.cli._output import StepBar
     from fgloc.files.camera_file import write_intrinsics
 
     board = BoardSpec.parse(args.board, args.square)
@@ -41,12 +42,13 @@ def run(args: argparse.Namespace) -> int:
             raise CalibrationError(f"{name}: cannot read as an image")
         images.append((name, image))
     if args.zoom > ZOOM_TOLERANCE:
-        print(
-            f"fgloc: warning: calibrating at zoom {args.zoom:.3f}: only the widest zoom (0) keeps the optical "
-            "centre on the pan/tilt axes; bearings measured at this zoom carry a parallax error",
-            file=sys.stderr,
+        logging.getLogger(__name__).warning(
+            f"calibrating at zoom {args.zoom:.3f}: only the widest zoom (0) keeps the optical "
+            "centre on the pan/tilt axes; bearings measured at this zoom carry a parallax error"
         )
-    result = calibrate(images, board, zoom=args.zoom, max_image_rms=args.max_image_rms, fit_k3=args.fit_k3)
+    with StepBar(args.progress, "calibrate", unit="image") as bar:
+        result = calibrate(images, board, zoom=args.zoom, max_image_rms=args.max_image_rms, fit_k3=args.fit_k3,
+                           progress=bar)
     width = max(len(r.name) for r in result.reports)
     print(f"{'image':<{width}}  {'rms px':>8}  status")
     for r in result.reports:

@@ -19,6 +19,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
+    from fgloc.cli._output import StepBar
     from fgloc.core.errors import FglocError
     from fgloc.evaluate.report import ReportConfig, require_matplotlib, run_experiment, write_report
 
@@ -28,7 +29,8 @@ def run(args: argparse.Namespace) -> int:
         if args.seeds < 1:
             raise FglocError(f"report: --seeds must be >= 1, got {args.seeds}")
         config = replace(config, seeds=tuple(range(args.seeds)))
-    data = run_experiment(config)
+    with StepBar(args.progress, "report", unit="run") as bar:
+        data = run_experiment(config, progress=bar)
     path = write_report(data, Path(args.output))
     print(f"wrote {path} ({len(data.runs)} runs in {data.seconds:.1f} s)")
     return 0

@@ -3,13 +3,13 @@
 from __future__ import annotations
 
 import argparse
-import sys
-import time
 from typing import TYPE_CHECKING
 
 from fgloc.core.errors import FglocError
 
 if TYPE_CHECKING:
+    from tqdm import tqdm
+
     from fgloc.survey.runner import LiveEstimate, Progress
 
 
@@ -27,38 +27,37 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "at any survey size) or by re-solving everything (batch)")
     p.add_argument("--rerun", metavar="FILE.rrd",
                    help="log every live estimate to a Rerun recording on the 'survey' timeline")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--quiet", action="store_true", help="no progress bar (as fgloc -q survey, which also hides warnings)")
     p.set_defaults(run=run)
 
 
-class _ProgressLine:
-    """Rewrites one stderr line (a bar) when stderr is a terminal, else prints every 10%."""
+class _SurveyBar:
+    """Survey progress as a tqdm bar on stderr: nodes done/total, observations, failures, time left.
+
+    Created on the first report (a resumed survey starts at its nodes already done, so the
+    rate and the time left count only this run's nodes)."""
 
     def __init__(self, enabled: bool) -> None:
         self.enabled = enabled
-        self.tty = sys.stderr.isatty()
-        self.last_decile = -1
-        self.last_time = 0.0
+        self.bar: tqdm | None = None
 
     def __call__(self, p: Progress) -> None:
-        if not self.enabled:
-            return
-        from fgloc.survey.runner import format_progress
+        from fgloc.cli._output import progress_bar
 
-        line = format_progress(p)
-        if self.tty:
-            now = time.monotonic()
-            if now - self.last_time > 0.1 or p.nodes_done == p.nodes_total:
-                print("\r" + line, end="\n" if p.nodes_done == p.nodes_total else "", file=sys.stderr, flush=True)
-                self.last_time = now
-        else:
-            decile = (10 * p.nodes_done) // max(p.nodes_total, 1)
-            if decile != self.last_decile:
-                print(line, file=sys.stderr, flush=True)
-                self.last_decile = decile
+        if self.bar is None:
+            self.bar = progress_bar(self.enabled, total=p.nodes_total, initial=p.nodes_done, desc="survey",
+                                    unit="node", leave=True)
+        self.bar.set_postfix_str(f"{p.observations} obs, {p.failures} failed", refresh=False)
+        self.bar.update(p.nodes_done - self.bar.n)
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
 
 
 def run(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
     from fgloc.files.rig_config import load_rig
     from fgloc.survey.runner import (
         BatchEstimator,
@@ -70,10 +69,7 @@ def run(args: argparse.Namespace) -> int:
     if args.live_every < 1:
         raise FglocError(f"--live-every must be >= 1, got {args.live_every}")
     rig = load_rig(args.rig)
-    progress = _ProgressLine(not args.quiet)
-
-    def log(message: str) -> None:
-        print(("\n" if progress.tty and progress.enabled else "") + f"fgloc: {message}", file=sys.stderr, flush=True)
+    progress = _SurveyBar(args.progress and not args.quiet)
 
     recording = None
     if args.rerun:
@@ -83,7 +79,7 @@ def run(args: argparse.Namespace) -> int:
         logger = viz.SurveyLogger(recording)
 
     def show(live: LiveEstimate) -> None:
-        print(format_estimate(live), flush=True)
+        tqdm.write(format_estimate(live))  # above the bar, on stdout
         if recording is not None:
             logger.log_estimates(len(live.survey.observations), live.result, live.survey)
 
@@ -92,9 +88,10 @@ def run(args: argparse.Namespace) -> int:
             rig, args.output, simulate=args.simulate, resume=args.resume,
             estimator=None if args.no_live else (IncrementalEstimator() if args.estimator == "incremental"
                                                  else BatchEstimator()),
-            live_every=args.live_every, on_estimate=show, on_progress=progress, log=log,
+            live_every=args.live_every, on_estimate=show, on_progress=progress,
         )
     finally:
+        progress.close()
         if recording is not None:
             viz.close_recording(recording)
     s = runner.stats

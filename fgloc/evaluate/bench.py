@@ -6,7 +6,7 @@ interpreter and the imported libraries) belongs to that method alone. Inside
 the worker the method runs ``repeats`` times on the same survey and every
 stage reports its median. Ratios compare medians measured in the same run.
 
-Output: a Markdown table (stdout) and, with ``--json``, the raw numbers.
+Output (``fgloc bench``): a Markdown table (stdout) and, with ``--json``, the raw numbers.
 The growth of each stage with the number of nodes n is fitted as a log-log
 slope over the scenes with the same number of cameras (1 = linear).
 """
@@ -15,18 +15,23 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import os
 import platform
 import resource
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
+from typing import Any
 
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
 import numpy as np  # noqa: E402
+
+logger = logging.getLogger(__name__)
 
 STAGES = ("build", "initialize", "optimize", "marginals")  # plus "other" for fgloc (flagging, assembly)
 FULL_CASES = [(100, 2), (100, 8), (1000, 2), (1000, 8), (10000, 2), (10000, 8)]
@@ -234,25 +239,46 @@ def markdown(results: list[CaseResult], slopes: dict[str, dict[str, float]], ski
     return "\n".join(lines)
 
 
-def run_suite(cases: list[tuple[int, int]], methods: list[str], quick: bool, scipy_max_nodes: int) -> dict:
-    """Every method on every case; returns the JSON-ready report."""
+def suite_steps(cases: list[tuple[int, int]], methods: list[str]) -> int:
+    """How many (case, method) steps :func:`run_suite` reports (skipped ones included)."""
+    return len(cases) * len(methods)
+
+
+def run_suite(
+    cases: list[tuple[int, int]],
+    methods: list[str],
+    quick: bool,
+    scipy_max_nodes: int,
+    progress: Callable[[int, int], None] | None = None,
+    steps_total: int | None = None,
+) -> dict:
+    """Every method on every case; returns the JSON-ready report.
+
+    ``progress(done, total)`` is called after each (case, method), skipped ones included;
+    ``total`` is ``steps_total`` when given (a caller with more steps to come), else
+    :func:`suite_steps`."""
     results: list[CaseResult] = []
     skipped: list[str] = []
+    total = steps_total if steps_total is not None else suite_steps(cases, methods)
+    done = 0
     for n, c in cases:
         ref_positions = None
         for method in methods:
+            done += 1
             if method == "scipy" and n > scipy_max_nodes:
                 skipped.append(f"scipy at {n} x {c} (above --scipy-max-nodes {scipy_max_nodes}; minutes per run)")
-                continue
-            if method == "subset_newton" and c != 2:
-                continue
-            res, pos = run_case(n, c, method, repeats_for(method, n, quick))
-            if method == "fgloc":
-                ref_positions = pos
-            elif ref_positions is not None and res.available:
-                res.max_position_diff_vs_fgloc = float(np.nanmax(np.abs(pos - ref_positions)))
-            results.append(res)
-            print(f"# {n} x {c} {method}: total {_fmt_s(res.total_median_s)}", file=sys.stderr, flush=True)
+            elif method == "subset_newton" and c != 2:
+                pass
+            else:
+                res, pos = run_case(n, c, method, repeats_for(method, n, quick))
+                if method == "fgloc":
+                    ref_positions = pos
+                elif ref_positions is not None and res.available:
+                    res.max_position_diff_vs_fgloc = float(np.nanmax(np.abs(pos - ref_positions)))
+                results.append(res)
+                logger.info(f"{n} x {c} {method}: total {_fmt_s(res.total_median_s)}")
+            if progress is not None:
+                progress(done, total)
     slopes = loglog_slopes(results)
     return {
         "machine": {"platform": platform.platform(), "python": platform.python_version(), "cpus": os.cpu_count()},
@@ -265,31 +291,52 @@ def run_suite(cases: list[tuple[int, int]], methods: list[str], quick: bool, sci
     }
 
 
-def _json_safe(obj: object) -> object:
-    """NaN / inf become null (strict JSON)."""
+def run_benchmark(
+    cases: list[tuple[int, int]],
+    methods: list[str],
+    quick: bool,
+    scipy_max_nodes: int,
+    incremental_cases: list[tuple[int, int]],
+    progress: Callable[[int, int], None] | None = None,
+) -> dict:
+    """The whole benchmark: :func:`run_suite`, then the iSAM2 timings of ``incremental_cases``
+    (the default node window against every node kept, side by side), in the report's
+    ``incremental`` rows and Markdown. ``progress(done, total)`` after every step."""
+    from fgloc.solve.incremental import IncrementalParams
+
+    windows = (IncrementalParams().active_nodes, None)
+    total = suite_steps(cases, methods) + len(incremental_cases) * len(windows)
+    report = run_suite(cases, methods, quick, scipy_max_nodes, progress=progress, steps_total=total)
+    done = suite_steps(cases, methods)
+    inc_rows = []
+    for n, c in incremental_cases:
+        for active in windows:
+            row = run_incremental(n, c, new_nodes=20 if quick else 100, batch_nodes=1, active_nodes=active)
+            inc_rows.append(row)
+            done += 1
+            logger.info(f"iSAM2 {n} x {c} active {active or 'all'} done")
+            if progress is not None:
+                progress(done, total)
+    report["incremental"] = inc_rows
+    if inc_rows:
+        report["markdown"] += "\n\niSAM2 (IncrementalLocalizer), new nodes added one at a time after a batch bootstrap:\n\n"
+        report["markdown"] += incremental_markdown(inc_rows)
+    return report
+
+
+def json_safe(obj: Any) -> Any:
+    """NaN / inf become null (strict JSON): the report as ``--json`` writes it."""
     if isinstance(obj, float):
         return obj if np.isfinite(obj) else None
     if isinstance(obj, dict):
-        return {k: _json_safe(v) for k, v in obj.items()}
+        return {k: json_safe(v) for k, v in obj.items()}
     if isinstance(obj, list):
-        return [_json_safe(v) for v in obj]
+        return [json_safe(v) for v in obj]
     return obj
 
 
-def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
-    p = parser or argparse.ArgumentParser(prog="bench", description=__doc__.splitlines()[0])
-    p.add_argument("--quick", action="store_true", help="small scenes, 2 repeats (seconds, for tests)")
-    p.add_argument("--json", metavar="FILE", help="also write the raw results as JSON")
-    p.add_argument("--methods", default="fgloc,cpp_bearing,scipy,subset_newton", help="comma-separated methods")
-    p.add_argument("--cases", help="comma-separated NODESxCAMERAS, e.g. 100x2,1000x8 (default: all six)")
-    p.add_argument("--scipy-max-nodes", type=int, help="skip scipy above this many nodes (default 1000; 80 with --quick)")
-    p.add_argument("--incremental", default=None, help="iSAM2 cases NODESxCAMERAS (default 1000x8,10000x8; 'none' to skip)")
-    p.add_argument("--worker", help=argparse.SUPPRESS)
-    p.add_argument("--incremental-worker", help=argparse.SUPPRESS)
-    return p
-
-
 def parse_cases(text: str) -> list[tuple[int, int]]:
+    """``100x2,1000x8`` as [(100, 2), (1000, 8)]."""
     from fgloc.core.errors import FglocError
 
     cases = []
@@ -302,46 +349,24 @@ def parse_cases(text: str) -> list[tuple[int, int]]:
     return cases
 
 
-def run(args: argparse.Namespace) -> int:
-    from fgloc.core.errors import FglocError
-    from fgloc.evaluate.bench_methods import METHODS
-    from fgloc.files.json_io import write_json_atomic
-
+def worker_main(argv: list[str] | None = None) -> int:
+    """``python -m fgloc.evaluate.bench --worker N,C,METHOD,REPEATS,SEED`` (or
+    ``--incremental-worker N,C,NEW,BATCH,ACTIVE,SEED``): one measurement in this fresh
+    process, written to stdout as one JSON line for the parent (:func:`run_case`)."""
+    p = argparse.ArgumentParser(prog="python -m fgloc.evaluate.bench", description="one benchmark worker")
+    group = p.add_mutually_exclusive_group(required=True)
+    group.add_argument("--worker")
+    group.add_argument("--incremental-worker")
+    args = p.parse_args(argv)
     if args.incremental_worker:
         n, c, k, b, a, seed = (int(v) for v in args.incremental_worker.split(","))
-        print(json.dumps(_incremental_worker(n, c, k, b, a, seed)))
-        return 0
-    if args.worker:
+        data = _incremental_worker(n, c, k, b, a, seed)
+    else:
         n, c, method, repeats, seed = args.worker.split(",")
-        print(json.dumps(_worker(int(n), int(c), method, int(repeats), int(seed))))
-        return 0
-    methods = [m.strip() for m in args.methods.split(",") if m.strip()]
-    bad = [m for m in methods if m not in METHODS]
-    if bad:
-        raise FglocError(f"--methods: unknown method {bad[0]!r} (known: {', '.join(METHODS)})")
-    cases = parse_cases(args.cases) if args.cases else (QUICK_CASES if args.quick else FULL_CASES)
-    scipy_max = args.scipy_max_nodes if args.scipy_max_nodes is not None else (80 if args.quick else 1000)
-    report = run_suite(cases, methods, args.quick, scipy_max)
-    inc_spec = args.incremental or ("200x4" if args.quick else "1000x8,10000x8")
-    inc_rows = []
-    if inc_spec != "none":
-        for n, c in parse_cases(inc_spec):
-            from fgloc.solve.incremental import IncrementalParams
-
-            # The default window against every node kept (the O(n) update), side by side.
-            for active in (IncrementalParams().active_nodes, None):
-                row = run_incremental(n, c, new_nodes=20 if args.quick else 100, batch_nodes=1, active_nodes=active)
-                inc_rows.append(row)
-                print(f"# iSAM2 {n} x {c} active {active or 'all'} done", file=sys.stderr, flush=True)
-    report["incremental"] = inc_rows
-    if inc_rows:
-        report["markdown"] += "\n\niSAM2 (IncrementalLocalizer), new nodes added one at a time after a batch bootstrap:\n\n"
-        report["markdown"] += incremental_markdown(inc_rows)
-    print(report["markdown"])
-    if args.json:
-        write_json_atomic(_json_safe(report), args.json)
+        data = _worker(int(n), int(c), method, int(repeats), int(seed))
+    sys.stdout.write(json.dumps(data) + "\n")  # the protocol with the parent, not a message
     return 0
 
 
 if __name__ == "__main__":
-    sys.exit(run(build_parser().parse_args()))
+    sys.exit(worker_main())

@@ -18,7 +18,9 @@ matplotlib is imported lazily, only to draw the figures (``pip install fgloc[rep
 
 from __future__ import annotations
 
+import logging
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -32,6 +34,8 @@ from fgloc.evaluate.crlb import cramer_rao_bound
 from fgloc.evaluate.score import CHI2_95, PAPER_BASELINE_METRES
 from fgloc.sim.scenes import PaperScenario, paper_scenario
 from fgloc.solve.joint import solve_survey
+
+logger = logging.getLogger(__name__)
 
 PAPER_REFERENCE = (
     'R. Farrell, R. Garcia, D. Lucarelli, A. Terzis, I-J. Wang, "Target localization in camera '
@@ -94,10 +98,15 @@ def _errors(survey: Survey, result: Result) -> np.ndarray:
     return out
 
 
-def run_experiment(config: ReportConfig, keep_first: bool = True) -> ReportData:
-    """Run every (heights, seed, k) of ``config``. Keeps full solutions for the first seed."""
+def run_experiment(
+    config: ReportConfig, keep_first: bool = True, progress: Callable[[int, int], None] | None = None
+) -> ReportData:
+    """Run every (heights, seed, k) of ``config``. Keeps full solutions for the first seed.
+
+    ``progress(done, total)`` is called after each (heights, seed, k) run."""
     t0 = time.perf_counter()
     data = ReportData(config=config)
+    total = len(config.heights) * len(config.seeds) * len(config.subset_sizes)
     for heights in config.heights:
         for seed in config.seeds:
             for k in config.subset_sizes:
@@ -143,6 +152,9 @@ def run_experiment(config: ReportConfig, keep_first: bool = True) -> ReportData:
                         joint=joint if keep else None,
                     )
                 )
+                logger.debug(f"heights {heights}, seed {seed}, k {k}: baseline {tb:.2f} s, joint {tj:.2f} s")
+                if progress is not None:
+                    progress(len(data.runs), total)
     data.seconds = time.perf_counter() - t0
     return data
 

@@ -11,6 +11,10 @@ so a sweep is an embarrassingly parallel ``map``. The seam is any object with
   executor running on the cluster);
 * Ray: ``ray.util.multiprocessing.Pool()`` (``Pool.map``).
 
+``progress`` follows the sweep: a callback ``progress(done, total)`` called as each
+trial's outcome arrives, or True for a tqdm bar on stderr (drawn only when stderr is
+a terminal).
+
 What crosses the seam is plain data (a :class:`~fgloc.sim.bench_scenes.BenchScene`
 in, a :class:`TrialOutcome` out), never a GTSAM graph: graphs holding Python
 ``CustomFactor``s cannot be pickled, so every worker builds its own.
@@ -18,6 +22,7 @@ in, a :class:`TrialOutcome` out), never a GTSAM graph: graphs holding Python
 
 from __future__ import annotations
 
+import sys
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
@@ -65,7 +70,31 @@ def run_trial(scene: BenchScene) -> TrialOutcome:
     )
 
 
-def run_sweep(scenes: Iterable[BenchScene], executor: MapExecutor | None = None) -> list[TrialOutcome]:
-    """Run :func:`run_trial` on every scene, in order, through ``executor`` if given."""
+def run_sweep(
+    scenes: Iterable[BenchScene],
+    executor: MapExecutor | None = None,
+    progress: Callable[[int, int], None] | bool = False,
+) -> list[TrialOutcome]:
+    """Run :func:`run_trial` on every scene, in order, through ``executor`` if given.
+
+    ``progress``: ``progress(done, total)`` after each outcome (outcomes arrive in scene order),
+    or True for a tqdm bar on stderr (off when stderr is not a terminal)."""
+    todo = list(scenes)
     mapper = executor.map if executor is not None else map
-    return list(mapper(run_trial, list(scenes)))
+    outcomes: list[TrialOutcome] = []
+    bar = None
+    if progress is True:
+        from tqdm import tqdm
+
+        bar = tqdm(total=len(todo), desc="sweep", unit="scene", file=sys.stderr, disable=None, leave=False)
+    try:
+        for outcome in mapper(run_trial, todo):
+            outcomes.append(outcome)
+            if bar is not None:
+                bar.update(1)
+            elif callable(progress):
+                progress(len(outcomes), len(todo))
+    finally:
+        if bar is not None:
+            bar.close()
+    return outcomes

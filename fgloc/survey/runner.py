@@ -25,6 +25,7 @@ batch joint solve. An incremental (iSAM2) estimator can be passed instead.
 
 from __future__ import annotations
 
+import logging
 import math
 import threading
 import time
@@ -44,6 +45,8 @@ from fgloc.files.rig_config import RigConfig
 # node, so four nodes are exactly determined (and degenerate in practice); five is the first
 # redundant case.
 MIN_SHARED_NODES = 5
+
+logger = logging.getLogger(__name__)
 
 
 class Estimator(Protocol):
@@ -163,13 +166,12 @@ class RunnerStats:
 class CameraWorker:
     """Owns one camera's head: retries, reconnects, and the LED locator."""
 
-    def __init__(self, camera_id: str, open_head: Callable[[], PanTiltHead], rig: RigConfig, stats: RunnerStats,
-                 log: Callable[[str], None]) -> None:
+    def __init__(self, camera_id: str, open_head: Callable[[], PanTiltHead], rig: RigConfig,
+                 stats: RunnerStats) -> None:
         self.camera_id = camera_id
         self.open_head = open_head
         self.retry = rig.retry
         self.stats = stats
-        self.log = log
         cam = rig.cameras[rig.camera_ids.index(camera_id)]
         self.locator = LedLocator(rig.search, PinholePixelModel(cam.intrinsics))
         self.home = (0.0, 0.5 * (rig.search.tilt_min + rig.search.tilt_max))
@@ -203,7 +205,7 @@ class CameraWorker:
                 try:
                     if round_ > 0:
                         self.stats.reconnects += 1
-                        self.log(f"{self.camera_id}: reconnecting after: {last}")
+                        logger.warning(f"{self.camera_id}: reconnecting after: {last}")
                     self._reopen()
                 except Exception as exc:  # noqa: BLE001 - any driver failure to open is retried
                     last = exc
@@ -258,7 +260,6 @@ class SurveyRunner:
         live_every: int = 1,
         on_estimate: Callable[[LiveEstimate], None] | None = None,
         on_progress: Callable[[Progress], None] | None = None,
-        log: Callable[[str], None] = lambda message: None,
     ) -> None:
         if state.header.camera_ids != rig.camera_ids or state.header.node_ids != rig.node_ids:
             raise FglocError(f"{journal.path}: header: cameras or node ids differ from {rig.path}")
@@ -270,9 +271,8 @@ class SurveyRunner:
         self.live_every = max(1, live_every)
         self.on_estimate = on_estimate
         self.on_progress = on_progress
-        self.log = log
         self.stats = RunnerStats()
-        self.workers = {c: CameraWorker(c, (lambda c=c: open_head(c)), rig, self.stats, log) for c in rig.camera_ids}
+        self.workers = {c: CameraWorker(c, (lambda c=c: open_head(c)), rig, self.stats) for c in rig.camera_ids}
         self.latest: LiveEstimate | None = None
         self._state_lock = threading.Lock()
         self._led_lock = threading.Lock()
@@ -292,7 +292,7 @@ class SurveyRunner:
                 if self.leds.set_led(node, on):
                     return True
             except Exception as exc:  # noqa: BLE001 - base-station driver errors are retried
-                self.log(f"{node}: LED {'on' if on else 'off'} failed: {exc}")
+                logger.warning(f"{node}: LED {'on' if on else 'off'} failed: {exc}")
             self.stats.led_retries += 1
             time.sleep(self.rig.retry.backoff_s * (attempt + 1))
         return False
@@ -323,7 +323,7 @@ class SurveyRunner:
                 self.journal.led_failed(node, reason)
                 st.led_failed[node] = reason
                 self.stats.led_failed += 1
-                self.log(f"{node}: LED failed: {reason}")
+                logger.warning(f"{node}: LED failed: {reason}")
             else:
                 if self.rig.search.led_wait_s > 0:
                     time.sleep(self.rig.search.led_wait_s)
@@ -347,10 +347,12 @@ class SurveyRunner:
                         self.journal.not_found(node, cam, reason)
                         st.not_found[(node, cam)] = reason
                         self.stats.not_found += 1
-                        self.log(f"{node}: not found by {cam}: {reason}")
+                        # An occluded pair is an ordinary outcome; a camera that kept failing is not.
+                        level = logging.WARNING if reason.startswith("camera error") else logging.INFO
+                        logger.log(level, f"{node}: not found by {cam}: {reason}")
                 if not self._set_led(node, False):
                     self.journal.append({"type": "led_off_failed", "node": node})
-                    self.log(f"{node}: LED did not acknowledge switching off")
+                    logger.warning(f"{node}: LED did not acknowledge switching off")
         self.journal.node_done(node)
         st.done.add(node)
 
@@ -365,7 +367,7 @@ class SurveyRunner:
         except Exception as exc:  # noqa: BLE001 - a live estimate is advisory; the survey must go on
             message = " ".join(str(exc).split())  # GTSAM's messages span lines
             self.stats.estimate_errors.append(message)
-            self.log(f"live estimate failed: {message[:200]}")
+            logger.warning(f"live estimate failed: {message[:200]}")
             return None
         if result is None:
             return None

@@ -105,17 +105,20 @@ def run_survey(
     live_every: int = 1,
     on_estimate: Callable[[LiveEstimate], None] | None = None,
     on_progress: Callable[[Progress], None] | None = None,
-    log: Callable[[str], None] = lambda message: None,
     opened: OpenedRig | None = None,
 ) -> tuple[Survey, SurveyRunner]:
-    """Run (or resume) a survey and write ``survey.json``; returns it and the runner."""
+    """Run (or resume) a survey and write ``survey.json``; returns it and the runner.
+
+    What goes wrong along the way (LED or camera failures, failed live estimates) is logged
+    on the ``fgloc.survey.runner`` logger; ``on_progress`` is called before the first node
+    and after every node."""
     own = opened is None
     opened = opened or (open_simulated(rig) if simulate else open_hardware(rig))
     try:
         writer, state = start_journal(rig, out_dir, resume, opened.simulated)
         try:
             runner = SurveyRunner(rig, opened.open_head, opened.leds, writer, state, estimator=estimator,
-                                  live_every=live_every, on_estimate=on_estimate, on_progress=on_progress, log=log)
+                                  live_every=live_every, on_estimate=on_estimate, on_progress=on_progress)
             survey = runner.run()
         finally:
             writer.close()
