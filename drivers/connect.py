@@ -1,8 +1,8 @@
 """Open rig hardware from a port string: the one place that maps ``--port`` to a driver.
 
-* ``/dev/ttyUSB0`` (any path / ``COM3``) -> VISCA over RS-232 (:mod:`fgloc.drivers.visca`)
+* ``/dev/ttyUSB0`` (any path / ``COM3``) -> VISCA over RS-232 (:mod:`fgloc.drivers.visca.serial_link`)
   for heads, TinyOS serial BaseStation (:mod:`fgloc.drivers.tinyos_serial`) for motes;
-* ``udp://HOST[:PORT]``  -> VISCA over IP (:mod:`fgloc.drivers.visca_ip`), port 52381 by default;
+* ``udp://HOST[:PORT]``  -> VISCA over IP (:mod:`fgloc.drivers.visca.ip`), port 52381 by default;
 * ``http://[USER:PASSWORD@]HOST[:PORT]`` -> Sony CGI (:mod:`fgloc.drivers.sony_cgi`); credentials
   may instead come from ``FGLOC_CAMERA_USER`` / ``FGLOC_CAMERA_PASSWORD``;
 * ``tcp://HOST[:PORT]``  -> SerialForwarder (motes only), port 9002 by default.
@@ -28,7 +28,7 @@ from fgloc.drivers.ptz_units import (
     camera_model,
     mounting,
 )
-from fgloc.drivers.visca import Timeouts
+from fgloc.drivers.visca.session import Timeouts
 
 
 @dataclass(frozen=True)
@@ -75,11 +75,11 @@ def open_head(port: str, options: HeadOptions | None = None, frames: object | No
         frames = open_frame_source(o.video)
     timeouts = Timeouts(ack=o.timeout, inquiry=o.timeout, completion_margin=o.completion_margin, retries=o.retries)
     if transport == "serial":
-        from fgloc.drivers.visca import open_serial_head
+        from fgloc.drivers.visca.head import open_serial_head
 
         return open_serial_head(port, units, o.address, timeouts, frames)
     if transport == "udp":
-        from fgloc.drivers.visca_ip import open_ip_head
+        from fgloc.drivers.visca.ip import open_ip_head
 
         return open_ip_head(port, None, units, timeouts, frames)
     from fgloc.drivers.sony_cgi import Credentials, open_cgi_head, split_url

@@ -7,7 +7,7 @@ Requests (protocols.md 2.1; spellings to be confirmed on the camera):
   **before** the motion ends;
 * zoom:      ``POST /command/ptzf.cgi`` form ``AbsoluteZoom=ZZZZ`` (hex);
 * inquiries: ``GET /command/visca-inquiry.cgi?visca=81090612FF`` -> body = VISCA reply as
-  hex text (``9050 0p0p0p0p 0t0t0t0t FF``), decoded with :mod:`fgloc.drivers.visca`;
+  hex text (``9050 0p0p0p0p 0t0t0t0t FF``), decoded with :mod:`fgloc.drivers.visca.codec`;
 * stop/home: VISCA tunnel ``GET /command/visca-ptzf.cgi?visca=8101...FF``;
 * snapshot:  ``GET /oneshotimage.jpg``.
 
@@ -33,22 +33,18 @@ from dataclasses import dataclass
 import numpy as np
 
 from fgloc.drivers.ptz_units import SNC_RZ25N, PanTiltUnits, PositionOutOfRangeError
-from fgloc.drivers.visca import (
+from fgloc.drivers.visca.codec import (
     Reply,
     ReplyKind,
-    ViscaDisconnected,
-    ViscaError,
-    ViscaProtocolError,
-    ViscaTimeout,
     cmd_home,
     cmd_pan_tilt_position_inquiry,
     cmd_pan_tilt_stop,
     cmd_zoom_position_inquiry,
     decode_pan_tilt,
     decode_zoom,
-    error_for,
     parse_reply,
 )
+from fgloc.drivers.visca.errors import ViscaDisconnected, ViscaError, ViscaProtocolError, ViscaTimeout, error_for
 
 log = logging.getLogger(__name__)
 

@@ -4,10 +4,10 @@ Message = header + payload, big-endian (protocols.md 2.4)::
 
     type(2)  length(2)  sequence(4)  payload(1..16)
 
-The VISCA payloads are exactly the serial packets of :mod:`fgloc.drivers.visca` (camera
+The VISCA payloads are exactly the serial packets of :mod:`fgloc.drivers.visca.codec` (camera
 address fixed at 1, replies ``90 ...``); this module only adds the header, the
 sequence number and the retransmission rule, and plugs into the same
-:class:`fgloc.drivers.visca.ViscaSession` / :class:`fgloc.drivers.visca.ViscaHead`.
+:class:`fgloc.drivers.visca.session.ViscaSession` / :class:`fgloc.drivers.visca.head.ViscaHead`.
 
 Retransmission: on a timeout the session resends with ``retransmit=True`` and the
 link reuses the *same* sequence number. If the original arrived and only the
@@ -24,17 +24,10 @@ import struct
 import time
 from dataclasses import dataclass
 
-from fgloc.drivers.visca import (
-    HeadSettings,
-    Timeouts,
-    ViscaDisconnected,
-    ViscaError,
-    ViscaHead,
-    ViscaProtocolError,
-    ViscaSession,
-    ViscaTimeout,
-    is_inquiry,
-)
+from fgloc.drivers.visca.codec import is_inquiry
+from fgloc.drivers.visca.errors import ViscaDisconnected, ViscaError, ViscaProtocolError, ViscaTimeout
+from fgloc.drivers.visca.head import HeadSettings, ViscaHead
+from fgloc.drivers.visca.session import Timeouts, ViscaSession
 
 DEFAULT_PORT = 52381
 HEADER = struct.Struct(">HHI")
@@ -99,7 +92,7 @@ def parse_udp_url(url: str) -> tuple[str, int]:
 
 
 class ViscaIpLink:
-    """A :class:`fgloc.drivers.visca.ViscaLink` over UDP with sequence numbers and RESET."""
+    """A :class:`fgloc.drivers.visca.session.ViscaLink` over UDP with sequence numbers and RESET."""
 
     def __init__(self, host: str, port: int = DEFAULT_PORT, local_port: int = 0,
                  reset_timeout: float = 0.3, reset_tries: int = 3) -> None:
