@@ -1,7 +1,7 @@
 """Open rig hardware from a port string: the one place that maps ``--port`` to a driver.
 
 * ``/dev/ttyUSB0`` (any path / ``COM3``) -> VISCA over RS-232 (:mod:`fgloc.drivers.visca.serial_link`)
-  for heads, TinyOS serial BaseStation (:mod:`fgloc.drivers.tinyos_serial`) for motes;
+  for heads, TinyOS serial BaseStation (:mod:`fgloc.drivers.tinyos`) for motes;
 * ``udp://HOST[:PORT]``  -> VISCA over IP (:mod:`fgloc.drivers.visca.ip`), port 52381 by default;
 * ``http://[USER:PASSWORD@]HOST[:PORT]`` -> Sony CGI (:mod:`fgloc.drivers.sony_cgi`); credentials
   may instead come from ``FGLOC_CAMERA_USER`` / ``FGLOC_CAMERA_PASSWORD``;
@@ -95,8 +95,8 @@ def open_head(port: str, options: HeadOptions | None = None, frames: object | No
 
 def open_leds(port: str, address_map: Mapping[str, int] | None = None, timeout: float = 0.25, retries: int = 5,
               report_timeout: float = 0.5, attempts: int = 3) -> LedController:
-    """A ``fgloc.core.hardware.LedController`` (:class:`fgloc.drivers.tinyos_serial.MoteNetwork`) for a serial port or tcp://."""
-    from fgloc.drivers.tinyos_serial import open_mote_network
+    """A ``fgloc.core.hardware.LedController`` (:class:`fgloc.drivers.tinyos.network.MoteNetwork`) for a serial port or tcp://."""
+    from fgloc.drivers.tinyos.network import open_mote_network
 
     transport = transport_of(port)
     if transport not in ("serial", "tcp"):

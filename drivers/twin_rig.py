@@ -8,7 +8,7 @@ pyserial. The emulator renders frames from the same scene as the in-process rig
 ``simulation.frames``), converting its head counts to spec
 angles with the camera's :class:`~fgloc.drivers.ptz_units.PanTiltUnits` (model and
 mounting from rig.json). The LEDs go through the real TinyOS serial driver
-(:func:`fgloc.drivers.tinyos_serial.open_mote_network`) to a base-station pty twin whose
+(:func:`fgloc.drivers.tinyos.network.open_mote_network`) to a base-station pty twin whose
 motes light the scene's LEDs; dead nodes stay silent.
 
 Faults per camera and on the base station: ``drop_rate`` and ``garble_rate``
@@ -24,7 +24,7 @@ from dataclasses import replace
 
 from fgloc.drivers.inprocess_rig import FrameRenderer, build_scene, frame_renderer
 from fgloc.drivers.ptz_units import PanTiltUnits, camera_model, mounting
-from fgloc.drivers.tinyos_serial import open_mote_network
+from fgloc.drivers.tinyos.network import open_mote_network
 from fgloc.drivers.twins.base_station import BaseStationSerialTwin, MoteFieldEmulator
 from fgloc.drivers.twins.faults import FaultConfig
 from fgloc.drivers.twins.visca_camera import HeadPose, ViscaCameraEmulator, ViscaSerialTwin

@@ -17,7 +17,7 @@ import statistics
 import time
 
 from fgloc.drivers.sony_cgi import open_cgi_head
-from fgloc.drivers.tinyos_serial import open_mote_network
+from fgloc.drivers.tinyos.network import open_mote_network
 from fgloc.drivers.twins.base_station import BaseStationSerialTwin, SerialForwarderTwin
 from fgloc.drivers.twins.faults import FaultConfig
 from fgloc.drivers.twins.sony_cgi_camera import SonyCgiTwin
