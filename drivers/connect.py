@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 from fgloc.core.errors import FglocError
 from fgloc.core.hardware import LedController, PanTiltHead
+from fgloc.drivers.head_adapter import FrameSourceArg
 from fgloc.drivers.ptz_units import (
     EVI_D100,
     SNC_RZ25N,
@@ -61,7 +62,7 @@ def default_model(transport: str) -> CameraModel:
     return {"serial": EVI_D100, "udp": VISCA_IP_GENERIC, "http": SNC_RZ25N}[transport]
 
 
-def open_head(port: str, options: HeadOptions | None = None, frames: object | None = None) -> PanTiltHead:
+def open_head(port: str, options: HeadOptions | None = None, frames: FrameSourceArg = None) -> PanTiltHead:
     """A ``fgloc.core.hardware.PanTiltHead`` for ``port`` (initialised and answering), see the module doc."""
     o = options or HeadOptions()
     transport = transport_of(port)

@@ -73,14 +73,17 @@ class SerialMoteLink(ReaderLink):
             self.stats.malformed += 1
             return
         if f.protocol == PROTO_ACK:
+            assert f.seq is not None  # parse_body gives ACK frames their sequence byte
             with self._ack_cv:
                 self._acks.add(f.seq)
                 self._ack_cv.notify_all()
         elif f.protocol == PROTO_PACKET_ACK:
+            assert f.seq is not None and f.packet is not None
             self._write(ack_frame(f.seq))  # legal though motes never ask (protocols.md 3.9)
             self.stats.acks_sent += 1
             self._deliver(f.packet)
         elif f.protocol == PROTO_PACKET_NOACK:
+            assert f.packet is not None
             self._deliver(f.packet)
         elif f.protocol == PROTO_UNKNOWN:
             with self._ack_cv:

@@ -1,20 +1,20 @@
 """The VISCA pan-tilt head: ``fgloc.core.hardware.PanTiltHead`` in spec radians over any VISCA link.
 
-Angles convert through :class:`fgloc.drivers.ptz_units.PanTiltUnits` (device counts
-<-> spec radians, mounting); times are seconds.
+The spec-radian level (units, mounting, limits, confirmed read-back, frames) is the
+shared :class:`fgloc.drivers.head_adapter.HeadAdapter`; this module adds the VISCA
+counts level on a :class:`fgloc.drivers.visca.session.ViscaSession`. Times are seconds.
 """
 
 from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Protocol
 
 import numpy as np
 
-from fgloc.drivers.ptz_units import EVI_D100, CameraModel, PanTiltUnits, PositionOutOfRangeError
+from fgloc.drivers.head_adapter import FrameSourceArg, HeadAdapter
+from fgloc.drivers.ptz_units import EVI_D100, PanTiltUnits
 from fgloc.drivers.visca.codec import (
     cmd_focus_auto,
     cmd_focus_manual,
@@ -34,10 +34,6 @@ from fgloc.drivers.visca.session import Timeouts, ViscaSession
 log = logging.getLogger(__name__)
 
 
-class FrameSourceLike(Protocol):
-    def read(self) -> np.ndarray: ...
-
-
 @dataclass
 class HeadSettings:
     """Per-head knobs: speeds (VISCA bytes), read-back confirmation, settle time (s)."""
@@ -49,7 +45,7 @@ class HeadSettings:
     settle_seconds: float = 0.0
 
 
-class ViscaHead:
+class ViscaHead(HeadAdapter):
     """``fgloc.core.hardware.PanTiltHead`` over VISCA (any link): angles in spec radians.
 
     The read-back position is what ``position()`` returns (never the commanded one);
@@ -58,19 +54,19 @@ class ViscaHead:
     checksum) and a head still settling (protocols.md 1.10 item 9).
     """
 
-    def __init__(self, session: ViscaSession, units: PanTiltUnits | None = None,
-                 frames: FrameSourceLike | Callable[[], np.ndarray] | None = None,
+    unsteady_error = ViscaProtocolError
+
+    def __init__(self, session: ViscaSession, units: PanTiltUnits | None = None, frames: FrameSourceArg = None,
                  settings: HeadSettings | None = None) -> None:
-        self.session = session
-        self.units = units or PanTiltUnits(EVI_D100)
-        self.frames = frames
         self.settings = settings or HeadSettings()
+        super().__init__(units or PanTiltUnits(EVI_D100), frames, self.settings.confirm_reads,
+                         self.settings.max_reads)
+        self.session = session
         session._on_reconnect = self._reinit
-        self._last_counts: tuple[int, int] | None = None
 
     @property
-    def model(self) -> CameraModel:
-        return self.units.model
+    def where(self) -> str:
+        return f"VISCA camera {self.address}"
 
     @property
     def address(self) -> int:
@@ -114,10 +110,7 @@ class ViscaHead:
         """Absolute move in device counts; blocks until the camera reports completion."""
         self._ready()
         m = self.model
-        if not (m.pan_min <= pan <= m.pan_max and m.tilt_min <= tilt <= m.tilt_max):
-            raise PositionOutOfRangeError(
-                f"({pan}, {tilt}) counts outside {m.name} range pan {m.pan_min}..{m.pan_max}, "
-                f"tilt {m.tilt_min}..{m.tilt_max}")
+        self.check_counts(pan, tilt)
         ps, ts = self._speeds()
         start = self._last_counts
         if start is None:  # size the completion timeout from the real distance (protocols.md 1.5)
@@ -137,6 +130,7 @@ class ViscaHead:
             time.sleep(self.settings.settle_seconds)
 
     def read_counts_once(self) -> tuple[int, int]:
+        """One pan-tilt position inquiry: (pan, tilt) signed device counts."""
         data = self.session.inquiry(cmd_pan_tilt_position_inquiry(self.address), self.model.pan_nibbles + 4,
                                     name="pan-tilt position inquiry")
         return decode_pan_tilt(data, self.model.pan_nibbles)
@@ -144,39 +138,16 @@ class ViscaHead:
     def position_counts(self) -> tuple[int, int]:
         """Read-back (pan, tilt) in device counts (confirmed by two equal reads when enabled)."""
         self._ready()
-        prev = self.read_counts_once()
-        if not self.settings.confirm_reads:
-            self._last_counts = prev
-            return prev
-        for _ in range(self.settings.max_reads - 1):
-            cur = self.read_counts_once()
-            if cur == prev:
-                self._last_counts = cur
-                return cur
-            prev = cur
-        raise ViscaProtocolError(f"pan-tilt position did not read the same twice in {self.settings.max_reads} reads "
-                                 "(head still moving or line noise)")
+        return super().position_counts()
 
-    # -- PanTiltHead
-    def move_to(self, pan: float, tilt: float) -> None:
-        """Move to spec (pan, tilt) radians; blocks until completion."""
-        self.move_to_counts(*self.units.to_counts(pan, tilt))
-
-    def position(self) -> tuple[float, float]:
-        """Read-back spec (pan, tilt) radians."""
-        return self.units.to_spec(*self.position_counts())
-
-    def set_zoom(self, zoom: float) -> None:
-        counts = self.units.zoom_to_counts(zoom)
+    def set_zoom_counts(self, counts: int) -> None:
+        """CAM_Zoom Direct to ``counts``; blocks until completion."""
         wait = 3.0 + self.session.timeouts.completion_margin
         self.session.command(cmd_zoom_direct(self.address, counts), completion_timeout=wait, name="zoom direct")
 
     def zoom_counts(self) -> int:
         data = self.session.inquiry(cmd_zoom_position_inquiry(self.address), 4, name="zoom position inquiry")
         return decode_zoom(data)
-
-    def zoom(self) -> float:
-        return self.units.zoom_from_counts(self.zoom_counts())
 
     def set_autofocus(self, on: bool) -> None:
         """Auto focus on, or manual (focus held where it is) while measuring."""
@@ -196,25 +167,15 @@ class ViscaHead:
         self.session.command(cmd_home(self.address), completion_timeout=wait, name="home")
         self._last_counts = (0, 0)
 
-    def grab_frame(self) -> np.ndarray:
-        if self.frames is None:
-            raise ViscaError("this head has no frame source (give --video or a FrameSource)")
-        if callable(self.frames) and not hasattr(self.frames, "read"):
-            return self.frames()
-        return self.frames.read()
+    def _frame_without_source(self) -> np.ndarray:
+        raise ViscaError("this head has no frame source (give --video or a FrameSource)")
 
     def close(self) -> None:
         self.session.link.close()
 
-    def __enter__(self) -> ViscaHead:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
 
 def open_serial_head(port: str, units: PanTiltUnits | None = None, address: int = 1,
-                     timeouts: Timeouts | None = None, frames=None, settings: HeadSettings | None = None,
+                     timeouts: Timeouts | None = None, frames: FrameSourceArg = None, settings: HeadSettings | None = None,
                      initialize: bool = True, baudrate: int = 9600) -> ViscaHead:
     """Open a VISCA head on a serial port (Address Set + IF_Clear unless ``initialize=False``)."""
     link = SerialLink(port, baudrate)
