@@ -34,6 +34,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from fgloc.core.retry import RetryPolicy
 from fgloc.drivers.head_adapter import FrameSourceArg, HeadAdapter
 from fgloc.drivers.ptz_units import SNC_RZ25N, PanTiltUnits
 from fgloc.drivers.visca.codec import (
@@ -54,6 +55,10 @@ log = logging.getLogger(__name__)
 
 class SonyCgiError(ViscaError):
     """The camera's web server refused a request (HTTP status), or authentication failed."""
+
+
+class SonyCgiServerError(SonyCgiError):
+    """HTTP 5xx: the camera's web server failed this time; the request is retried."""
 
 
 @dataclass(frozen=True)
@@ -109,13 +114,14 @@ class SonyCgiClient:
         return f"SonyCgiClient({self.base_url!r})"
 
     def request(self, path: str, query: dict[str, str] | None = None, form: dict[str, str] | None = None) -> bytes:
-        """GET (or POST when ``form``) ``path``; returns the body. Retries timeouts/resets/5xx."""
+        """GET (or POST when ``form``) ``path``; returns the body. Retries timeouts/resets/5xx
+        (``retries`` times, 0.05 s apart); 4xx and authentication failures raise at once."""
         url = self.base_url + path
         if query:
             url += "?" + urllib.parse.urlencode(query, safe=",")
         data = urllib.parse.urlencode(form, safe=",").encode("ascii") if form is not None else None
-        last: ViscaError = ViscaTimeout(f"{self.base_url}{path}: no answer")
-        for attempt in range(self.retries + 1):
+
+        def attempt(n: int) -> bytes:
             req = urllib.request.Request(url, data=data, method="POST" if data is not None else "GET")
             if self._credentials is not None:
                 req.add_header("Authorization", self._credentials.header())
@@ -126,42 +132,41 @@ class SonyCgiClient:
                 if exc.code in (401, 403):
                     raise SonyCgiError(f"{self.base_url}{path}: HTTP {exc.code}: authentication failed "
                                        "(check the user and password)") from None
-                last = SonyCgiError(f"{self.base_url}{path}: HTTP {exc.code} {exc.reason}")
-                if exc.code < 500:
-                    raise last from None
+                cls = SonyCgiServerError if exc.code >= 500 else SonyCgiError
+                raise cls(f"{self.base_url}{path}: HTTP {exc.code} {exc.reason}") from None
             except urllib.error.URLError as exc:
                 reason = exc.reason
                 if isinstance(reason, ConnectionRefusedError) or "refused" in str(reason).lower():
-                    last = ViscaDisconnected(f"{self.base_url}: connection refused (camera off or wrong address?)")
-                elif isinstance(reason, TimeoutError) or "timed out" in str(reason):
-                    last = ViscaTimeout(f"{self.base_url}{path}: no answer within {self.timeout:.1f} s")
-                else:
-                    last = ViscaDisconnected(f"{self.base_url}: {getattr(reason, 'strerror', None) or reason}")
+                    raise ViscaDisconnected(f"{self.base_url}: connection refused (camera off or wrong address?)") \
+                        from None
+                if isinstance(reason, TimeoutError) or "timed out" in str(reason):
+                    raise ViscaTimeout(f"{self.base_url}{path}: no answer within {self.timeout:.1f} s") from None
+                raise ViscaDisconnected(f"{self.base_url}: {getattr(reason, 'strerror', None) or reason}") from None
             except (TimeoutError, http.client.RemoteDisconnected, ConnectionError, http.client.HTTPException) as exc:
-                last = ViscaTimeout(f"{self.base_url}{path}: {type(exc).__name__}")
-            if attempt < self.retries:
-                log.debug("retrying %s%s after: %s", self.base_url, path, last)
-                time.sleep(0.05)
-        raise last
+                raise ViscaTimeout(f"{self.base_url}{path}: {type(exc).__name__}") from None
+
+        def before_retry(failures: int, error: BaseException) -> None:
+            log.debug("retrying %s%s after: %s", self.base_url, path, error)
+
+        policy = RetryPolicy(self.retries + 1, (ViscaTimeout, ViscaDisconnected, SonyCgiServerError), wait=0.05)
+        return policy.call(attempt, before_retry)
 
     def visca_inquiry(self, packet: bytes, expect_len: int) -> bytes:
-        """VISCA inquiry through ``visca-inquiry.cgi``; returns the reply's data bytes."""
-        last: ViscaError = ViscaProtocolError("no reply")
-        for _ in range(self.retries + 1):  # a corrupted reply is asked again
+        """VISCA inquiry through ``visca-inquiry.cgi``; returns the reply's data bytes.
+
+        A corrupted or unexpected reply is asked again (``retries`` times); an error reply raises."""
+
+        def attempt(n: int) -> bytes:
             body = self.request("/command/visca-inquiry.cgi", {"visca": packet.hex().upper()})
-            try:
-                reply = _parse_hex_reply(body)
-            except ViscaProtocolError as exc:
-                last = exc
-                continue
+            reply = _parse_hex_reply(body)
             if reply.kind is ReplyKind.ERROR:
                 raise error_for(reply.error_code, reply.socket, "VISCA inquiry")
             if reply.kind is not ReplyKind.INQUIRY or len(reply.data) != expect_len \
                     or any(b & 0xF0 for b in reply.data):
-                last = ViscaProtocolError(f"unexpected reply to VISCA inquiry: {body[:40]!r}")
-                continue
+                raise ViscaProtocolError(f"unexpected reply to VISCA inquiry: {body[:40]!r}")
             return reply.data
-        raise last
+
+        return RetryPolicy(self.retries + 1, ViscaProtocolError).call(attempt)
 
     def visca_command(self, packet: bytes) -> None:
         """VISCA command through ``visca-ptzf.cgi`` (an error reply in the body raises)."""

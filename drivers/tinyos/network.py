@@ -9,12 +9,17 @@ import time
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
-from fgloc.drivers.tinyos.errors import MoteDisconnected
+from fgloc.core.retry import RetryPolicy
+from fgloc.drivers.tinyos.errors import MoteDisconnected, MoteTimeout
 from fgloc.drivers.tinyos.forwarder import SerialForwarderLink, parse_tcp_url
 from fgloc.drivers.tinyos.messages import ALL_LEDS, DEFAULT_GROUP, AmPacket, led_command, node_address, parse_led_report
 from fgloc.drivers.tinyos.serial_link import MICAZ_BAUD, SerialMoteLink
 
 log = logging.getLogger(__name__)
+
+
+class LedNotConfirmed(MoteTimeout):
+    """The node sent no LED report confirming a command (``set_led`` then returns False)."""
 
 
 @dataclass
@@ -40,26 +45,26 @@ class MoteNetwork:
     _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
 
     def set_led(self, node_id: str, on: bool) -> bool:
+        """Switch the node's LEDs; True once its LED report confirms, False if it never does."""
         node = node_address(node_id, self.address_map)
+
+        def attempt(n: int) -> bool:
+            if n:
+                self.link.reopen()
+            return self._set_led(node, bool(on))
+
+        def before_retry(failures: int, error: BaseException) -> None:
+            log.warning("mote link lost (%s); reconnecting (%d/%d)", error, failures, self.reconnects)
+
         with self._lock:
-            for reconnect in range(self.reconnects + 1):
-                try:
-                    return self._set_led(node, bool(on))
-                except MoteDisconnected:
-                    if reconnect >= self.reconnects:
-                        raise
-                    log.warning("mote link lost; reconnecting")
-                    time.sleep(self.reconnect_wait)
-                    try:
-                        self.link.reopen()
-                    except MoteDisconnected:
-                        if reconnect + 1 >= self.reconnects:
-                            raise
-        return False  # pragma: no cover
+            policy = RetryPolicy(self.reconnects + 1, MoteDisconnected, self.reconnect_wait)
+            return policy.call(attempt, before_retry)
 
     def _set_led(self, node: int, on: bool) -> bool:
+        """Up to ``attempts`` sends of the LED command, each waiting ``report_timeout`` s for the report."""
         command = led_command(node, on, self.mask, group=self.group)
-        for _ in range(self.attempts):
+
+        def attempt(n: int) -> None:
             self._drain()
             self.link.send(command)
             deadline = time.monotonic() + self.report_timeout
@@ -67,11 +72,16 @@ class MoteNetwork:
                 packet = self.link.receive(remaining)
                 if packet is None:
                     break
-                report = parse_led_report(packet)
-                if report == (node, on):
-                    return True
+                if parse_led_report(packet) == (node, on):
+                    return
                 self._keep(packet)
-        return False
+            raise LedNotConfirmed(f"node {node}: no LED report within {self.report_timeout:.2f} s")
+
+        try:
+            RetryPolicy(self.attempts, LedNotConfirmed).call(attempt)
+        except LedNotConfirmed:
+            return False
+        return True
 
     def _drain(self) -> None:
         while True:

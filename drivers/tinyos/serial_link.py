@@ -6,6 +6,7 @@ import threading
 import time
 from typing import TYPE_CHECKING
 
+from fgloc.core.retry import RetryPolicy
 from fgloc.drivers.tinyos.errors import MoteDisconnected, MoteProtocolError, MoteTimeout
 from fgloc.drivers.tinyos.framing import (
     PROTO_ACK,
@@ -107,14 +108,14 @@ class SerialMoteLink(ReaderLink):
             raise MoteDisconnected(f"{self.port}: write failed ({first_line(exc)})") from None
 
     def send(self, packet: AmPacket) -> None:
-        """Send as 0x44 with a fresh sequence number; resend until ACKed (MoteTimeout after retries)."""
+        """Send as 0x44 with a fresh sequence number; resend until ACKed within ``ack_timeout`` s
+        (MoteTimeout after ``retries`` resends)."""
         self._check()
         self._seq = (self._seq + 1) & 0xFF
         seq = self._seq
         data = data_frame(packet, seq)
-        for attempt in range(self.retries + 1):
-            if attempt:
-                self.stats.retries += 1
+
+        def attempt(n: int) -> None:
             with self._ack_cv:
                 self._acks.discard(seq)
                 self._error_reply = None
@@ -129,11 +130,14 @@ class SerialMoteLink(ReaderLink):
                                                 f"(0xFF {self._error_reply[:1].hex()}); is it running TinyOS 2.x?")
                     remaining = deadline - time.monotonic()
                     if remaining <= 0:
-                        break
+                        raise MoteTimeout(f"{self.port}: base station did not acknowledge after "
+                                          f"{self.retries + 1} tries")
                     self._ack_cv.wait(remaining)
-                if seq in self._acks:
-                    return
-        raise MoteTimeout(f"{self.port}: base station did not acknowledge after {self.retries + 1} tries")
+
+        def count_retry(failures: int, error: BaseException) -> None:
+            self.stats.retries += 1
+
+        RetryPolicy(self.retries + 1, MoteTimeout).call(attempt, count_retry)
 
     def reopen(self) -> None:
         self.close()

@@ -25,6 +25,10 @@ class ViscaProtocolError(ViscaError):
     """A reply that cannot be what we asked for (wrong length, bad nibbles)."""
 
 
+class ViscaGarbledReply(ViscaProtocolError):
+    """An inquiry reply that arrived corrupted (wrong data length, bad nibbles); asking again may succeed."""
+
+
 class ViscaErrorReply(ViscaError):
     """The camera answered with an error packet ``z0 6y ee FF``."""
 

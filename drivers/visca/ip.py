@@ -24,6 +24,7 @@ import struct
 import time
 from dataclasses import dataclass
 
+from fgloc.core.retry import RetryPolicy
 from fgloc.drivers.visca.codec import is_inquiry
 from fgloc.drivers.visca.errors import ViscaDisconnected, ViscaError, ViscaProtocolError, ViscaTimeout
 from fgloc.drivers.visca.head import HeadSettings, ViscaHead
@@ -139,8 +140,10 @@ class ViscaIpLink:
             raise ViscaDisconnected(f"{self.where}: receive failed ({exc.strerror or exc})") from None
 
     def reset(self) -> None:
-        """Send RESET until the camera acknowledges; numbering restarts at 1."""
-        for _ in range(self.reset_tries):
+        """Send RESET until the camera acknowledges (``reset_tries`` tries, ``reset_timeout`` s each);
+        numbering restarts at 1."""
+
+        def attempt(n: int) -> None:
             self._raw_send(reset_message(0))
             deadline = time.monotonic() + self.reset_timeout
             while (remaining := deadline - time.monotonic()) > 0:
@@ -152,11 +155,13 @@ class ViscaIpLink:
                 except ViscaProtocolError:
                     continue
                 if msg.payload_type == TYPE_CONTROL_REPLY and msg.payload == CONTROL_ACK:
-                    self._sequence = 0
-                    self._outstanding.clear()
-                    self._new_sequence_needed = False
                     return
-        raise ViscaTimeout(f"{self.where}: no reply to the VISCA-over-IP RESET (camera off or wrong port?)")
+            raise ViscaTimeout(f"{self.where}: no reply to the VISCA-over-IP RESET (camera off or wrong port?)")
+
+        RetryPolicy(self.reset_tries, ViscaTimeout).call(attempt)
+        self._sequence = 0
+        self._outstanding.clear()
+        self._new_sequence_needed = False
 
     def send(self, packet: bytes, retransmit: bool = False) -> None:
         if not retransmit or self._new_sequence_needed or not self._outstanding:

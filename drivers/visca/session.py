@@ -16,11 +16,12 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Protocol, TypeVar
 
+from fgloc.core.retry import RetryPolicy
 from fgloc.drivers.visca.codec import ReplyKind, cmd_address_set, cmd_if_clear, parse_reply
 from fgloc.drivers.visca.errors import (
     CommandBufferFull,
     ViscaDisconnected,
-    ViscaError,
+    ViscaGarbledReply,
     ViscaProtocolError,
     ViscaTimeout,
     error_for,
@@ -119,26 +120,26 @@ class ViscaSession:
 
     # -- internals
     def _with_reconnect(self, op: Callable[[], _T]) -> _T:
+        """``op()``; after a disconnect wait ``reconnect_wait`` s, reopen the link, re-initialise, run it again."""
+
+        def attempt(n: int) -> _T:
+            if n:
+                self.link.reopen()
+                if self._on_reconnect is not None:
+                    self._on_reconnect()
+            return op()
+
+        def before_retry(failures: int, error: BaseException) -> None:
+            self.stats.reconnects += 1
+            log.warning("VISCA link lost (%s); reconnecting (%d/%d)", error, failures, self.reconnects)
+
         with self._lock:
-            attempts = 0
-            while True:
-                try:
-                    return op()
-                except ViscaDisconnected:
-                    if attempts >= self.reconnects:
-                        raise
-                    attempts += 1
-                    self.stats.reconnects += 1
-                    log.warning("VISCA link lost; reconnecting (%d/%d)", attempts, self.reconnects)
-                    time.sleep(self.reconnect_wait)
-                    try:
-                        self.link.reopen()
-                    except ViscaDisconnected:
-                        if attempts >= self.reconnects:
-                            raise
-                        continue
-                    if self._on_reconnect is not None:
-                        self._on_reconnect()
+            policy = RetryPolicy(self.reconnects + 1, ViscaDisconnected, self.reconnect_wait)
+            return policy.call(attempt, before_retry)
+
+    def _count_retry(self, failures: int, error: BaseException) -> None:
+        self.stats.retries += 1
+        log.debug("camera %d: retrying after: %s", self.address, error)
 
     def _send(self, packet: bytes, retransmit: bool = False) -> None:
         self.stats.sent += 1
@@ -170,123 +171,111 @@ class ViscaSession:
             return reply
 
     def _command(self, packet: bytes, completion_timeout: float, name: str) -> None:
+        """Send, wait for ACK (``ack`` s), then for the Completion on that socket; timeouts resend."""
         t = self.timeouts
-        last: ViscaError | None = None
         acked = True  # a resend after an ACKed attempt is a new message, not a retransmission
-        for attempt in range(t.retries + 1):
-            if attempt:
-                self.stats.retries += 1
-            self._send(packet, retransmit=attempt > 0 and not acked)
+
+        def attempt(n: int) -> None:
+            nonlocal acked
+            self._send(packet, retransmit=n > 0 and not acked)
             acked = False
-            # stage 1: ACK or error
-            deadline = time.monotonic() + t.ack
-            socket = None
-            busy = False
-            while socket is None:
-                reply = self._next(deadline)
-                if reply is None:
-                    break
-                if reply.kind is ReplyKind.ACK:
-                    socket = reply.socket
-                elif reply.kind is ReplyKind.ERROR:
-                    exc = error_for(reply.error_code, reply.socket, name)
-                    if not isinstance(exc, CommandBufferFull):
-                        raise exc
-                    last, busy = exc, True
-                    time.sleep(t.buffer_full_wait)
-                    break
-                else:
-                    self.stats.stale += 1
-            if socket is None:
-                if not busy:
-                    self.stats.timeouts += 1
-                    last = ViscaTimeout(f"no ACK from camera {self.address} to {name}")
-                continue
-            # stage 2: completion on that socket
+            socket = self._await_ack(name)
             acked = True
-            deadline = time.monotonic() + completion_timeout
-            while True:
-                reply = self._next(deadline)
-                if reply is None:
-                    self.stats.timeouts += 1
-                    last = ViscaTimeout(f"no completion from camera {self.address} for {name} "
-                                        f"within {completion_timeout:.1f} s")
-                    break
-                if reply.socket != socket or reply.kind not in (ReplyKind.COMPLETION, ReplyKind.ERROR):
-                    self.stats.stale += 1
-                    continue
-                if reply.kind is ReplyKind.COMPLETION:
-                    return
+            self._await_completion(socket, completion_timeout, name)
+
+        def retryable(error: BaseException) -> bool:  # buffer full answers in place of the ACK only
+            return isinstance(error, ViscaTimeout) or (isinstance(error, CommandBufferFull) and not acked)
+
+        def wait(failures: int, error: BaseException) -> float:
+            return t.buffer_full_wait if isinstance(error, CommandBufferFull) else 0.0
+
+        RetryPolicy(t.retries + 1, retryable, wait).call(attempt, self._count_retry)
+
+    def _await_ack(self, name: str) -> int:
+        """The socket of the ACK; ViscaTimeout after ``timeouts.ack`` s, the error class for an error reply."""
+        deadline = time.monotonic() + self.timeouts.ack
+        while True:
+            reply = self._next(deadline)
+            if reply is None:
+                self.stats.timeouts += 1
+                raise ViscaTimeout(f"no ACK from camera {self.address} to {name}")
+            if reply.kind is ReplyKind.ACK:
+                return reply.socket
+            if reply.kind is ReplyKind.ERROR:
                 raise error_for(reply.error_code, reply.socket, name)
-        assert last is not None
-        raise last
+            self.stats.stale += 1
+
+    def _await_completion(self, socket: int, timeout: float, name: str) -> None:
+        """The Completion (or error) on ``socket`` within ``timeout`` s; other sockets' packets are stale."""
+        deadline = time.monotonic() + timeout
+        while True:
+            reply = self._next(deadline)
+            if reply is None:
+                self.stats.timeouts += 1
+                raise ViscaTimeout(f"no completion from camera {self.address} for {name} within {timeout:.1f} s")
+            if reply.socket != socket or reply.kind not in (ReplyKind.COMPLETION, ReplyKind.ERROR):
+                self.stats.stale += 1
+                continue
+            if reply.kind is ReplyKind.COMPLETION:
+                return
+            raise error_for(reply.error_code, reply.socket, name)
 
     def _inquiry(self, packet: bytes, expect_len: int, name: str) -> bytes:
-        t = self.timeouts
-        last: ViscaError = ViscaTimeout(f"no reply from camera {self.address} to {name}")
-        for attempt in range(t.retries + 1):
-            if attempt:
-                self.stats.retries += 1
-            self._send(packet, attempt > 0)
-            deadline = time.monotonic() + t.inquiry
+        """Send an inquiry, wait ``timeouts.inquiry`` s for its data; timeouts and garbled replies ask again."""
+
+        def attempt(n: int) -> bytes:
+            self._send(packet, n > 0)
+            deadline = time.monotonic() + self.timeouts.inquiry
             while True:
                 reply = self._next(deadline)
                 if reply is None:
                     self.stats.timeouts += 1
-                    last = ViscaTimeout(f"no reply from camera {self.address} to {name}")
-                    break
+                    raise ViscaTimeout(f"no reply from camera {self.address} to {name}")
                 if reply.kind is ReplyKind.INQUIRY:
                     if len(reply.data) != expect_len:
                         self.stats.garbled += 1
-                        last = ViscaProtocolError(f"reply to {name} has {len(reply.data)} data bytes, "
-                                                  f"expected {expect_len}")
-                        break
+                        raise ViscaGarbledReply(f"reply to {name} has {len(reply.data)} data bytes, "
+                                                f"expected {expect_len}")
                     if any(b & 0xF0 for b in reply.data):
                         self.stats.garbled += 1
-                        last = ViscaProtocolError(f"reply to {name} has corrupted nibbles")
-                        break
+                        raise ViscaGarbledReply(f"reply to {name} has corrupted nibbles")
                     return reply.data
                 if reply.kind is ReplyKind.ERROR and reply.socket == 0:
-                    exc = error_for(reply.error_code, 0, name)
-                    if isinstance(exc, CommandBufferFull):
-                        last = exc
-                        break
-                    raise exc
+                    raise error_for(reply.error_code, 0, name)
                 self.stats.stale += 1
-        raise last
+
+        policy = RetryPolicy(self.timeouts.retries + 1, (ViscaTimeout, ViscaGarbledReply, CommandBufferFull))
+        return policy.call(attempt, self._count_retry)
 
     def _if_clear(self) -> None:
-        t = self.timeouts
-        for attempt in range(t.retries + 1):
-            if attempt:
-                self.stats.retries += 1
-            self._send(cmd_if_clear(self.address), attempt > 0)
-            deadline = time.monotonic() + t.ack
+        def attempt(n: int) -> None:
+            self._send(cmd_if_clear(self.address), n > 0)
+            deadline = time.monotonic() + self.timeouts.ack
             while True:
                 reply = self._next(deadline)
                 if reply is None:
                     self.stats.timeouts += 1
-                    break
+                    raise ViscaTimeout(f"no reply from camera {self.address} to IF_Clear")
                 if reply.kind is ReplyKind.COMPLETION and reply.socket == 0:
                     return
                 if reply.kind is ReplyKind.ERROR:
                     raise error_for(reply.error_code, reply.socket, "IF_Clear")
                 self.stats.stale += 1
-        raise ViscaTimeout(f"no reply from camera {self.address} to IF_Clear")
+
+        RetryPolicy(self.timeouts.retries + 1, ViscaTimeout).call(attempt, self._count_retry)
 
     def _address_set(self) -> int:
-        t = self.timeouts
-        for attempt in range(t.retries + 1):
-            if attempt:
-                self.stats.retries += 1
+        def attempt(n: int) -> int:
             self._send(cmd_address_set())
-            deadline = time.monotonic() + t.ack
+            deadline = time.monotonic() + self.timeouts.ack
             while True:
                 reply = self._next(deadline)
                 if reply is None:
                     self.stats.timeouts += 1
-                    break
+                    raise ViscaTimeout("no reply to Address Set (is the camera on and the cable a crossed VISCA "
+                                       "cable?)")
                 if reply.kind is ReplyKind.ADDRESS_SET:
                     return reply.data[0] - 1
                 self.stats.stale += 1
-        raise ViscaTimeout("no reply to Address Set (is the camera on and the cable a crossed VISCA cable?)")
+
+        return RetryPolicy(self.timeouts.retries + 1, ViscaTimeout).call(attempt, self._count_retry)
