@@ -1,8 +1,8 @@
 """Open rig hardware from a port string: the one place that maps ``--port`` to a driver.
 
-* ``/dev/ttyUSB0`` (any path / ``COM3``) -> VISCA over RS-232 (:mod:`fgloc.drivers.visca`)
-  for heads, TinyOS serial BaseStation (:mod:`fgloc.drivers.tinyos_serial`) for motes;
-* ``udp://HOST[:PORT]``  -> VISCA over IP (:mod:`fgloc.drivers.visca_ip`), port 52381 by default;
+* ``/dev/ttyUSB0`` (any path / ``COM3``) -> VISCA over RS-232 (:mod:`fgloc.drivers.visca.serial_link`)
+  for heads, TinyOS serial BaseStation (:mod:`fgloc.drivers.tinyos`) for motes;
+* ``udp://HOST[:PORT]``  -> VISCA over IP (:mod:`fgloc.drivers.visca.ip`), port 52381 by default;
 * ``http://[USER:PASSWORD@]HOST[:PORT]`` -> Sony CGI (:mod:`fgloc.drivers.sony_cgi`); credentials
   may instead come from ``FGLOC_CAMERA_USER`` / ``FGLOC_CAMERA_PASSWORD``;
 * ``tcp://HOST[:PORT]``  -> SerialForwarder (motes only), port 9002 by default.
@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 from fgloc.core.errors import FglocError
 from fgloc.core.hardware import LedController, PanTiltHead
+from fgloc.drivers.head_adapter import FrameSourceArg
 from fgloc.drivers.ptz_units import (
     EVI_D100,
     SNC_RZ25N,
@@ -28,7 +29,7 @@ from fgloc.drivers.ptz_units import (
     camera_model,
     mounting,
 )
-from fgloc.drivers.visca import Timeouts
+from fgloc.drivers.visca.session import Timeouts
 
 
 @dataclass(frozen=True)
@@ -61,7 +62,7 @@ def default_model(transport: str) -> CameraModel:
     return {"serial": EVI_D100, "udp": VISCA_IP_GENERIC, "http": SNC_RZ25N}[transport]
 
 
-def open_head(port: str, options: HeadOptions | None = None, frames: object | None = None) -> PanTiltHead:
+def open_head(port: str, options: HeadOptions | None = None, frames: FrameSourceArg = None) -> PanTiltHead:
     """A ``fgloc.core.hardware.PanTiltHead`` for ``port`` (initialised and answering), see the module doc."""
     o = options or HeadOptions()
     transport = transport_of(port)
@@ -75,11 +76,11 @@ def open_head(port: str, options: HeadOptions | None = None, frames: object | No
         frames = open_frame_source(o.video)
     timeouts = Timeouts(ack=o.timeout, inquiry=o.timeout, completion_margin=o.completion_margin, retries=o.retries)
     if transport == "serial":
-        from fgloc.drivers.visca import open_serial_head
+        from fgloc.drivers.visca.head import open_serial_head
 
         return open_serial_head(port, units, o.address, timeouts, frames)
     if transport == "udp":
-        from fgloc.drivers.visca_ip import open_ip_head
+        from fgloc.drivers.visca.ip import open_ip_head
 
         return open_ip_head(port, None, units, timeouts, frames)
     from fgloc.drivers.sony_cgi import Credentials, open_cgi_head, split_url
@@ -95,8 +96,8 @@ def open_head(port: str, options: HeadOptions | None = None, frames: object | No
 
 def open_leds(port: str, address_map: Mapping[str, int] | None = None, timeout: float = 0.25, retries: int = 5,
               report_timeout: float = 0.5, attempts: int = 3) -> LedController:
-    """A ``fgloc.core.hardware.LedController`` (:class:`fgloc.drivers.tinyos_serial.MoteNetwork`) for a serial port or tcp://."""
-    from fgloc.drivers.tinyos_serial import open_mote_network
+    """A ``fgloc.core.hardware.LedController`` (:class:`fgloc.drivers.tinyos.network.MoteNetwork`) for a serial port or tcp://."""
+    from fgloc.drivers.tinyos.network import open_mote_network
 
     transport = transport_of(port)
     if transport not in ("serial", "tcp"):

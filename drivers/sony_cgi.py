@@ -7,13 +7,15 @@ Requests (protocols.md 2.1; spellings to be confirmed on the camera):
   **before** the motion ends;
 * zoom:      ``POST /command/ptzf.cgi`` form ``AbsoluteZoom=ZZZZ`` (hex);
 * inquiries: ``GET /command/visca-inquiry.cgi?visca=81090612FF`` -> body = VISCA reply as
-  hex text (``9050 0p0p0p0p 0t0t0t0t FF``), decoded with :mod:`fgloc.drivers.visca`;
+  hex text (``9050 0p0p0p0p 0t0t0t0t FF``), decoded with :mod:`fgloc.drivers.visca.codec`;
 * stop/home: VISCA tunnel ``GET /command/visca-ptzf.cgi?visca=8101...FF``;
 * snapshot:  ``GET /oneshotimage.jpg``.
 
 Because HTTP returns before the head stops, :meth:`SonyCgiHead.move_to` polls the
 position until the read-back equals the target (timeout sized from distance and
-speed); :meth:`SonyCgiHead.position` reads until two successive reads agree.
+speed); :meth:`SonyCgiHead.position` reads until two successive reads agree. The
+spec-radian level (units, mounting, limits, confirmed reads, frames) is the shared
+:class:`fgloc.drivers.head_adapter.HeadAdapter`; times are seconds.
 
 Credentials: HTTP Basic, sent in a header built here; they never appear in logs,
 ``repr``, or exception messages (URLs are shown without user info).
@@ -32,29 +34,31 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fgloc.drivers.ptz_units import SNC_RZ25N, PanTiltUnits, PositionOutOfRangeError
-from fgloc.drivers.visca import (
+from fgloc.core.retry import RetryPolicy
+from fgloc.drivers.head_adapter import FrameSourceArg, HeadAdapter
+from fgloc.drivers.ptz_units import SNC_RZ25N, PanTiltUnits
+from fgloc.drivers.visca.codec import (
     Reply,
     ReplyKind,
-    ViscaDisconnected,
-    ViscaError,
-    ViscaProtocolError,
-    ViscaTimeout,
     cmd_home,
     cmd_pan_tilt_position_inquiry,
     cmd_pan_tilt_stop,
     cmd_zoom_position_inquiry,
     decode_pan_tilt,
     decode_zoom,
-    error_for,
     parse_reply,
 )
+from fgloc.drivers.visca.errors import ViscaDisconnected, ViscaError, ViscaProtocolError, ViscaTimeout, error_for
 
 log = logging.getLogger(__name__)
 
 
 class SonyCgiError(ViscaError):
     """The camera's web server refused a request (HTTP status), or authentication failed."""
+
+
+class SonyCgiServerError(SonyCgiError):
+    """HTTP 5xx: the camera's web server failed this time; the request is retried."""
 
 
 @dataclass(frozen=True)
@@ -110,13 +114,14 @@ class SonyCgiClient:
         return f"SonyCgiClient({self.base_url!r})"
 
     def request(self, path: str, query: dict[str, str] | None = None, form: dict[str, str] | None = None) -> bytes:
-        """GET (or POST when ``form``) ``path``; returns the body. Retries timeouts/resets/5xx."""
+        """GET (or POST when ``form``) ``path``; returns the body. Retries timeouts/resets/5xx
+        (``retries`` times, 0.05 s apart); 4xx and authentication failures raise at once."""
         url = self.base_url + path
         if query:
             url += "?" + urllib.parse.urlencode(query, safe=",")
         data = urllib.parse.urlencode(form, safe=",").encode("ascii") if form is not None else None
-        last: ViscaError = ViscaTimeout(f"{self.base_url}{path}: no answer")
-        for attempt in range(self.retries + 1):
+
+        def attempt(n: int) -> bytes:
             req = urllib.request.Request(url, data=data, method="POST" if data is not None else "GET")
             if self._credentials is not None:
                 req.add_header("Authorization", self._credentials.header())
@@ -127,42 +132,41 @@ class SonyCgiClient:
                 if exc.code in (401, 403):
                     raise SonyCgiError(f"{self.base_url}{path}: HTTP {exc.code}: authentication failed "
                                        "(check the user and password)") from None
-                last = SonyCgiError(f"{self.base_url}{path}: HTTP {exc.code} {exc.reason}")
-                if exc.code < 500:
-                    raise last from None
+                cls = SonyCgiServerError if exc.code >= 500 else SonyCgiError
+                raise cls(f"{self.base_url}{path}: HTTP {exc.code} {exc.reason}") from None
             except urllib.error.URLError as exc:
                 reason = exc.reason
                 if isinstance(reason, ConnectionRefusedError) or "refused" in str(reason).lower():
-                    last = ViscaDisconnected(f"{self.base_url}: connection refused (camera off or wrong address?)")
-                elif isinstance(reason, TimeoutError) or "timed out" in str(reason):
-                    last = ViscaTimeout(f"{self.base_url}{path}: no answer within {self.timeout:.1f} s")
-                else:
-                    last = ViscaDisconnected(f"{self.base_url}: {getattr(reason, 'strerror', None) or reason}")
+                    raise ViscaDisconnected(f"{self.base_url}: connection refused (camera off or wrong address?)") \
+                        from None
+                if isinstance(reason, TimeoutError) or "timed out" in str(reason):
+                    raise ViscaTimeout(f"{self.base_url}{path}: no answer within {self.timeout:.1f} s") from None
+                raise ViscaDisconnected(f"{self.base_url}: {getattr(reason, 'strerror', None) or reason}") from None
             except (TimeoutError, http.client.RemoteDisconnected, ConnectionError, http.client.HTTPException) as exc:
-                last = ViscaTimeout(f"{self.base_url}{path}: {type(exc).__name__}")
-            if attempt < self.retries:
-                log.debug("retrying %s%s after: %s", self.base_url, path, last)
-                time.sleep(0.05)
-        raise last
+                raise ViscaTimeout(f"{self.base_url}{path}: {type(exc).__name__}") from None
+
+        def before_retry(failures: int, error: BaseException) -> None:
+            log.debug("retrying %s%s after: %s", self.base_url, path, error)
+
+        policy = RetryPolicy(self.retries + 1, (ViscaTimeout, ViscaDisconnected, SonyCgiServerError), wait=0.05)
+        return policy.call(attempt, before_retry)
 
     def visca_inquiry(self, packet: bytes, expect_len: int) -> bytes:
-        """VISCA inquiry through ``visca-inquiry.cgi``; returns the reply's data bytes."""
-        last: ViscaError = ViscaProtocolError("no reply")
-        for _ in range(self.retries + 1):  # a corrupted reply is asked again
+        """VISCA inquiry through ``visca-inquiry.cgi``; returns the reply's data bytes.
+
+        A corrupted or unexpected reply is asked again (``retries`` times); an error reply raises."""
+
+        def attempt(n: int) -> bytes:
             body = self.request("/command/visca-inquiry.cgi", {"visca": packet.hex().upper()})
-            try:
-                reply = _parse_hex_reply(body)
-            except ViscaProtocolError as exc:
-                last = exc
-                continue
+            reply = _parse_hex_reply(body)
             if reply.kind is ReplyKind.ERROR:
                 raise error_for(reply.error_code, reply.socket, "VISCA inquiry")
             if reply.kind is not ReplyKind.INQUIRY or len(reply.data) != expect_len \
                     or any(b & 0xF0 for b in reply.data):
-                last = ViscaProtocolError(f"unexpected reply to VISCA inquiry: {body[:40]!r}")
-                continue
+                raise ViscaProtocolError(f"unexpected reply to VISCA inquiry: {body[:40]!r}")
             return reply.data
-        raise last
+
+        return RetryPolicy(self.retries + 1, ViscaProtocolError).call(attempt)
 
     def visca_command(self, packet: bytes) -> None:
         """VISCA command through ``visca-ptzf.cgi`` (an error reply in the body raises)."""
@@ -189,66 +193,56 @@ def _parse_hex_reply(body: bytes) -> Reply:
     return parse_reply(packet)
 
 
-class SonyCgiHead:
-    """``fgloc.core.hardware.PanTiltHead`` for a Sony network camera over HTTP CGI (spec radians)."""
+class SonyCgiHead(HeadAdapter):
+    """``fgloc.core.hardware.PanTiltHead`` for a Sony network camera over HTTP CGI (spec radians).
+
+    ``poll_interval`` (s) paces the position/zoom polls; ``speed`` is the CGI speed 1..24.
+    """
+
+    unsteady_error = ViscaProtocolError
 
     def __init__(self, client: SonyCgiClient, units: PanTiltUnits | None = None, speed: int = 24,
-                 poll_interval: float = 0.05, move_timeout_margin: float = 2.0, frames=None) -> None:
+                 poll_interval: float = 0.05, move_timeout_margin: float = 2.0, frames: FrameSourceArg = None) -> None:
+        super().__init__(units or PanTiltUnits(SNC_RZ25N), frames, confirm_reads=True, max_reads=5,
+                         read_gap_s=poll_interval)
         self.client = client
-        self.units = units or PanTiltUnits(SNC_RZ25N)
         if not 1 <= speed <= 24:
             raise SonyCgiError(f"speed must be 1..24, got {speed}")
         self.speed = speed
         self.poll_interval = poll_interval
         self.move_timeout_margin = move_timeout_margin
-        self.frames = frames
-        self._last: tuple[int, int] | None = None
+
+    @property
+    def where(self) -> str:
+        return self.client.base_url
 
     def read_counts_once(self) -> tuple[int, int]:
+        """One position inquiry through the VISCA tunnel: (pan, tilt) signed device counts."""
         m = self.units.model
         data = self.client.visca_inquiry(cmd_pan_tilt_position_inquiry(1), m.pan_nibbles + 4)
         return decode_pan_tilt(data, m.pan_nibbles)
 
-    def position_counts(self, tries: int = 5) -> tuple[int, int]:
-        """Read until two successive reads agree (rejects a moving head and a corrupted reply)."""
-        prev = self.read_counts_once()
-        for _ in range(tries - 1):
-            cur = self.read_counts_once()
-            if cur == prev:
-                self._last = cur
-                return cur
-            prev = cur
-            time.sleep(self.poll_interval)
-        raise ViscaProtocolError(f"{self.client.base_url}: position did not read the same twice in {tries} reads")
-
     def move_to_counts(self, pan: int, tilt: int) -> None:
+        """AbsolutePanTilt, then poll until the read-back is the target (HTTP returns before the move ends)."""
         m = self.units.model
-        if not (m.pan_min <= pan <= m.pan_max and m.tilt_min <= tilt <= m.tilt_max):
-            raise PositionOutOfRangeError(f"({pan}, {tilt}) counts outside the {m.name} range")
-        start = self._last or self.position_counts()
+        self.check_counts(pan, tilt)
+        start = self._last_counts or self.position_counts()
         self.client.ptzf(AbsolutePanTilt=f"{hex16(pan)},{hex16(tilt)},{self.speed}")
         expected = m.move_seconds(pan - start[0], tilt - start[1], self.speed, min(self.speed, m.max_tilt_speed))
         deadline = time.monotonic() + expected * 1.5 + self.move_timeout_margin
         while True:
             cur = self.read_counts_once()
             if cur == (pan, tilt):
-                self._last = cur
+                self._last_counts = cur
                 return
             if time.monotonic() > deadline:
-                self._last = None
+                self._last_counts = None
                 raise ViscaTimeout(f"{self.client.base_url}: head did not reach ({pan}, {tilt}) counts "
                                    f"(last read {cur})")
             time.sleep(self.poll_interval)
 
-    # PanTiltHead
-    def move_to(self, pan: float, tilt: float) -> None:
-        self.move_to_counts(*self.units.to_counts(pan, tilt))
-
-    def position(self) -> tuple[float, float]:
-        return self.units.to_spec(*self.position_counts())
-
-    def set_zoom(self, zoom: float) -> None:
-        counts = self.units.zoom_to_counts(zoom)
+    def set_zoom_counts(self, counts: int) -> None:
+        """AbsoluteZoom, then poll until the read-back zoom is ``counts``."""
         self.client.ptzf(AbsoluteZoom=f"{counts:04X}")
         deadline = time.monotonic() + 5.0
         while self.zoom_counts() != counts:
@@ -259,26 +253,22 @@ class SonyCgiHead:
     def zoom_counts(self) -> int:
         return decode_zoom(self.client.visca_inquiry(cmd_zoom_position_inquiry(1), 4))
 
-    def zoom(self) -> float:
-        return self.units.zoom_from_counts(self.zoom_counts())
-
     def stop(self) -> None:
         m = self.units.model
         self.client.visca_command(cmd_pan_tilt_stop(1, m.max_pan_speed, min(m.max_tilt_speed, 0x14)))
-        self._last = None
+        self._last_counts = None
 
     def home(self) -> None:
         self.client.visca_command(cmd_home(1))
-        self._last = None
+        self._last_counts = None
         deadline = time.monotonic() + 10.0
         while self.position_counts() != (0, 0):
             if time.monotonic() > deadline:
                 raise ViscaTimeout(f"{self.client.base_url}: head did not reach home")
             time.sleep(self.poll_interval)
 
-    def grab_frame(self) -> np.ndarray:
-        if self.frames is not None:
-            return self.frames.read() if hasattr(self.frames, "read") else self.frames()
+    def _frame_without_source(self) -> np.ndarray:
+        """No frame source: the camera's own JPEG snapshot."""
         import cv2
 
         jpeg = self.client.snapshot()
@@ -286,15 +276,6 @@ class SonyCgiHead:
         if img is None:
             raise SonyCgiError(f"{self.client.base_url}/oneshotimage.jpg: not a JPEG image")
         return img
-
-    def close(self) -> None:
-        pass
-
-    def __enter__(self) -> SonyCgiHead:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
 
 def open_cgi_head(url: str, units: PanTiltUnits | None = None, credentials: Credentials | None = None,

@@ -2,13 +2,13 @@
 
 Each camera of the rig gets a :class:`fgloc.drivers.twins.visca_camera.ViscaSerialTwin`
 (the emulated camera on a pseudo-terminal, with the rig's fault rates) and is
-opened with the real driver, :func:`fgloc.drivers.visca.open_serial_head`, through
+opened with the real driver, :func:`fgloc.drivers.visca.head.open_serial_head`, through
 pyserial. The emulator renders frames from the same scene as the in-process rig
 (:func:`fgloc.drivers.inprocess_rig.frame_renderer`: ``spot`` or ``rendered`` per
 ``simulation.frames``), converting its head counts to spec
 angles with the camera's :class:`~fgloc.drivers.ptz_units.PanTiltUnits` (model and
 mounting from rig.json). The LEDs go through the real TinyOS serial driver
-(:func:`fgloc.drivers.tinyos_serial.open_mote_network`) to a base-station pty twin whose
+(:func:`fgloc.drivers.tinyos.network.open_mote_network`) to a base-station pty twin whose
 motes light the scene's LEDs; dead nodes stay silent.
 
 Faults per camera and on the base station: ``drop_rate`` and ``garble_rate``
@@ -24,11 +24,12 @@ from dataclasses import replace
 
 from fgloc.drivers.inprocess_rig import FrameRenderer, build_scene, frame_renderer
 from fgloc.drivers.ptz_units import PanTiltUnits, camera_model, mounting
-from fgloc.drivers.tinyos_serial import open_mote_network
+from fgloc.drivers.tinyos.network import open_mote_network
 from fgloc.drivers.twins.base_station import BaseStationSerialTwin, MoteFieldEmulator
 from fgloc.drivers.twins.faults import FaultConfig
 from fgloc.drivers.twins.visca_camera import HeadPose, ViscaCameraEmulator, ViscaSerialTwin
-from fgloc.drivers.visca import HeadSettings, Timeouts, ViscaHead, open_serial_head
+from fgloc.drivers.visca.head import HeadSettings, ViscaHead, open_serial_head
+from fgloc.drivers.visca.session import Timeouts
 from fgloc.files.rig_config import RigConfig
 
 

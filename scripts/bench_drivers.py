@@ -17,14 +17,15 @@ import statistics
 import time
 
 from fgloc.drivers.sony_cgi import open_cgi_head
-from fgloc.drivers.tinyos_serial import open_mote_network
+from fgloc.drivers.tinyos.network import open_mote_network
 from fgloc.drivers.twins.base_station import BaseStationSerialTwin, SerialForwarderTwin
 from fgloc.drivers.twins.faults import FaultConfig
 from fgloc.drivers.twins.sony_cgi_camera import SonyCgiTwin
 from fgloc.drivers.twins.visca_camera import ViscaSerialTwin
 from fgloc.drivers.twins.visca_ip_camera import ViscaIpTwin
-from fgloc.drivers.visca import Timeouts, open_serial_head
-from fgloc.drivers.visca_ip import open_ip_head
+from fgloc.drivers.visca.head import open_serial_head
+from fgloc.drivers.visca.ip import open_ip_head
+from fgloc.drivers.visca.session import Timeouts
 
 TIMEOUTS = Timeouts(ack=0.1, inquiry=0.1, completion_margin=0.2, retries=6)
 

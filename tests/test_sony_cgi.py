@@ -12,7 +12,7 @@ from fgloc.drivers.ptz_units import SNC_RZ25N, PanTiltUnits
 from fgloc.drivers.sony_cgi import Credentials, SonyCgiClient, SonyCgiError, hex16, open_cgi_head, split_url
 from fgloc.drivers.twins.faults import FaultConfig
 from fgloc.drivers.twins.sony_cgi_camera import SonyCgiTwin
-from fgloc.drivers.visca import CommandNotExecutable, ViscaDisconnected, ViscaTimeout
+from fgloc.drivers.visca.errors import CommandNotExecutable, ViscaDisconnected, ViscaTimeout
 
 KW = dict(timeout=0.3, retries=3, poll_interval=0.01, move_timeout_margin=0.5)
 

@@ -141,10 +141,10 @@ def visca_rig(path: Path, n_nodes: int, **simulation) -> Path:
 
 @pytest.mark.slow
 def test_faulty_100_node_survey_matches_the_fault_free_one(tmp_path):
-    """Acceptance (b), over real bytes: each camera is the VISCA serial driver (drivers/visca.py)
+    """Acceptance (b), over real bytes: each camera is the VISCA serial driver (drivers/visca/)
     talking to a pty twin (drivers/twins/visca_camera.py) that drops 5% of its replies, garbles
     1% (one random byte), and for cam1 disconnects once after 500 requests (the port returns
-    0.2 s later). The LEDs go through the real TinyOS serial driver (drivers/tinyos_serial.py) to
+    0.2 s later). The LEDs go through the real TinyOS serial driver (drivers/tinyos/) to
     a base-station pty twin with the same drop and garble rates; node n042 never answers.
     The twins are time-compressed (heads 100x faster, driver timeouts shortened).
 

@@ -8,30 +8,28 @@ import time
 import pytest
 
 from fgloc.core.hardware import LedController
-from fgloc.drivers.tinyos_serial import (
-    AM_LED_COMMAND,
+from fgloc.drivers.tinyos.errors import MoteDisconnected, MoteError, MoteProtocolError, MoteTimeout
+from fgloc.drivers.tinyos.forwarder import SerialForwarderLink
+from fgloc.drivers.tinyos.framing import (
     PROTO_ACK,
     PROTO_PACKET_ACK,
-    AmPacket,
     Deframer,
-    MoteDisconnected,
-    MoteError,
-    MoteNetwork,
-    MoteProtocolError,
-    MoteTimeout,
-    SerialForwarderLink,
-    SerialMoteLink,
     ack_frame,
     crc16,
     data_frame,
     frame,
+    parse_body,
+)
+from fgloc.drivers.tinyos.messages import (
+    AM_LED_COMMAND,
+    AmPacket,
     led_command,
     led_report,
     node_address,
-    open_mote_network,
-    parse_body,
     parse_led_report,
 )
+from fgloc.drivers.tinyos.network import MoteNetwork, open_mote_network
+from fgloc.drivers.tinyos.serial_link import SerialMoteLink
 from fgloc.drivers.twins.base_station import BaseStationSerialTwin, MoteFieldEmulator, SerialForwarderTwin
 from fgloc.drivers.twins.faults import FaultConfig
 

@@ -9,17 +9,8 @@ import pytest
 from fgloc.drivers.ptz_units import CEILING, EVI_D30, EVI_D100, PanTiltUnits, PositionOutOfRangeError
 from fgloc.drivers.twins.faults import FaultConfig
 from fgloc.drivers.twins.visca_camera import ViscaCameraEmulator, ViscaSerialTwin
-from fgloc.drivers.visca import (
-    CommandBufferFull,
-    CommandNotExecutable,
-    HeadSettings,
-    PacketSplitter,
+from fgloc.drivers.visca.codec import (
     ReplyKind,
-    Timeouts,
-    ViscaDisconnected,
-    ViscaProtocolError,
-    ViscaSyntaxError,
-    ViscaTimeout,
     cmd_address_set,
     cmd_cancel,
     cmd_focus_auto,
@@ -35,10 +26,20 @@ from fgloc.drivers.visca import (
     decode_nibbles,
     decode_pan_tilt,
     encode_nibbles,
-    error_for,
-    open_serial_head,
     parse_reply,
 )
+from fgloc.drivers.visca.errors import (
+    CommandBufferFull,
+    CommandNotExecutable,
+    ViscaDisconnected,
+    ViscaProtocolError,
+    ViscaSyntaxError,
+    ViscaTimeout,
+    error_for,
+)
+from fgloc.drivers.visca.head import HeadSettings, open_serial_head
+from fgloc.drivers.visca.packets import PacketSplitter
+from fgloc.drivers.visca.session import Timeouts
 
 H = bytes.fromhex
 FAST = Timeouts(ack=0.1, inquiry=0.1, completion_margin=0.3, retries=3)

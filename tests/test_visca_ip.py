@@ -9,18 +9,9 @@ import pytest
 
 from fgloc.drivers.twins.faults import FaultConfig
 from fgloc.drivers.twins.visca_ip_camera import ViscaIpTwin
-from fgloc.drivers.visca import (
-    CommandNotExecutable,
-    Timeouts,
-    ViscaDisconnected,
-    ViscaError,
-    ViscaTimeout,
-    cmd_pan_tilt_absolute,
-    cmd_pan_tilt_position_inquiry,
-    decode_pan_tilt,
-    parse_reply,
-)
-from fgloc.drivers.visca_ip import (
+from fgloc.drivers.visca.codec import cmd_pan_tilt_absolute, cmd_pan_tilt_position_inquiry, decode_pan_tilt, parse_reply
+from fgloc.drivers.visca.errors import CommandNotExecutable, ViscaDisconnected, ViscaError, ViscaTimeout
+from fgloc.drivers.visca.ip import (
     TYPE_COMMAND,
     TYPE_INQUIRY,
     TYPE_REPLY,
@@ -31,6 +22,7 @@ from fgloc.drivers.visca_ip import (
     parse_udp_url,
     reset_message,
 )
+from fgloc.drivers.visca.session import Timeouts
 
 H = bytes.fromhex
 FAST = Timeouts(ack=0.1, inquiry=0.1, completion_margin=0.3, retries=3)

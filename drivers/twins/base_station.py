@@ -1,7 +1,7 @@
 """A simulated MicaZ BaseStation + motes: on a pty (HDLC frames) and as a SerialForwarder (TCP).
 
 :class:`MoteFieldEmulator` is the radio side: nodes that execute the LED command
-(:data:`fgloc.drivers.tinyos_serial.AM_LED_COMMAND`) and answer with an LED report after
+(:data:`fgloc.drivers.tinyos.messages.AM_LED_COMMAND`) and answer with an LED report after
 ``radio_delay`` seconds. Nodes listed in ``silent`` never answer (a dead mote or
 one out of radio range); ``led_on`` holds every node's LED state and ``on_led`` is
 called on each change, so a simulated scene can light the LED in rendered frames.
@@ -23,24 +23,20 @@ import threading
 import time
 from collections.abc import Callable, Iterable
 
-from fgloc.drivers.tinyos_serial import (
-    AM_LED_COMMAND,
-    LED_OFF,
-    LED_ON,
+from fgloc.drivers.tinyos.errors import MoteProtocolError
+from fgloc.drivers.tinyos.forwarder import SF_HELLO
+from fgloc.drivers.tinyos.framing import (
     PROTO_ACK,
     PROTO_PACKET_ACK,
     PROTO_PACKET_NOACK,
     PROTO_UNKNOWN,
-    SF_HELLO,
-    AmPacket,
     Deframer,
-    MoteProtocolError,
     ack_frame,
     data_frame,
     frame,
-    led_report,
     parse_body,
 )
+from fgloc.drivers.tinyos.messages import AM_LED_COMMAND, LED_OFF, LED_ON, AmPacket, led_report
 from fgloc.drivers.twins.faults import FaultConfig, FaultInjector
 from fgloc.drivers.twins.pty_twin import PtyTwin
 

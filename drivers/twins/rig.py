@@ -33,7 +33,8 @@ import numpy as np
 from fgloc.core.hardware import PanTiltHead
 from fgloc.drivers.frames import FrameSource
 from fgloc.drivers.ptz_units import PanTiltUnits, camera_model, mounting
-from fgloc.drivers.tinyos_serial import MoteNetwork, node_address
+from fgloc.drivers.tinyos.messages import node_address
+from fgloc.drivers.tinyos.network import MoteNetwork
 from fgloc.drivers.twins.base_station import BaseStationSerialTwin, MoteFieldEmulator, SerialForwarderTwin
 from fgloc.drivers.twins.faults import FaultConfig
 from fgloc.drivers.twins.sony_cgi_camera import SonyCgiTwin

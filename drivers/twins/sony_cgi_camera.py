@@ -29,7 +29,7 @@ import urllib.parse
 from fgloc.drivers.ptz_units import SNC_RZ25N, CameraModel
 from fgloc.drivers.twins.faults import FaultConfig, FaultInjector
 from fgloc.drivers.twins.visca_camera import Renderer, ViscaCameraEmulator
-from fgloc.drivers.visca import cmd_pan_tilt_absolute, cmd_zoom_direct
+from fgloc.drivers.visca.codec import cmd_pan_tilt_absolute, cmd_zoom_direct
 
 
 def _signed16(text: str) -> int:

@@ -15,7 +15,7 @@ background thread with fault injection; :mod:`fgloc.drivers.twins.visca_ip_camer
 
 Scene hook: ``renderer(pose) -> ndarray`` renders what the camera sees for a
 :class:`HeadPose`; :meth:`ViscaCameraEmulator.frame_source` wraps it as a
-``FrameSource`` for :class:`fgloc.drivers.visca.ViscaHead`.
+``FrameSource`` for :class:`fgloc.drivers.visca.head.ViscaHead`.
 """
 
 from __future__ import annotations
@@ -32,7 +32,9 @@ from fgloc.drivers.ptz_units import EVI_D100, CameraModel
 from fgloc.drivers.twins.faults import FaultConfig, FaultInjector
 from fgloc.drivers.twins.pty_port import PtyPort
 from fgloc.drivers.twins.pty_twin import PtyTwin, ScheduledReplies
-from fgloc.drivers.visca import PacketSplitter, ViscaProtocolError, decode_nibbles, encode_nibbles
+from fgloc.drivers.visca.codec import decode_nibbles, encode_nibbles
+from fgloc.drivers.visca.errors import ViscaProtocolError
+from fgloc.drivers.visca.packets import PacketSplitter
 
 
 @dataclass(frozen=True)

@@ -18,8 +18,9 @@ from fgloc.drivers.ptz_units import VISCA_IP_GENERIC, CameraModel
 from fgloc.drivers.twins.faults import FaultConfig, FaultInjector
 from fgloc.drivers.twins.pty_twin import ScheduledReplies
 from fgloc.drivers.twins.visca_camera import Renderer, ViscaCameraEmulator, apply_reply_faults
-from fgloc.drivers.visca import is_inquiry
-from fgloc.drivers.visca_ip import (
+from fgloc.drivers.visca.codec import is_inquiry
+from fgloc.drivers.visca.errors import ViscaProtocolError
+from fgloc.drivers.visca.ip import (
     CONTROL_ACK,
     CONTROL_RESET,
     ERROR_MESSAGE_TYPE,
@@ -29,7 +30,6 @@ from fgloc.drivers.visca_ip import (
     TYPE_CONTROL_REPLY,
     TYPE_INQUIRY,
     TYPE_REPLY,
-    ViscaProtocolError,
     decode_message,
     encode_message,
 )

@@ -22,7 +22,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from fgloc.drivers.tinyos_serial import open_mote_network
+    from fgloc.drivers.tinyos.network import open_mote_network
 
     if args.timeout <= 0 or args.attempts < 1:
         raise FglocError("motes: --timeout must be > 0 and --attempts >= 1")

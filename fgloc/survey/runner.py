@@ -38,6 +38,7 @@ from fgloc.camera.led_search import LedLocator, PinholePixelModel
 from fgloc.core.errors import FglocError
 from fgloc.core.hardware import LedController, PanTiltHead
 from fgloc.core.model import NodeMode, Result, Survey
+from fgloc.core.retry import RetryPolicy, linear
 from fgloc.files.journal import JournalObservation, JournalState, JournalWriter, journal_to_survey
 from fgloc.files.rig_config import RigConfig
 
@@ -147,6 +148,10 @@ class CameraFailed(Exception):
     """A camera kept failing after all retries and reconnects."""
 
 
+class _LedNotConfirmed(Exception):
+    """One LED attempt that the base station did not confirm (retried, then ``led_failed``)."""
+
+
 @dataclass
 class RunnerStats:
     """Counts of what happened during this run (this process only)."""
@@ -198,29 +203,33 @@ class CameraWorker:
         self.head = head
 
     def call(self, op: Callable[[PanTiltHead], object]) -> object:
-        """Run one head operation with retries, then reconnects."""
-        last: BaseException | None = None
-        for round_ in range(self.retry.reconnects + 1):
-            if round_ > 0 or self.head is None:
-                try:
-                    if round_ > 0:
-                        self.stats.reconnects += 1
-                        logger.warning(f"{self.camera_id}: reconnecting after: {last}")
-                    self._reopen()
-                except Exception as exc:  # noqa: BLE001 - any driver failure to open is retried
-                    last = exc
-                    time.sleep(self.retry.backoff_s)
-                    continue
-            for attempt in range(self.retry.head_attempts):
-                try:
-                    return op(self.head)  # type: ignore[arg-type]
-                except Exception as exc:  # noqa: BLE001 - drivers raise their own error types
-                    last = exc
-                    self.stats.head_errors += 1
-                    if isinstance(exc, ConnectionError):
-                        break
-                    time.sleep(self.retry.backoff_s * (attempt + 1))
-        raise CameraFailed(f"{type(last).__name__}: {last}")
+        """Run one head operation with retries (``retry.head_attempts``, linear back-off), then reconnects."""
+        retry = self.retry
+
+        def try_op(_attempt: int) -> object:
+            try:
+                return op(self.head)  # type: ignore[arg-type]
+            except Exception:
+                self.stats.head_errors += 1
+                raise
+
+        # any driver error is retried on this head; a ConnectionError goes straight to a reconnect
+        on_head = RetryPolicy(retry.head_attempts, lambda exc: not isinstance(exc, ConnectionError),
+                              linear(retry.backoff_s))
+
+        def round_(n: int) -> object:
+            if n > 0 or self.head is None:
+                self._reopen()  # any driver failure to open is retried like a failed operation
+            return on_head.call(try_op)
+
+        def reconnecting(_failures: int, exc: BaseException) -> None:
+            self.stats.reconnects += 1
+            logger.warning(f"{self.camera_id}: reconnecting after: {exc}")
+
+        try:
+            return RetryPolicy(retry.reconnects + 1, Exception, retry.backoff_s).call(round_, reconnecting)
+        except Exception as exc:  # noqa: BLE001 - drivers raise their own error types
+            raise CameraFailed(f"{type(exc).__name__}: {exc}") from exc
 
     def measure(self, node: str, indices: list[int], start: tuple[float, float] | None,
                 record: Callable[[int, float, float], None],
@@ -287,15 +296,22 @@ class SurveyRunner:
             self.stats.observations += 1
 
     def _set_led(self, node: str, on: bool) -> bool:
-        for attempt in range(self.rig.retry.led_attempts):
+        def attempt(_n: int) -> bool:
             try:
-                if self.leds.set_led(node, on):
-                    return True
+                confirmed = self.leds.set_led(node, on)
             except Exception as exc:  # noqa: BLE001 - base-station driver errors are retried
                 logger.warning(f"{node}: LED {'on' if on else 'off'} failed: {exc}")
-            self.stats.led_retries += 1
-            time.sleep(self.rig.retry.backoff_s * (attempt + 1))
-        return False
+                confirmed = False
+            if not confirmed:
+                self.stats.led_retries += 1
+                raise _LedNotConfirmed(node)
+            return True
+
+        policy = RetryPolicy(self.rig.retry.led_attempts, _LedNotConfirmed, linear(self.rig.retry.backoff_s))
+        try:
+            return policy.call(attempt)
+        except _LedNotConfirmed:
+            return False
 
     def _blink(self, node: str, grab: Callable[[], object]) -> tuple[object, object]:
         """(LED-on, LED-off) frames of one camera; cameras take turns so no frame sees a blink."""

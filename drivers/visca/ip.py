@@ -4,10 +4,10 @@ Message = header + payload, big-endian (protocols.md 2.4)::
 
     type(2)  length(2)  sequence(4)  payload(1..16)
 
-The VISCA payloads are exactly the serial packets of :mod:`fgloc.drivers.visca` (camera
+The VISCA payloads are exactly the serial packets of :mod:`fgloc.drivers.visca.codec` (camera
 address fixed at 1, replies ``90 ...``); this module only adds the header, the
 sequence number and the retransmission rule, and plugs into the same
-:class:`fgloc.drivers.visca.ViscaSession` / :class:`fgloc.drivers.visca.ViscaHead`.
+:class:`fgloc.drivers.visca.session.ViscaSession` / :class:`fgloc.drivers.visca.head.ViscaHead`.
 
 Retransmission: on a timeout the session resends with ``retransmit=True`` and the
 link reuses the *same* sequence number. If the original arrived and only the
@@ -24,17 +24,11 @@ import struct
 import time
 from dataclasses import dataclass
 
-from fgloc.drivers.visca import (
-    HeadSettings,
-    Timeouts,
-    ViscaDisconnected,
-    ViscaError,
-    ViscaHead,
-    ViscaProtocolError,
-    ViscaSession,
-    ViscaTimeout,
-    is_inquiry,
-)
+from fgloc.core.retry import RetryPolicy
+from fgloc.drivers.visca.codec import is_inquiry
+from fgloc.drivers.visca.errors import ViscaDisconnected, ViscaError, ViscaProtocolError, ViscaTimeout
+from fgloc.drivers.visca.head import HeadSettings, ViscaHead
+from fgloc.drivers.visca.session import Timeouts, ViscaSession
 
 DEFAULT_PORT = 52381
 HEADER = struct.Struct(">HHI")
@@ -99,7 +93,7 @@ def parse_udp_url(url: str) -> tuple[str, int]:
 
 
 class ViscaIpLink:
-    """A :class:`fgloc.drivers.visca.ViscaLink` over UDP with sequence numbers and RESET."""
+    """A :class:`fgloc.drivers.visca.session.ViscaLink` over UDP with sequence numbers and RESET."""
 
     def __init__(self, host: str, port: int = DEFAULT_PORT, local_port: int = 0,
                  reset_timeout: float = 0.3, reset_tries: int = 3) -> None:
@@ -146,8 +140,10 @@ class ViscaIpLink:
             raise ViscaDisconnected(f"{self.where}: receive failed ({exc.strerror or exc})") from None
 
     def reset(self) -> None:
-        """Send RESET until the camera acknowledges; numbering restarts at 1."""
-        for _ in range(self.reset_tries):
+        """Send RESET until the camera acknowledges (``reset_tries`` tries, ``reset_timeout`` s each);
+        numbering restarts at 1."""
+
+        def attempt(n: int) -> None:
             self._raw_send(reset_message(0))
             deadline = time.monotonic() + self.reset_timeout
             while (remaining := deadline - time.monotonic()) > 0:
@@ -159,11 +155,13 @@ class ViscaIpLink:
                 except ViscaProtocolError:
                     continue
                 if msg.payload_type == TYPE_CONTROL_REPLY and msg.payload == CONTROL_ACK:
-                    self._sequence = 0
-                    self._outstanding.clear()
-                    self._new_sequence_needed = False
                     return
-        raise ViscaTimeout(f"{self.where}: no reply to the VISCA-over-IP RESET (camera off or wrong port?)")
+            raise ViscaTimeout(f"{self.where}: no reply to the VISCA-over-IP RESET (camera off or wrong port?)")
+
+        RetryPolicy(self.reset_tries, ViscaTimeout).call(attempt)
+        self._sequence = 0
+        self._outstanding.clear()
+        self._new_sequence_needed = False
 
     def send(self, packet: bytes, retransmit: bool = False) -> None:
         if not retransmit or self._new_sequence_needed or not self._outstanding:

@@ -1,0 +1,115 @@
+"""The ``LedController`` over a mote link: LED command, wait for the node's LED report (seconds)."""
+
+from __future__ import annotations
+
+import logging
+import queue
+import threading
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+from fgloc.core.retry import RetryPolicy
+from fgloc.drivers.tinyos.errors import MoteDisconnected, MoteTimeout
+from fgloc.drivers.tinyos.forwarder import SerialForwarderLink, parse_tcp_url
+from fgloc.drivers.tinyos.messages import ALL_LEDS, DEFAULT_GROUP, AmPacket, led_command, node_address, parse_led_report
+from fgloc.drivers.tinyos.serial_link import MICAZ_BAUD, SerialMoteLink
+
+log = logging.getLogger(__name__)
+
+
+class LedNotConfirmed(MoteTimeout):
+    """The node sent no LED report confirming a command (``set_led`` then returns False)."""
+
+
+@dataclass
+class MoteNetwork:
+    """``fgloc.core.hardware.LedController`` over a mote link (serial BaseStation or SerialForwarder).
+
+    ``set_led`` sends the LED command and returns True once the node's LED report
+    with the requested state arrives (application-level confirmation), False when
+    the node never answers within ``report_timeout`` after ``attempts`` sends.
+    Link failures (no serial ACK, disconnect) raise :class:`MoteError`; with
+    ``reconnects`` > 0 a disconnect first reopens the link and tries again.
+    """
+
+    link: SerialMoteLink | SerialForwarderLink
+    address_map: Mapping[str, int] | None = None
+    report_timeout: float = 0.5
+    attempts: int = 3
+    reconnects: int = 3
+    reconnect_wait: float = 0.2
+    group: int = DEFAULT_GROUP
+    mask: int = ALL_LEDS
+    unrelated: list[AmPacket] = field(default_factory=list)  # packets received that were not our reports
+    _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
+
+    def set_led(self, node_id: str, on: bool) -> bool:
+        """Switch the node's LEDs; True once its LED report confirms, False if it never does."""
+        node = node_address(node_id, self.address_map)
+
+        def attempt(n: int) -> bool:
+            if n:
+                self.link.reopen()
+            return self._set_led(node, bool(on))
+
+        def before_retry(failures: int, error: BaseException) -> None:
+            log.warning("mote link lost (%s); reconnecting (%d/%d)", error, failures, self.reconnects)
+
+        with self._lock:
+            policy = RetryPolicy(self.reconnects + 1, MoteDisconnected, self.reconnect_wait)
+            return policy.call(attempt, before_retry)
+
+    def _set_led(self, node: int, on: bool) -> bool:
+        """Up to ``attempts`` sends of the LED command, each waiting ``report_timeout`` s for the report."""
+        command = led_command(node, on, self.mask, group=self.group)
+
+        def attempt(n: int) -> None:
+            self._drain()
+            self.link.send(command)
+            deadline = time.monotonic() + self.report_timeout
+            while (remaining := deadline - time.monotonic()) > 0:
+                packet = self.link.receive(remaining)
+                if packet is None:
+                    break
+                if parse_led_report(packet) == (node, on):
+                    return
+                self._keep(packet)
+            raise LedNotConfirmed(f"node {node}: no LED report within {self.report_timeout:.2f} s")
+
+        try:
+            RetryPolicy(self.attempts, LedNotConfirmed).call(attempt)
+        except LedNotConfirmed:
+            return False
+        return True
+
+    def _drain(self) -> None:
+        while True:
+            try:
+                self._keep(self.link.packets.get_nowait())
+            except queue.Empty:
+                return
+
+    def _keep(self, packet: AmPacket) -> None:
+        self.unrelated.append(packet)
+        del self.unrelated[:-100]
+
+    def close(self) -> None:
+        self.link.close()
+
+    def __enter__(self) -> MoteNetwork:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def open_mote_network(port: str, address_map: Mapping[str, int] | None = None, ack_timeout: float = 0.25,
+                      retries: int = 5, report_timeout: float = 0.5, attempts: int = 3,
+                      baudrate: int = MICAZ_BAUD) -> MoteNetwork:
+    """A serial device path, or ``tcp://HOST[:PORT]`` for a SerialForwarder."""
+    if port.startswith("tcp://"):
+        link: SerialMoteLink | SerialForwarderLink = SerialForwarderLink(*parse_tcp_url(port))
+    else:
+        link = SerialMoteLink(port, baudrate, ack_timeout, retries)
+    return MoteNetwork(link, address_map, report_timeout, attempts)

@@ -1,0 +1,281 @@
+"""A VISCA session: one command at a time on a link, replies matched by socket, with retries.
+
+Waits for ACK-or-error, then for the Completion *on the ACKed socket* (stale packets
+of other sockets are skipped); inquiries wait for ``y0 50 data FF``; timeouts are
+retried (all commands used here are idempotent absolute commands, so a resend is
+safe); every error reply raises a :class:`fgloc.drivers.visca.errors.ViscaErrorReply`
+subclass. All times are seconds.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Protocol, TypeVar
+
+from fgloc.core.retry import RetryPolicy
+from fgloc.drivers.visca.codec import ReplyKind, cmd_address_set, cmd_if_clear, parse_reply
+from fgloc.drivers.visca.errors import (
+    CommandBufferFull,
+    ViscaDisconnected,
+    ViscaGarbledReply,
+    ViscaProtocolError,
+    ViscaTimeout,
+    error_for,
+)
+
+if TYPE_CHECKING:
+    from fgloc.drivers.visca.codec import Reply
+
+log = logging.getLogger(__name__)
+_T = TypeVar("_T")
+
+
+class ViscaLink(Protocol):
+    """Carries whole VISCA packets; implementations: serial, VISCA-over-IP, HTTP tunnel."""
+
+    def send(self, packet: bytes, retransmit: bool = False) -> None:
+        """Send one packet (``8x ... FF``); ``retransmit`` marks a resend after a timeout."""
+
+    def receive(self, timeout: float) -> bytes | None:
+        """Next reply packet, or None after ``timeout`` seconds without one."""
+
+    def flush_input(self) -> None:
+        """Discard anything received but not yet read."""
+
+    def reopen(self) -> None:
+        """Re-establish the connection after a disconnect."""
+
+    def close(self) -> None:
+        """Release the port/socket."""
+
+
+
+@dataclass
+class SessionStats:
+    """Counters for what went wrong on the wire (for logs and tests)."""
+
+    sent: int = 0
+    retries: int = 0
+    timeouts: int = 0
+    garbled: int = 0
+    stale: int = 0
+    network_changes: int = 0
+    reconnects: int = 0
+
+
+@dataclass
+class Timeouts:
+    """Seconds to wait: ACK-or-error, inquiry reply, completion margin added to the move time."""
+
+    ack: float = 0.2
+    inquiry: float = 0.3
+    completion_margin: float = 1.0
+    retries: int = 3
+    buffer_full_wait: float = 0.1
+
+
+class ViscaSession:
+    """One VISCA camera behind a link: sends commands one at a time and matches replies by socket."""
+
+    def __init__(self, link: ViscaLink, address: int = 1, timeouts: Timeouts | None = None,
+                 reconnects: int = 3, on_reconnect: Callable[[], None] | None = None,
+                 reconnect_wait: float = 0.2) -> None:
+        self.link = link
+        self.address = address
+        self.timeouts = timeouts or Timeouts()
+        self.reconnects = reconnects
+        self.reconnect_wait = reconnect_wait
+        self.network_changed = False  # set on an unsolicited Network Change; the head re-initialises
+        self.stats = SessionStats()
+        self._lock = threading.RLock()
+        self._on_reconnect = on_reconnect
+
+    # -- public
+    def command(self, packet: bytes, completion_timeout: float | None = None, name: str = "") -> None:
+        """Send a command; wait for its ACK, then its Completion on the same socket.
+
+        ``completion_timeout`` (s) defaults to the completion margin. A timeout at
+        either stage resends the command (idempotent commands only).
+        """
+        name = name or packet.hex(" ")
+        wait = completion_timeout if completion_timeout is not None else self.timeouts.completion_margin
+        self._with_reconnect(lambda: self._command(packet, wait, name))
+
+    def inquiry(self, packet: bytes, expect_len: int, name: str = "") -> bytes:
+        """Send an inquiry; return the data bytes of the ``y0 50 data FF`` reply (length checked)."""
+        name = name or packet.hex(" ")
+        return self._with_reconnect(lambda: self._inquiry(packet, expect_len, name))
+
+    def if_clear(self) -> None:
+        """IF_Clear to this camera: waits for ``z0 50 FF`` (no ACK)."""
+        self._with_reconnect(lambda: self._if_clear())
+
+    def address_set(self) -> int:
+        """Broadcast Address Set; returns the number of cameras on the chain."""
+        return self._with_reconnect(self._address_set)
+
+    # -- internals
+    def _with_reconnect(self, op: Callable[[], _T]) -> _T:
+        """``op()``; after a disconnect wait ``reconnect_wait`` s, reopen the link, re-initialise, run it again."""
+
+        def attempt(n: int) -> _T:
+            if n:
+                self.link.reopen()
+                if self._on_reconnect is not None:
+                    self._on_reconnect()
+            return op()
+
+        def before_retry(failures: int, error: BaseException) -> None:
+            self.stats.reconnects += 1
+            log.warning("VISCA link lost (%s); reconnecting (%d/%d)", error, failures, self.reconnects)
+
+        with self._lock:
+            policy = RetryPolicy(self.reconnects + 1, ViscaDisconnected, self.reconnect_wait)
+            return policy.call(attempt, before_retry)
+
+    def _count_retry(self, failures: int, error: BaseException) -> None:
+        self.stats.retries += 1
+        log.debug("camera %d: retrying after: %s", self.address, error)
+
+    def _send(self, packet: bytes, retransmit: bool = False) -> None:
+        self.stats.sent += 1
+        self.link.send(packet, retransmit)
+
+    def _next(self, deadline: float) -> Reply | None:
+        """Next well-formed reply from our camera before ``deadline``; None on timeout."""
+        while True:
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                return None
+            raw = self.link.receive(remaining)
+            if raw is None:
+                return None
+            try:
+                reply = parse_reply(raw)
+            except ViscaProtocolError as exc:
+                self.stats.garbled += 1
+                log.debug("dropping %s", exc)
+                continue
+            if reply.kind is ReplyKind.NETWORK_CHANGE:
+                self.stats.network_changes += 1
+                self.network_changed = True
+                log.warning("camera %d reported a network change", reply.sender)
+                continue
+            if reply.sender not in (0, self.address):
+                self.stats.stale += 1
+                continue
+            return reply
+
+    def _command(self, packet: bytes, completion_timeout: float, name: str) -> None:
+        """Send, wait for ACK (``ack`` s), then for the Completion on that socket; timeouts resend."""
+        t = self.timeouts
+        acked = True  # a resend after an ACKed attempt is a new message, not a retransmission
+
+        def attempt(n: int) -> None:
+            nonlocal acked
+            self._send(packet, retransmit=n > 0 and not acked)
+            acked = False
+            socket = self._await_ack(name)
+            acked = True
+            self._await_completion(socket, completion_timeout, name)
+
+        def retryable(error: BaseException) -> bool:  # buffer full answers in place of the ACK only
+            return isinstance(error, ViscaTimeout) or (isinstance(error, CommandBufferFull) and not acked)
+
+        def wait(failures: int, error: BaseException) -> float:
+            return t.buffer_full_wait if isinstance(error, CommandBufferFull) else 0.0
+
+        RetryPolicy(t.retries + 1, retryable, wait).call(attempt, self._count_retry)
+
+    def _await_ack(self, name: str) -> int:
+        """The socket of the ACK; ViscaTimeout after ``timeouts.ack`` s, the error class for an error reply."""
+        deadline = time.monotonic() + self.timeouts.ack
+        while True:
+            reply = self._next(deadline)
+            if reply is None:
+                self.stats.timeouts += 1
+                raise ViscaTimeout(f"no ACK from camera {self.address} to {name}")
+            if reply.kind is ReplyKind.ACK:
+                return reply.socket
+            if reply.kind is ReplyKind.ERROR:
+                raise error_for(reply.error_code, reply.socket, name)
+            self.stats.stale += 1
+
+    def _await_completion(self, socket: int, timeout: float, name: str) -> None:
+        """The Completion (or error) on ``socket`` within ``timeout`` s; other sockets' packets are stale."""
+        deadline = time.monotonic() + timeout
+        while True:
+            reply = self._next(deadline)
+            if reply is None:
+                self.stats.timeouts += 1
+                raise ViscaTimeout(f"no completion from camera {self.address} for {name} within {timeout:.1f} s")
+            if reply.socket != socket or reply.kind not in (ReplyKind.COMPLETION, ReplyKind.ERROR):
+                self.stats.stale += 1
+                continue
+            if reply.kind is ReplyKind.COMPLETION:
+                return
+            raise error_for(reply.error_code, reply.socket, name)
+
+    def _inquiry(self, packet: bytes, expect_len: int, name: str) -> bytes:
+        """Send an inquiry, wait ``timeouts.inquiry`` s for its data; timeouts and garbled replies ask again."""
+
+        def attempt(n: int) -> bytes:
+            self._send(packet, n > 0)
+            deadline = time.monotonic() + self.timeouts.inquiry
+            while True:
+                reply = self._next(deadline)
+                if reply is None:
+                    self.stats.timeouts += 1
+                    raise ViscaTimeout(f"no reply from camera {self.address} to {name}")
+                if reply.kind is ReplyKind.INQUIRY:
+                    if len(reply.data) != expect_len:
+                        self.stats.garbled += 1
+                        raise ViscaGarbledReply(f"reply to {name} has {len(reply.data)} data bytes, "
+                                                f"expected {expect_len}")
+                    if any(b & 0xF0 for b in reply.data):
+                        self.stats.garbled += 1
+                        raise ViscaGarbledReply(f"reply to {name} has corrupted nibbles")
+                    return reply.data
+                if reply.kind is ReplyKind.ERROR and reply.socket == 0:
+                    raise error_for(reply.error_code, 0, name)
+                self.stats.stale += 1
+
+        policy = RetryPolicy(self.timeouts.retries + 1, (ViscaTimeout, ViscaGarbledReply, CommandBufferFull))
+        return policy.call(attempt, self._count_retry)
+
+    def _if_clear(self) -> None:
+        def attempt(n: int) -> None:
+            self._send(cmd_if_clear(self.address), n > 0)
+            deadline = time.monotonic() + self.timeouts.ack
+            while True:
+                reply = self._next(deadline)
+                if reply is None:
+                    self.stats.timeouts += 1
+                    raise ViscaTimeout(f"no reply from camera {self.address} to IF_Clear")
+                if reply.kind is ReplyKind.COMPLETION and reply.socket == 0:
+                    return
+                if reply.kind is ReplyKind.ERROR:
+                    raise error_for(reply.error_code, reply.socket, "IF_Clear")
+                self.stats.stale += 1
+
+        RetryPolicy(self.timeouts.retries + 1, ViscaTimeout).call(attempt, self._count_retry)
+
+    def _address_set(self) -> int:
+        def attempt(n: int) -> int:
+            self._send(cmd_address_set())
+            deadline = time.monotonic() + self.timeouts.ack
+            while True:
+                reply = self._next(deadline)
+                if reply is None:
+                    self.stats.timeouts += 1
+                    raise ViscaTimeout("no reply to Address Set (is the camera on and the cable a crossed VISCA "
+                                       "cable?)")
+                if reply.kind is ReplyKind.ADDRESS_SET:
+                    return reply.data[0] - 1
+                self.stats.stale += 1
+
+        return RetryPolicy(self.timeouts.retries + 1, ViscaTimeout).call(attempt, self._count_retry)
