@@ -25,7 +25,7 @@ test: $(STAMP)
 PKG := build/pkg
 lint: $(STAMP)
 	$(VENV)/bin/ruff check .
-	rm -rf $(PKG) && $(PY) -m pip install -q --no-deps --target $(PKG) . 2>&1 | grep -v '^WARNING: Location' || true
+	rm -rf build && $(PY) -m pip install -q --no-deps --target $(PKG) . 2>&1 | grep -v '^WARNING: Location' || true
 	test "$$(cat $(PKG)/fgloc-*.dist-info/top_level.txt)" = fgloc
 	cd /tmp && PYTHONPATH=$(CURDIR)/$(PKG) $(CURDIR)/$(PY) -c "import fgloc.factors, fgloc.drivers, sys; \
 	  assert fgloc.__file__.startswith('$(CURDIR)/$(PKG)/'), fgloc.__file__; \

@@ -80,7 +80,7 @@ class RenderSettings:
 def _integrated_gaussian_1d(centre: float, sigma: float, lo: int, hi: int) -> np.ndarray:
     """Fraction of a unit 1-D Gaussian falling in each pixel lo..hi-1 (pixel k spans k +- 0.5)."""
     edges = (np.arange(lo, hi + 1, dtype=float) - 0.5 - centre) / (sigma * math.sqrt(2.0))
-    cdf = 0.5 * (1.0 + _erf(edges).astype(float))
+    cdf = 0.5 * (1.0 + np.asarray(_erf(edges), dtype=float))
     return np.diff(cdf)
 
 

@@ -24,7 +24,7 @@ from dataclasses import replace
 
 from fgloc.drivers.inprocess_rig import FrameRenderer, build_scene, frame_renderer
 from fgloc.drivers.ptz_units import PanTiltUnits, camera_model, mounting
-from fgloc.drivers.tinyos.network import open_mote_network
+from fgloc.drivers.tinyos.network import MoteNetwork, open_mote_network
 from fgloc.drivers.twins.base_station import BaseStationSerialTwin, MoteFieldEmulator
 from fgloc.drivers.twins.faults import FaultConfig
 from fgloc.drivers.twins.visca_camera import HeadPose, ViscaCameraEmulator, ViscaSerialTwin
@@ -44,7 +44,7 @@ class ViscaTwinRig:
         self.timeouts = timeouts or Timeouts(ack=0.03, inquiry=0.04, completion_margin=0.05)
         self.scene = build_scene(rig)
         self.base_station: BaseStationSerialTwin | None = None
-        self.leds = None
+        self.leds: MoteNetwork | None = None  # set once the base-station twin runs
         self.units: dict[str, PanTiltUnits] = {}
         self.twins: dict[str, ViscaSerialTwin] = {}
         sim = rig.simulation

@@ -102,6 +102,7 @@ class BaseStationSerialTwin(PtyTwin):
         except MoteProtocolError:
             return
         if f.protocol == PROTO_ACK:  # the PC acknowledging a 0x44 frame we sent
+            assert f.seq is not None  # parse_body sets it for ACK frames
             self.acks_received.append(f.seq)
             return
         if f.protocol not in (PROTO_PACKET_ACK, PROTO_PACKET_NOACK):
@@ -114,7 +115,9 @@ class BaseStationSerialTwin(PtyTwin):
         if self.faults.request_error() is not None:
             self._out.put(now, frame(bytes([PROTO_UNKNOWN, f.protocol])))
             return
+        assert f.packet is not None  # a data frame
         if f.protocol == PROTO_PACKET_ACK:
+            assert f.seq is not None
             self._emit(now, ack_frame(f.seq))
         for delay, packet in self.field.handle(f.packet):
             self._emit(now + delay, data_frame(packet, None))

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 
@@ -62,7 +63,7 @@ class TwinRig:
     """Starts the twins; ``ports`` / ``mote_port`` are what a rig.json would name. Context manager."""
 
     def __init__(self, cameras: Iterable[TwinCamera], render: SpecRenderer | None = None,
-                 on_led: Callable[[int, bool], None] | None = None, motes: str = "serial",
+                 on_led: Callable[[Any, bool], None] | None = None, motes: str = "serial",
                  faults: FaultConfig | None = None, camera_faults: Mapping[str, FaultConfig] | None = None,
                  mote_faults: FaultConfig | None = None, silent_nodes: Iterable[int | str] = (),
                  time_scale: float = 0.0, node_ids: Iterable[str] | None = None) -> None:
@@ -78,6 +79,7 @@ class TwinRig:
                     f = replace(f, seed=f.seed + 1000 * i, script=list(f.script), error_script=list(f.error_script))
                 emulator = ViscaCameraEmulator(cam.units.model, time_scale=time_scale,
                                                renderer=self._renderer_for(cam) if render else None)
+                twin: ViscaSerialTwin | ViscaIpTwin | SonyCgiTwin
                 if cam.transport == "serial":
                     twin = ViscaSerialTwin(emulator, f)
                     self.ports[cam.camera_id] = twin.port
@@ -94,8 +96,10 @@ class TwinRig:
             by_address = None if self.node_ids is None else {node_address(n): n for n in self.node_ids}
             led_hook = on_led
             if on_led is not None and by_address is not None:
-                def led_hook(address: int, on: bool) -> None:
+                def by_node(address: int, on: bool) -> None:
                     on_led(by_address[address], on)
+
+                led_hook = by_node
             self.field = MoteFieldEmulator(nodes=None if by_address is None else set(by_address),
                                            silent={node_address(n) for n in silent_nodes}, on_led=led_hook)
             mf = mote_faults if mote_faults is not None else faults
@@ -148,6 +152,7 @@ class TwinRig:
         from fgloc.drivers.connect import open_leds
 
         net = open_leds(self.mote_port, None, timeout, retries, report_timeout, attempts)
+        assert isinstance(net, MoteNetwork)
         self._opened.append(net)
         return net
 

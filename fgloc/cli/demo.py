@@ -95,6 +95,7 @@ def run(args: argparse.Namespace) -> int:
     failed = sum(baseline.failures.values())
 
     bound = cramer_rao_bound(survey)
+    assert survey.truth is not None  # a simulated scenario
     truth = survey.truth.nodes
     ids = [n for n in survey.node_ids if n in baseline.result.nodes]
     joint_err = np.array([np.linalg.norm(joint.nodes[n].position - truth[n]) for n in survey.node_ids])

@@ -63,5 +63,7 @@ def run(args: argparse.Namespace) -> int:
             head.stop()
         print(format_position(*head.position()))
     finally:
-        head.close()
+        close = getattr(head, "close", None)  # every driver has one; the PanTiltHead protocol does not
+        if close is not None:
+            close()
     return 0

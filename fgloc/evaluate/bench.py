@@ -230,8 +230,8 @@ def markdown(results: list[CaseResult], slopes: dict[str, dict[str, float]], ski
             f"{ratio:.2f}x | {r.final_cost:.6f} | "
             f"{r.peak_rss_mb:.0f} MB |"
         )
-    for s in skipped:
-        lines.append(f"\nSkipped: {s}")
+    for skip in skipped:
+        lines.append(f"\nSkipped: {skip}")
     lines += ["", "Growth with n (log-log slope of the fgloc stage medians; 1.0 = linear):", ""]
     lines += ["| cameras | " + " | ".join(STAGES) + " | total |", "|---" * (len(STAGES) + 2) + "|"]
     for cams, per in slopes.items():

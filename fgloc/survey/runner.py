@@ -25,6 +25,7 @@ batch joint solve. An incremental (iSAM2) estimator can be passed instead.
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 import threading
@@ -281,7 +282,7 @@ class SurveyRunner:
         self.on_estimate = on_estimate
         self.on_progress = on_progress
         self.stats = RunnerStats()
-        self.workers = {c: CameraWorker(c, (lambda c=c: open_head(c)), rig, self.stats) for c in rig.camera_ids}
+        self.workers = {c: CameraWorker(c, functools.partial(open_head, c), rig, self.stats) for c in rig.camera_ids}
         self.latest: LiveEstimate | None = None
         self._state_lock = threading.Lock()
         self._led_lock = threading.Lock()
@@ -335,11 +336,11 @@ class SurveyRunner:
             st.started.append(node)
         if node not in st.led_failed:
             if not self._set_led(node, True):
-                reason = f"no acknowledgement after {self.rig.retry.led_attempts} attempts"
-                self.journal.led_failed(node, reason)
-                st.led_failed[node] = reason
+                led_reason = f"no acknowledgement after {self.rig.retry.led_attempts} attempts"
+                self.journal.led_failed(node, led_reason)
+                st.led_failed[node] = led_reason
                 self.stats.led_failed += 1
-                logger.warning(f"{node}: LED failed: {reason}")
+                logger.warning(f"{node}: LED failed: {led_reason}")
             else:
                 if self.rig.search.led_wait_s > 0:
                     time.sleep(self.rig.search.led_wait_s)
@@ -351,10 +352,12 @@ class SurveyRunner:
                     indices = [k for k in range(self.rig.repeats) if k not in have]
                     jobs.append((cam, indices, self._start_for(cam)))
                 blink = (lambda grab: self._blink(node, grab)) if self.rig.search.detection == "on-off" else None
+                def recorder(cam: str) -> Callable[[int, float, float], None]:
+                    return lambda index, pan, tilt: self._record_observation(
+                        JournalObservation(node, cam, index, pan, tilt))
+
                 pending = {
-                    cam: pool.submit(self.workers[cam].measure, node, indices, start,
-                                     lambda index, pan, tilt, cam=cam: self._record_observation(
-                                         JournalObservation(node, cam, index, pan, tilt)), blink)
+                    cam: pool.submit(self.workers[cam].measure, node, indices, start, recorder(cam), blink)
                     for cam, indices, start in jobs
                 }
                 for cam, future in pending.items():

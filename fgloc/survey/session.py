@@ -44,6 +44,7 @@ def open_simulated(rig: RigConfig) -> OpenedRig:
         from fgloc.drivers.twin_rig import ViscaTwinRig
 
         twins = ViscaTwinRig(rig)
+        assert twins.leds is not None  # the constructor started the base-station twin
         return OpenedRig(open_head=twins.open_head, leds=twins.leds, simulated=twins, close=twins.close)
     from fgloc.drivers.inprocess_rig import InProcessRig
 
