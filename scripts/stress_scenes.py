@@ -20,7 +20,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 
 from fgloc.core.model import NodeMode, Survey  # noqa: E402
-from fgloc.init.planar import InitialEstimate  # noqa: E402
+from fgloc.init.start import InitialEstimate  # noqa: E402
 from fgloc.sim.scenes import RandomScene, random_scene  # noqa: E402
 from fgloc.solve.joint import build_problem, solve, solve_survey  # noqa: E402
 

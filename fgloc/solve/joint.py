@@ -27,7 +27,8 @@ from fgloc.core.errors import FglocError
 from fgloc.core.model import CameraPose, NodeEstimate, NodeMode, Result, SolveStats, Survey
 from fgloc.factors.baseline_prior import BaselinePrior
 from fgloc.factors.pan_tilt_batch import PanTiltFactorSet
-from fgloc.init.planar import InitialEstimate, initialize_planar
+from fgloc.init.planar import initialize_planar
+from fgloc.init.start import InitialEstimate
 from fgloc.init.three_d import initialize_3d
 from fgloc.solve.levenberg_marquardt import IterationCallback, LMOutcome, LMParams, levenberg_marquardt
 from fgloc.solve.outliers import FLAG_CHI2, MAX_FLAG_ROUNDS, flag_readings, reflag

@@ -13,7 +13,8 @@ import numpy as np
 
 from fgloc.core.geometry import bearing_pan_tilt, pan_tilt_bearing, pan_tilt_jacobian, pan_tilt_residual
 from fgloc.core.model import FlaggedObservation, NodeMode, Survey
-from fgloc.init.planar import InitialEstimate, consensus_ground_point, ground_hits
+from fgloc.init.planar import consensus_ground_point, ground_hits
+from fgloc.init.start import InitialEstimate
 
 #: chi-square quantile (2 dof) above which a reading's squared whitened residual is
 #: implausible: P = 1 - 1e-6 (about 5.3 sigma), so clean surveys lose no readings
