@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from fgloc.core.model import NodeMode, Survey
-from fgloc.init.planar import InitialEstimate
+from fgloc.init.start import InitialEstimate
 from fgloc.sim.scenes import RandomScene, random_scene
 from fgloc.solve.joint import build_problem, solve, solve_survey
 

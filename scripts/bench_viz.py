@@ -1,4 +1,4 @@
-"""Benchmark of fgloc.viz.rerun_log: time and size of .rrd recordings (acceptance of issue 5).
+"""Benchmark of fgloc.viz: time and size of .rrd recordings (acceptance of issue 5).
 
     OPENBLAS_NUM_THREADS=1 .venv/bin/python scripts/bench_viz.py
 
@@ -51,7 +51,7 @@ def main() -> int:
     t_plain = statistics.median(plain_times)
 
     t0 = time.perf_counter()
-    import fgloc.viz.rerun_log as viz  # cold: imports rerun
+    import fgloc.viz as viz  # cold: imports rerun
 
     t_import = time.perf_counter() - t0
     recorded_times = []
@@ -83,7 +83,7 @@ def main() -> int:
         ("paper: solve with recorder", f"{1000 * t_recorded:.0f} ms",
          f"median of 3; {len(recorder.snapshots)} iterations recorded"),
         ("paper: camera pose covariances", f"{1000 * t_camcov:.0f} ms", "re-linearize + Marginals"),
-        ("paper: import fgloc.viz.rerun_log (rerun)", f"{1000 * t_import:.0f} ms", "once per process"),
+        ("paper: import fgloc.viz (rerun)", f"{1000 * t_import:.0f} ms", "once per process"),
         ("paper: write .rrd, cold", f"{1000 * t_cold:.0f} ms", "first write incl. Rerun warm-up"),
         ("paper: write .rrd, warm", f"{1000 * statistics.median(warm):.0f} ms", "median of 5"),
         ("paper: .rrd size", f"{size / 1e6:.2f} MB", f"{len(subsets[1])} subset points"),

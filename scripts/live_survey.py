@@ -9,7 +9,7 @@ An example to start from, written only against fgloc's public API:
 Everything is journaled to my-survey/journal.jsonl as it happens; kill it at any
 moment and rerun with --resume. The per-node callbacks below are where to hook
 your own display; ``--rerun FILE.rrd`` logs every live estimate on the ``survey``
-timeline with ``fgloc.viz.rerun_log.SurveyLogger`` (open the file with ``rerun FILE.rrd``).
+timeline with ``fgloc.viz.SurveyLogger`` (open the file with ``rerun FILE.rrd``).
 """
 
 from __future__ import annotations
@@ -40,7 +40,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--every", type=int, default=5, help="show estimates after every N nodes (default 5)")
     p.add_argument("--batch", action="store_true",
                    help="re-solve everything for each estimate instead of updating iSAM2 with the new readings")
-    p.add_argument("--rerun", metavar="FILE.rrd", help="log live estimates to a Rerun recording (fgloc.viz.rerun_log)")
+    p.add_argument("--rerun", metavar="FILE.rrd", help="log live estimates to a Rerun recording (fgloc.viz)")
     args = p.parse_args(argv)
     # fgloc logs what goes wrong (LED and camera failures, failed live estimates) on the "fgloc" logger.
     logging.basicConfig(level=logging.WARNING, format="live_survey: %(message)s", stream=sys.stderr)
@@ -49,9 +49,9 @@ def main(argv: list[str] | None = None) -> int:
     recording = None
     if args.rerun:
         try:
-            import fgloc.viz.rerun_log as viz  # type: ignore[attr-defined]
+            import fgloc.viz as viz
         except ImportError:
-            print("live_survey: --rerun needs fgloc.viz.rerun_log, not in this build", file=sys.stderr)
+            print("live_survey: --rerun needs fgloc.viz, not in this build", file=sys.stderr)
             return 2
         recording = viz.open_recording(args.rerun)
         logger = viz.SurveyLogger(recording)

@@ -6,7 +6,7 @@ import pytest
 
 from fgloc.core.model import CameraPose
 from fgloc.factors.baseline_prior import BaselinePrior, ground_point_factor
-from fgloc.init.planar import InitialEstimate
+from fgloc.init.start import InitialEstimate
 from fgloc.sim.scenes import PaperScenario, paper_scenario
 from fgloc.solve.joint import SolverOptions, build_problem, initialize, solve
 

@@ -32,7 +32,7 @@ def test_noisy_closed_form_is_close() -> None:
 
 def test_homography_decomposition_reproduces_h() -> None:
     survey = paper_scenario(PaperScenario(n_nodes=20, sigma=1e-15, seed=1))
-    from fgloc.init.planar import BearingSet
+    from fgloc.init.start import BearingSet
     bs = BearingSet.from_survey(survey)
     H = estimate_bearing_homography(bs.bearings[0], bs.bearings[1])
     for cand in decompose_bearing_homography(H):

@@ -6,7 +6,7 @@ import pytest
 from fgloc.core.model import CameraPose
 from fgloc.evaluate.crlb import cramer_rao_bound
 from fgloc.evaluate.score import CHI2_95, nees, score
-from fgloc.init.planar import InitialEstimate
+from fgloc.init.start import InitialEstimate
 from fgloc.sim.scenes import PAPER_SIGMA, PaperScenario, paper_scenario
 from fgloc.solve.joint import build_problem, solve, solve_survey
 

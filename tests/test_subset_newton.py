@@ -7,7 +7,10 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+import fgloc.baselines.newton as newton
+import fgloc.baselines.subset_guess as subset_guess
 import fgloc.baselines.subset_newton as sn
+import fgloc.baselines.subset_system as subset_system
 from fgloc.core.model import Survey, Truth
 from fgloc.sim.scenes import PaperScenario, observe, paper_scenario
 
@@ -22,13 +25,13 @@ def _noise_free(survey: Survey, points: np.ndarray | None = None) -> Survey:
     return replace(survey, observations=obs, truth=truth)
 
 
-def _packed(survey: Survey, k: int, t: int, seed: int = 0) -> tuple[list[np.ndarray], sn.SubsetReadings]:
+def _packed(survey: Survey, k: int, t: int, seed: int = 0) -> tuple[list[np.ndarray], subset_system.SubsetReadings]:
     opts = sn.SubsetNewtonOptions(subset_size=k, n_subsets=t, seed=seed)
     subsets, members = sn._subset_readings(survey, opts)
     return subsets, sn._pack(survey, subsets, members)
 
 
-def _true_state(survey: Survey, subsets: list[np.ndarray]) -> sn.SubsetState:
+def _true_state(survey: Survey, subsets: list[np.ndarray]) -> subset_system.SubsetState:
     assert survey.truth is not None
     cams = [survey.truth.cameras[survey.gauge.origin], survey.truth.cameras[survey.gauge.baseline]]
     X = survey.truth_node_array()
@@ -36,7 +39,7 @@ def _true_state(survey: Survey, subsets: list[np.ndarray]) -> sn.SubsetState:
     R = np.tile(np.stack([c.rotation for c in cams]), (S, 1, 1, 1))
     h = np.tile([cams[0].position[2], cams[1].position[2]], (S, 1))
     xy = np.stack([X[s, :2] for s in subsets])
-    return sn.SubsetState(R=R, h=h, xy=xy)
+    return subset_system.SubsetState(R=R, h=h, xy=xy)
 
 
 def test_jacobian_matches_central_differences() -> None:
@@ -46,13 +49,13 @@ def test_jacobian_matches_central_differences() -> None:
     subsets, obs = _packed(survey, 6, 3)
     rng = np.random.default_rng(1)
     state = _true_state(survey, subsets).retract(rng.normal(0, 0.02, size=(3, 8 + 12)))
-    _, J = sn.residuals_and_jacobian(state, obs)
+    _, J = subset_system.residuals_and_jacobian(state, obs)
     eps = 1e-6
     num = np.zeros_like(J)
     for i in range(J.shape[2]):
         d = np.zeros((3, J.shape[2]))
         d[:, i] = eps
-        num[:, :, i] = (sn.residuals(state.retract(d), obs) - sn.residuals(state.retract(-d), obs)) / (2 * eps)
+        num[:, :, i] = (subset_system.residuals(state.retract(d), obs) - subset_system.residuals(state.retract(-d), obs)) / (2 * eps)
     scale = np.max(np.abs(J))
     assert np.max(np.abs(J - num)) < 1e-6 * scale
     assert np.max(np.abs(J[:, :, 8:])) > 0 and np.max(np.abs(J[:, :, 2:8])) > 0
@@ -79,19 +82,19 @@ def test_line_search_guarantees_sufficient_decrease() -> None:
     subsets, obs = _packed(survey, 8, 5)
     rng = np.random.default_rng(2)
     state = _true_state(survey, subsets).retract(rng.normal(0, 0.05, size=(5, 8 + 16)))
-    F, J = sn.residuals_and_jacobian(state, obs)
+    F, J = subset_system.residuals_and_jacobian(state, obs)
     f = 0.5 * np.sum(F**2, axis=1)
     grad = np.einsum("smn,sm->sn", J, F)
-    step, _, deficient = sn.gauss_newton_step(J, F)
+    step, _, deficient = newton.gauss_newton_step(J, F)
     assert not deficient.any()
     active = np.ones(5, dtype=bool)
     big = 40.0 * step  # far too long: must backtrack
     stpmax = np.full(5, 1e9)
-    new, fnew, check = sn.line_search(state, obs, f, grad, big, stpmax, 1e-12, active)
+    new, fnew, check = newton.line_search(state, obs, f, grad, big, stpmax, 1e-12, active)
     assert not check.any()
     assert np.all(fnew < f)
-    assert np.allclose(0.5 * np.sum(sn.residuals(new, obs) ** 2, axis=1), fnew)
-    new2, fnew2, check2 = sn.line_search(state, obs, f, grad, -step, stpmax, 1e-12, active)
+    assert np.allclose(0.5 * np.sum(subset_system.residuals(new, obs) ** 2, axis=1), fnew)
+    new2, fnew2, check2 = newton.line_search(state, obs, f, grad, -step, stpmax, 1e-12, active)
     assert check2.all() and np.array_equal(fnew2, f) and np.array_equal(new2.xy, state.xy)
 
 
@@ -100,10 +103,10 @@ def test_newton_never_increases_f_and_converges_quadratically_near_truth() -> No
     final 2f is chi-square-sized (about 4kR - (8 + 2k) for an honest fit)."""
     survey = paper_scenario(PaperScenario(n_nodes=40, seed=6))
     subsets, obs = _packed(survey, 20, 2)
-    state = sn.level_camera_guesses(obs)[0]
+    state = subset_guess.level_camera_guesses(obs)[0]
     fs = []
     for max_it in range(0, 8):
-        out = sn.solve_subsets(state, obs, sn.SubsetNewtonOptions(max_iterations=max_it))
+        out = newton.solve_subsets(state, obs, sn.SubsetNewtonOptions(max_iterations=max_it))
         fs.append(out.f.copy())
     fs = np.array(fs)
     assert np.all(np.diff(fs, axis=0) <= 1e-9 * fs[:-1])

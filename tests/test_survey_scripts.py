@@ -51,7 +51,7 @@ def test_replay_reports_a_bad_journal_in_one_line(tmp_path):
 
 
 def test_live_survey_rerun_hook(tmp_path):
-    """--rerun records the live estimates with fgloc.viz.rerun_log (when that module is in the build),
+    """--rerun records the live estimates with fgloc.viz (when that module is in the build),
     otherwise it refuses in one line before touching the rig."""
     import importlib.util
 
@@ -59,8 +59,8 @@ def test_live_survey_rerun_hook(tmp_path):
     out = tmp_path / "survey"
     run = _run("scripts/live_survey.py", "--rig", str(rig), "-o", str(out), "--simulate", "--every", "2",
                "--rerun", str(tmp_path / "live.rrd"))
-    if importlib.util.find_spec("fgloc.viz.rerun_log") is None:
-        assert run.returncode == 2 and "needs fgloc.viz.rerun_log" in run.stderr and not out.exists()
+    if importlib.util.find_spec("fgloc.viz") is None:
+        assert run.returncode == 2 and "needs fgloc.viz" in run.stderr and not out.exists()
     else:
         assert run.returncode == 0, run.stderr
         assert (tmp_path / "live.rrd").stat().st_size > 10_000

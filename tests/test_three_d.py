@@ -12,7 +12,7 @@ from fgloc.evaluate.crlb import cramer_rao_bound
 from fgloc.evaluate.score import nees
 from fgloc.init.essential import decompose_essential, estimate_essential, resect_camera
 from fgloc.init.homography import DegenerateGeometryError
-from fgloc.init.planar import BearingSet
+from fgloc.init.start import BearingSet
 from fgloc.init.three_d import initialize_3d
 from fgloc.sim.scenes import PAPER_SIGMA, RandomScene, random_scene
 from fgloc.solve.joint import solve_survey

@@ -1,4 +1,4 @@
-"""fgloc.viz.rerun_log: what a person sees, checked by reading the .rrd back (no viewer needed)."""
+"""fgloc.viz: what a person sees, checked by reading the .rrd back (no viewer needed)."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import fgloc.viz.rerun_log as viz
+import fgloc.viz as viz
 from fgloc.cli import main
 from fgloc.core.confidence import confidence_scale
 from fgloc.core.geometry import pan_tilt_bearing
@@ -267,7 +267,7 @@ def test_cli_and_solver_do_not_need_rerun() -> None:
 def test_viewer_is_started_on_loopback_only(monkeypatch, tmp_path) -> None:
     """`fgloc view` must start the real viewer binary bound to 127.0.0.1 unless --bind says otherwise."""
     calls = []
-    monkeypatch.setattr(viz.subprocess, "call", lambda cmd: calls.append(cmd) or 0)
+    monkeypatch.setattr(viz.viewer.subprocess, "call", lambda cmd: calls.append(cmd) or 0)
     assert viz.view_rrd(tmp_path / "x.rrd") == 0
     cmd = calls[0]
     assert Path(cmd[0]) == viz.viewer_binary() and cmd[cmd.index("--bind") + 1] == "127.0.0.1"

@@ -17,7 +17,7 @@ import cv2
 import numpy as np
 import pytest
 
-import fgloc.viz.rerun_log as viz
+import fgloc.viz as viz
 from fgloc.sim.scenes import PaperScenario, paper_scenario
 from fgloc.solve.joint import solve_survey
 

@@ -76,7 +76,7 @@ def run(args: argparse.Namespace) -> int:
 
     recorder = None
     if not args.no_rerun:
-        from fgloc.viz.rerun_log import IterationRecorder  # keeps `import fgloc.cli` free of rerun
+        from fgloc.viz import IterationRecorder  # keeps `import fgloc.cli` free of rerun
 
         recorder = IterationRecorder(survey)
     t0 = time.perf_counter()
@@ -112,7 +112,7 @@ def run(args: argparse.Namespace) -> int:
 
     files = [out / "survey.json", out / "result.json", out / "result-subset-newton.json"]
     if recorder is not None:
-        from fgloc.viz.rerun_log import camera_covariances_or_none, write_rrd
+        from fgloc.viz import camera_covariances_or_none, write_rrd
 
         write_rrd(out / "fgloc.rrd", joint, survey, recorder=recorder, subsets=subset_cloud(survey, baseline),
                   camera_covariances=camera_covariances_or_none(survey, joint))

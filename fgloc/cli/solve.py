@@ -74,7 +74,7 @@ def run(args: argparse.Namespace) -> int:
         subsets = subset_cloud(survey, outcome)
     else:
         if args.rerun:
-            from fgloc.viz.rerun_log import IterationRecorder  # rerun is imported only when asked for
+            from fgloc.viz import IterationRecorder  # rerun is imported only when asked for
 
             recorder = IterationRecorder(survey)
         result = solve_survey(survey, on_iteration=recorder)
@@ -82,7 +82,7 @@ def run(args: argparse.Namespace) -> int:
     print(describe(result))
     print(f"wrote {args.output}")
     if args.rerun:
-        from fgloc.viz.rerun_log import camera_covariances_or_none, write_rrd
+        from fgloc.viz import camera_covariances_or_none, write_rrd
 
         write_rrd(args.rerun, result, survey, recorder=recorder, subsets=subsets,
                   camera_covariances=camera_covariances_or_none(survey, result) if subsets is None else None)

@@ -73,7 +73,7 @@ def run(args: argparse.Namespace) -> int:
 
     recording = None
     if args.rerun:
-        import fgloc.viz.rerun_log as viz  # rerun only when asked
+        import fgloc.viz as viz  # rerun only when asked
 
         recording = viz.open_recording(args.rerun)
         logger = viz.SurveyLogger(recording)

@@ -24,7 +24,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import fgloc.viz.rerun_log as viz  # rerun is imported only by this command
+    import fgloc.viz as viz  # rerun is imported only by this command
     from fgloc.files.survey_result import read_result, read_survey
 
     result = read_result(args.result)

@@ -32,7 +32,7 @@ import numpy as np
 from fgloc.core.geometry import FloatArray, bearing_pan_tilt, pan_tilt_bearing, pan_tilt_residual
 from fgloc.core.model import Survey
 from fgloc.factors.baseline_prior import BaselinePrior
-from fgloc.init.planar import InitialEstimate
+from fgloc.init.start import InitialEstimate
 from fgloc.solve.joint import auto_gauge_sigma, initialize, solve_survey
 from fgloc.solve.levenberg_marquardt import levenberg_marquardt
 

@@ -17,7 +17,7 @@ import numpy as np
 from fgloc.core.errors import FglocError
 from fgloc.core.geometry import FloatArray
 from fgloc.core.model import NodeMode, Survey
-from fgloc.init.planar import InitialEstimate
+from fgloc.init.start import InitialEstimate
 from fgloc.solve.joint import SolverOptions, build_problem
 
 

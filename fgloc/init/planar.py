@@ -21,12 +21,9 @@ seen by no placed camera is reported as unlocalized.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-
 import numpy as np
 
-from fgloc.core.errors import FglocError
-from fgloc.core.geometry import FloatArray, angle_between, pan_tilt_bearing
+from fgloc.core.geometry import FloatArray, angle_between
 from fgloc.core.model import CameraPose, NodeMode, Survey
 from fgloc.init.homography import (
     DegenerateGeometryError,
@@ -38,48 +35,22 @@ from fgloc.init.homography import (
     plane_to_bearing_homography,
 )
 from fgloc.init.ransac import ransac
+from fgloc.init.start import (
+    BearingSet,
+    InitialEstimate,
+    grow,
+    initial_estimate,
+    move_into_gauge,
+    ransac_threshold,
+    shared_bearings,
+    start_up,
+)
 
 MIN_SHARED_PLANAR = 4
 #: RANSAC inlier thresholds in units of the reading sigma: a pair's homography
 #: transfer combines two readings; a resection also carries the start's node errors.
 PAIR_THRESHOLD_SIGMAS = 25.0
 RESECTION_THRESHOLD_SIGMAS = 30.0
-#: Floor of every RANSAC angle threshold (radians): numerical noise of noise-free data.
-MIN_THRESHOLD = 1e-9
-#: RANSAC is seeded so that a survey always gives the same start.
-RANSAC_SEED = 20260101
-
-
-@dataclass
-class InitialEstimate:
-    """Camera bases and node positions (world, gauge frame) to start the joint solve."""
-
-    cameras: dict[str, CameraPose]
-    nodes: dict[str, FloatArray]
-    unlocalized: dict[str, str] = field(default_factory=dict)
-    #: (camera, node) pairs RANSAC found inconsistent while building the start.
-    suspected_outliers: int = 0
-
-
-@dataclass(frozen=True)
-class BearingSet:
-    """One averaged unit bearing per observed (camera, node) pair, as a dense table."""
-
-    bearings: FloatArray  # (n_cameras, n_nodes, 3), NaN where not observed
-    seen: np.ndarray  # (n_cameras, n_nodes) bool
-    sigma: float  # typical reading noise, radians
-
-    @classmethod
-    def from_survey(cls, survey: Survey) -> BearingSet:
-        t = survey.observation_table
-        n_cam, n_nodes = len(survey.camera_ids), len(survey.node_ids)
-        acc = np.zeros((n_cam, n_nodes, 3))
-        np.add.at(acc, (t.camera_index, t.node_index), pan_tilt_bearing(t.pan, t.tilt))
-        norm = np.linalg.norm(acc, axis=-1)
-        seen = norm > 0
-        with np.errstate(invalid="ignore", divide="ignore"):
-            bearings = np.where(seen[..., None], acc / norm[..., None], np.nan)
-        return cls(bearings=bearings, seen=seen, sigma=float(np.median(t.sigma)) if len(t) else survey.sigma)
 
 
 def ground_hits(
@@ -158,15 +129,14 @@ def _pair_frames(bs: BearingSet, a: int, b: int, rng: np.random.Generator) -> tu
     homography is fitted by RANSAC over 4-node samples; the second value is the
     number of shared nodes it found inconsistent.
     """
-    shared = bs.seen[a] & bs.seen[b]
-    b1, b2 = bs.bearings[a, shared], bs.bearings[b, shared]
+    b1, b2 = shared_bearings(bs, a, b)
     H, inliers = ransac(
         len(b1), 4,
         lambda idx: estimate_bearing_homography(b1[idx], b2[idx]),
         # Transfer both ways and keep the smaller angle: one direction amplifies the
         # noise by the ratio of the node's ranges, the other shrinks it.
         lambda H: np.minimum(angle_between(b1 @ H.T, b2), angle_between(b2 @ np.linalg.inv(H).T, b1)),
-        threshold=max(PAIR_THRESHOLD_SIGMAS * bs.sigma, MIN_THRESHOLD), rng=rng,
+        threshold=ransac_threshold(PAIR_THRESHOLD_SIGMAS, bs), rng=rng,
     )
     b1, b2 = b1[inliers], b2[inliers]
     check_spans_plane(b1, b2, bs.sigma)
@@ -202,66 +172,19 @@ def _to_planar_gauge(
     ang = np.arctan2(d[1], d[0])
     c, s = np.cos(-ang), np.sin(-ang)
     rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-    shift = np.array([g0[0], g0[1], 0.0])
-
-    def move(p: FloatArray) -> FloatArray:
-        return rot @ (p - shift) / length
-
-    new_cams = {i: CameraPose(move(cam.position), rot @ cam.rotation) for i, cam in cameras.items()}
-    new_nodes = {j: move(p) for j, p in nodes.items()}
-    return new_cams, new_nodes
-
-
-def covisibility(bs: BearingSet) -> np.ndarray:
-    """(n_cameras, n_cameras) number of nodes each pair of cameras both sees."""
-    s = bs.seen.astype(np.int64)
-    return s @ s.T
-
-
-def starting_pair(bs: BearingSet, survey: Survey, min_shared: int) -> tuple[int, int]:
-    """The gauge pair if it shares ``min_shared`` nodes, else the pair of cameras sharing the most."""
-    ids = survey.camera_ids
-    origin, baseline = ids.index(survey.gauge.origin), ids.index(survey.gauge.baseline)
-    shared = covisibility(bs)
-    if shared[origin, baseline] >= min_shared:
-        return origin, baseline
-    off = shared - np.diag(np.diag(shared))
-    a, b = (int(v) for v in np.unravel_index(int(np.argmax(off)), off.shape))
-    if off[a, b] < min_shared:
-        raise DegenerateGeometryError(
-            f"no two cameras share {min_shared} nodes (best: {ids[a]} and {ids[b]} share {off[a, b]})"
-        )
-    return a, b
-
-
-def next_camera(
-    bs: BearingSet, cameras: dict[int, CameraPose], nodes: dict[int, FloatArray], ids: list[str], min_shared: int
-) -> tuple[int, np.ndarray]:
-    """The unplaced camera seeing the most placed nodes, and which nodes those are (mask).
-
-    Raises, naming the cameras, when none sees ``min_shared`` placed nodes (the
-    co-visibility graph is disconnected or too weakly connected).
-    """
-    placed = np.zeros(bs.seen.shape[1], dtype=bool)
-    placed[list(nodes)] = True
-    counts = [(int(np.sum(bs.seen[i] & placed)), i) for i in range(len(ids)) if i not in cameras]
-    n_best, k = max(counts)
-    if n_best < min_shared:
-        missing = sorted(ids[i] for _, i in counts)
-        raise DegenerateGeometryError(
-            f"camera(s) {', '.join(missing)} share fewer than {min_shared} nodes with the placed cameras"
-        )
-    return k, bs.seen[k] & placed
+    return move_into_gauge(cameras, nodes, rot, np.array([g0[0], g0[1], 0.0]), length)
 
 
 def _grow(
     bs: BearingSet, cameras: dict[int, CameraPose], ids: list[str], rng: np.random.Generator
 ) -> dict[int, FloatArray]:
-    """Place nodes from the starting cameras, then add every other camera and its nodes."""
-    nodes: dict[int, FloatArray] = {}
-    _place_nodes(cameras, bs, nodes)
-    while len(cameras) < len(ids):
-        k, vis = next_camera(bs, cameras, nodes, ids, MIN_SHARED_PLANAR)
+    """Place nodes from the starting cameras, then add every other camera and its nodes.
+
+    A camera is resected from a ground-plane-to-bearing homography (RANSAC over
+    4 placed nodes it sees); nodes are placed where their rays meet z = 0.
+    """
+
+    def resect(k: int, vis: np.ndarray, nodes: dict[int, FloatArray]) -> CameraPose:
         xy = np.array([nodes[j][:2] for j in np.flatnonzero(vis)])
         bk = bs.bearings[k, vis]
         p = np.column_stack([xy, np.ones(len(xy))])
@@ -269,11 +192,11 @@ def _grow(
             len(xy), 4,
             lambda idx: plane_to_bearing_homography(xy[idx], bk[idx]),
             lambda G: angle_between(p @ G.T, bk),
-            threshold=max(RESECTION_THRESHOLD_SIGMAS * bs.sigma, MIN_THRESHOLD), rng=rng,
+            threshold=ransac_threshold(RESECTION_THRESHOLD_SIGMAS, bs), rng=rng,
         )
-        cameras[k] = camera_from_plane_homography(G)
-        _place_nodes(cameras, bs, nodes)
-    return nodes
+        return camera_from_plane_homography(G)
+
+    return grow(bs, cameras, ids, MIN_SHARED_PLANAR, resect, _place_nodes)
 
 
 def angular_cost(bs: BearingSet, cameras: dict[int, CameraPose], nodes: dict[int, FloatArray]) -> float:
@@ -304,31 +227,16 @@ def initialize_planar(survey: Survey) -> InitialEstimate:
     bearings alone); then the one with the more level (or upside-down) camera
     bases is kept, which is how PTZ heads are mounted in practice.
     """
-    if survey.mode is not NodeMode.PLANAR:
-        raise FglocError("initialize_planar needs a planar survey")
-    bs = BearingSet.from_survey(survey)
-    ids = survey.camera_ids
-    origin, baseline = ids.index(survey.gauge.origin), ids.index(survey.gauge.baseline)
-    a, b = starting_pair(bs, survey, MIN_SHARED_PLANAR)
+    s = start_up(survey, NodeMode.PLANAR, MIN_SHARED_PLANAR, "initialize_planar")
+    bs = s.bs
     best: tuple[float, float, dict[int, CameraPose], dict[int, FloatArray]] | None = None
-    rng = np.random.default_rng(RANSAC_SEED)
-    frames, outliers = _pair_frames(bs, int(a), int(b), rng)
+    frames, outliers = _pair_frames(bs, *s.pair, s.rng)
     for cameras in frames:
-        nodes = _grow(bs, cameras, ids, rng)
+        nodes = _grow(bs, cameras, s.ids, s.rng)
         cost = angular_cost(bs, cameras, nodes)
         key = (round(cost / (len(survey.observations) * survey.sigma**2 + 1e-300), 0), -_uprightness(cameras))
         if best is None or key < best[:2]:
             best = (key[0], key[1], cameras, nodes)
     assert best is not None
-    cameras, nodes = _to_planar_gauge(best[2], best[3], origin, baseline)
-    unlocalized = {
-        survey.node_ids[j]: ("seen by no camera" if not bs.seen[:, j].any() else "no ray reaches the ground plane")
-        for j in range(len(survey.node_ids))
-        if j not in nodes
-    }
-    return InitialEstimate(
-        cameras={ids[i]: cam for i, cam in cameras.items()},
-        nodes={survey.node_ids[j]: p for j, p in nodes.items()},
-        unlocalized=unlocalized,
-        suspected_outliers=outliers,
-    )
+    cameras, nodes = _to_planar_gauge(best[2], best[3], s.origin, s.baseline)
+    return initial_estimate(survey, bs, cameras, nodes, outliers, lambda n_seen: "no ray reaches the ground plane")

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from fgloc.core.errors import FglocError
 from fgloc.core.geometry import FloatArray, angle_between
 from fgloc.core.model import CameraPose, NodeMode, Survey
 from fgloc.init.essential import (
@@ -32,8 +31,17 @@ from fgloc.init.essential import (
     triangulate_rays,
 )
 from fgloc.init.homography import DegenerateGeometryError
-from fgloc.init.planar import MIN_THRESHOLD, RANSAC_SEED, BearingSet, InitialEstimate, next_camera, starting_pair
 from fgloc.init.ransac import ransac
+from fgloc.init.start import (
+    BearingSet,
+    InitialEstimate,
+    grow,
+    initial_estimate,
+    move_into_gauge,
+    ransac_threshold,
+    shared_bearings,
+    start_up,
+)
 
 PAIR_THRESHOLD_SIGMAS = 10.0
 RESECTION_THRESHOLD_SIGMAS = 30.0
@@ -54,13 +62,12 @@ def _triangulate_all(cameras: dict[int, CameraPose], bs: BearingSet, nodes: dict
 
 
 def _pair(bs: BearingSet, a: int, b: int, rng: np.random.Generator) -> tuple[dict[int, CameraPose], int]:
-    shared = bs.seen[a] & bs.seen[b]
-    b1, b2 = bs.bearings[a, shared], bs.bearings[b, shared]
+    b1, b2 = shared_bearings(bs, a, b)
     E, inliers = ransac(
         len(b1), MIN_SHARED_3D,
         lambda idx: estimate_essential(b1[idx], b2[idx]),
         lambda E: epipolar_angles(E, b1, b2),
-        threshold=max(PAIR_THRESHOLD_SIGMAS * bs.sigma, MIN_THRESHOLD), rng=rng,
+        threshold=ransac_threshold(PAIR_THRESHOLD_SIGMAS, bs), rng=rng,
     )
     check_not_coplanar(b1[inliers], b2[inliers], bs.sigma)
     pose, _ = decompose_essential(E, b1[inliers], b2[inliers])
@@ -73,35 +80,21 @@ def _pair(bs: BearingSet, a: int, b: int, rng: np.random.Generator) -> tuple[dic
 def _to_3d_gauge(
     cameras: dict[int, CameraPose], nodes: dict[int, FloatArray], origin: int, baseline: int
 ) -> tuple[dict[int, CameraPose], dict[int, FloatArray]]:
+    """Similarity taking the origin camera's base to the world frame and the baseline camera to distance 1."""
     o = cameras[origin]
-    rot = o.rotation.T
     length = float(np.linalg.norm(cameras[baseline].position - o.position))
     if length < 1e-12:
         raise DegenerateGeometryError("the gauge cameras are at the same place: no baseline")
-
-    def move(p: FloatArray) -> FloatArray:
-        return rot @ (p - o.position) / length
-
-    return (
-        {i: CameraPose(move(c.position), rot @ c.rotation) for i, c in cameras.items()},
-        {j: move(p) for j, p in nodes.items()},
-    )
+    return move_into_gauge(cameras, nodes, o.rotation.T, o.position, length)
 
 
 def initialize_3d(survey: Survey) -> InitialEstimate:
     """Closed-form start for a 3d survey (see the module docstring)."""
-    if survey.mode is not NodeMode.THREE_D:
-        raise FglocError("initialize_3d needs a 3d survey")
-    bs = BearingSet.from_survey(survey)
-    ids = survey.camera_ids
-    origin, baseline = ids.index(survey.gauge.origin), ids.index(survey.gauge.baseline)
-    a, b = starting_pair(bs, survey, MIN_SHARED_3D)
-    rng = np.random.default_rng(RANSAC_SEED)
-    cameras, outliers = _pair(bs, a, b, rng)
-    nodes: dict[int, FloatArray] = {}
-    _triangulate_all(cameras, bs, nodes)
-    while len(cameras) < len(ids):
-        k, mask = next_camera(bs, cameras, nodes, ids, MIN_RESECTION_3D)
+    st = start_up(survey, NodeMode.THREE_D, MIN_SHARED_3D, "initialize_3d")
+    bs, rng = st.bs, st.rng
+    cameras, outliers = _pair(bs, *st.pair, rng)
+
+    def resect(k: int, mask: np.ndarray, nodes: dict[int, FloatArray]) -> CameraPose:
         vis = np.flatnonzero(mask)
         pts = np.array([nodes[j] for j in vis])
         bk = bs.bearings[k, vis]
@@ -109,26 +102,16 @@ def initialize_3d(survey: Survey) -> InitialEstimate:
             len(vis), MIN_RESECTION_3D,
             lambda idx: resect_camera(pts[idx], bk[idx]),
             lambda c: angle_between((pts - c.position) @ c.rotation, bk),
-            threshold=max(RESECTION_THRESHOLD_SIGMAS * bs.sigma, MIN_THRESHOLD), rng=rng,
+            threshold=ransac_threshold(RESECTION_THRESHOLD_SIGMAS, bs), rng=rng,
         )
-        cameras[k] = cam
-        _triangulate_all(cameras, bs, nodes)
-    if origin not in cameras or baseline not in cameras:
+        return cam
+
+    nodes = grow(bs, cameras, st.ids, MIN_RESECTION_3D, resect, _triangulate_all)
+    if st.origin not in cameras or st.baseline not in cameras:
         raise DegenerateGeometryError("the gauge cameras could not be placed")
-    cameras, nodes = _to_3d_gauge(cameras, nodes, origin, baseline)
-    unlocalized = {}
-    for j, nid in enumerate(survey.node_ids):
-        if j in nodes:
-            continue
-        n_seen = int(bs.seen[:, j].sum())
-        unlocalized[nid] = (
-            "seen by no camera" if n_seen == 0
-            else "seen by one camera only: a 3d node needs two" if n_seen == 1
-            else "its rays do not meet in front of the cameras"
-        )
-    return InitialEstimate(
-        cameras={ids[i]: c for i, c in cameras.items()},
-        nodes={survey.node_ids[j]: p for j, p in nodes.items()},
-        unlocalized=unlocalized,
-        suspected_outliers=outliers,
+    cameras, nodes = _to_3d_gauge(cameras, nodes, st.origin, st.baseline)
+    return initial_estimate(
+        survey, bs, cameras, nodes, outliers,
+        lambda n_seen: "seen by one camera only: a 3d node needs two" if n_seen == 1
+        else "its rays do not meet in front of the cameras",
     )

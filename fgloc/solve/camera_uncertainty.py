@@ -15,7 +15,7 @@ import gtsam
 import numpy as np
 
 from fgloc.core.model import Result, Survey
-from fgloc.init.planar import InitialEstimate
+from fgloc.init.start import InitialEstimate
 from fgloc.solve.joint import SolveError, SolverOptions, build_problem
 
 
