@@ -141,5 +141,4 @@ def residuals_and_jacobian(state: SubsetState, obs: SubsetReadings) -> tuple[Flo
     m_idx = np.arange(M)[None, :]
     for a in range(2):
         J[s_idx, m_idx, N_CAMERA_PARAMS + 2 * obs.slot + a, :] = dxy[..., :, a]
-    J = J.swapaxes(-1, -2).reshape(S, 2 * M, n)
-    return F.reshape(S, -1), J
+    return F.reshape(S, -1), J.swapaxes(-1, -2).reshape(S, 2 * M, n)

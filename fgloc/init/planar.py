@@ -150,7 +150,7 @@ def _pair_frames(bs: BearingSet, a: int, b: int, rng: np.random.Generator) -> tu
         up = -n
         w = -cand.rotation.T @ cand.translation  # camera b's centre in camera a's base frame
         horiz = w - (w @ up) * up
-        if np.linalg.norm(horiz) < 1e-3 * max(np.linalg.norm(w), 1e-300):
+        if np.linalg.norm(horiz) < 1e-3 * max(float(np.linalg.norm(w)), 1e-300):
             raise DegenerateGeometryError("the two cameras stand on the same vertical: no ground baseline")
         x_axis = horiz / np.linalg.norm(horiz)
         y_axis = np.cross(up, x_axis)
@@ -167,7 +167,7 @@ def _to_planar_gauge(
     g0 = cameras[origin].position[:2]
     d = cameras[baseline].position[:2] - g0
     length = float(np.linalg.norm(d))
-    if length < 1e-3 * max(np.linalg.norm(cameras[baseline].position - cameras[origin].position), 1e-300):
+    if length < 1e-3 * max(float(np.linalg.norm(cameras[baseline].position - cameras[origin].position)), 1e-300):
         raise DegenerateGeometryError("the gauge cameras stand on the same vertical: no ground baseline")
     ang = np.arctan2(d[1], d[0])
     c, s = np.cos(-ang), np.sin(-ang)
@@ -185,7 +185,7 @@ def _grow(
     """
 
     def resect(k: int, vis: np.ndarray, nodes: dict[int, FloatArray]) -> CameraPose:
-        xy = np.array([nodes[j][:2] for j in np.flatnonzero(vis)])
+        xy = np.array([nodes[int(j)][:2] for j in np.flatnonzero(vis)])
         bk = bs.bearings[k, vis]
         p = np.column_stack([xy, np.ones(len(xy))])
         G, _ = ransac(
@@ -203,7 +203,7 @@ def angular_cost(bs: BearingSet, cameras: dict[int, CameraPose], nodes: dict[int
     """Sum over observed (camera, node) pairs of the squared angle between bearing and prediction."""
     total = 0.0
     for i, cam in cameras.items():
-        js = [j for j in np.flatnonzero(bs.seen[i]) if j in nodes]
+        js = [int(j) for j in np.flatnonzero(bs.seen[i]) if int(j) in nodes]
         if not js:
             continue
         pred = (np.array([nodes[j] for j in js]) - cam.position) @ cam.rotation

@@ -96,7 +96,7 @@ def initialize_3d(survey: Survey) -> InitialEstimate:
 
     def resect(k: int, mask: np.ndarray, nodes: dict[int, FloatArray]) -> CameraPose:
         vis = np.flatnonzero(mask)
-        pts = np.array([nodes[j] for j in vis])
+        pts = np.array([nodes[int(j)] for j in vis])
         bk = bs.bearings[k, vis]
         cam, _ = ransac(
             len(vis), MIN_RESECTION_3D,

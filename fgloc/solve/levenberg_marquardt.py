@@ -130,7 +130,7 @@ def levenberg_marquardt(
         # vectorized pass); each inner try only changes the noise model:
         # sigma = 1/sqrt(lambda) whitens them to sqrt(lambda * diag).
         root = np.sqrt(np.maximum(diag, floor))
-        damping_blocks = []
+        damping_blocks: list[tuple[int, int, np.ndarray]] = []  # (key, dim, diagonal block)
         for dim, (keys, offsets) in by_dim.items():
             blocks = np.zeros((len(keys), dim, dim))
             idx = np.arange(dim)

@@ -34,7 +34,7 @@ def node_arrays(result: Result, survey: Survey | None = None) -> NodeArrays:
     return NodeArrays(order, positions, covariances)
 
 
-def frustum_strips(depth: float, half_width: float = 0.6, half_height: float = 0.4) -> np.ndarray:
+def frustum_strips(depth: float, half_width: float = 0.6, half_height: float = 0.4) -> list[np.ndarray]:
     """Wireframe of a frustum in the base frame looking along +x (pan = tilt = 0), z up:
     four edges from the apex plus the far rectangle at x = ``depth`` (strips (5, *, 3))."""
     w, h = half_width * depth, half_height * depth

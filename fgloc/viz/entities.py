@@ -51,7 +51,7 @@ def log_ground(rec: rr.RecordingStream, positions: FloatArray, spacing: float = 
     strips[: len(xs), 0, 1], strips[: len(xs), 1, 1] = lo[1], hi[1]
     strips[len(xs):, :, 1] = ys[:, None]
     strips[len(xs):, 0, 0], strips[len(xs):, 1, 0] = lo[0], hi[0]
-    rec.log("world/ground", rr.LineStrips3D(strips, colors=GROUND_COLOR, radii=THIN_LINE_RADIUS), static=True)
+    rec.log("world/ground", rr.LineStrips3D(list(strips), colors=GROUND_COLOR, radii=THIN_LINE_RADIUS), static=True)
 
 
 def log_baseline(rec: rr.RecordingStream, result: Result, survey: Survey | None = None, static: bool = True) -> None:
@@ -143,7 +143,7 @@ def log_nodes(
         rr.Ellipsoids3D(
             centers=nodes.positions[ok], half_sizes=ell.half_sizes[ok], quaternions=ell.quaternions[ok],
             colors=COVARIANCE_COLOR, line_radii=LINE_RADIUS, fill_mode="majorwireframe",
-            labels=[f"{n} {100 * options.confidence:g}%" for n, good in zip(nodes.ids, ok) if good],
+            labels=[f"{nodes.ids[i]} {100 * options.confidence:g}%" for i in np.flatnonzero(ok)],
             show_labels=False,
         ),
         **kw,

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 import rerun as rr
@@ -25,15 +26,15 @@ from fgloc.viz.style import (
 def log_error_history(rec: rr.RecordingStream, errors: Sequence[float]) -> None:
     """Total graph error per iteration on the ``iteration`` timeline (one column send each
     for ``optimizer/error`` and ``optimizer/log10_error``, which the blueprint plots)."""
-    errors = np.asarray(errors, dtype=float)
-    index = [rr.TimeColumn("iteration", sequence=np.arange(len(errors)))]
+    error_values = np.asarray(errors, dtype=float)
+    index = [rr.TimeColumn("iteration", sequence=np.arange(len(error_values)))]
     rec.log("optimizer/error", rr.SeriesLines(colors=ESTIMATE_COLOR, widths=2.0, names="total error"), static=True)
-    rec.send_columns("optimizer/error", indexes=index, columns=rr.Scalars.columns(scalars=errors))
+    rec.send_columns("optimizer/error", indexes=index, columns=rr.Scalars.columns(scalars=error_values))
     rec.log("optimizer/log10_error", rr.SeriesLines(colors=COVARIANCE_COLOR, widths=2.0, names="log10 total error"),
             static=True)
     with np.errstate(divide="ignore"):
         rec.send_columns("optimizer/log10_error", indexes=index,
-                         columns=rr.Scalars.columns(scalars=np.log10(np.maximum(errors, 1e-300))))
+                         columns=rr.Scalars.columns(scalars=np.log10(np.maximum(error_values, 1e-300))))
 
 
 @dataclass
@@ -59,7 +60,7 @@ class IterationRecorder:
     survey: Survey
     snapshots: list[IterationSnapshot] = field(default_factory=list)
 
-    def __call__(self, iteration: int, values: object, error: float) -> None:
+    def __call__(self, iteration: int, values: Any, error: float) -> None:  # values: gtsam.Values
         import gtsam  # the solver already imported it; keeps this module light otherwise
 
         C, L = gtsam.symbol_shorthand.C, gtsam.symbol_shorthand.L
@@ -128,5 +129,5 @@ def log_subset_solutions(
         okm = np.isfinite(mean).all(axis=1)
         rec.log("world/subset_newton/mean",
                 rr.Points3D(mean[okm], colors=palette[okm], radii=NODE_RADIUS,
-                            labels=[n for n, good in zip(node_ids, okm) if good], show_labels=False),
+                            labels=[node_ids[int(i)] for i in np.flatnonzero(okm)], show_labels=False),
                 **time_kwargs(static))

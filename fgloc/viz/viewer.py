@@ -106,7 +106,8 @@ def render_headless(
             known = {t.name: t for r in state.recordings for t in r.timelines}
             if timeline in known:
                 seq = known[timeline].end if sequence is None else sequence
-                client.set_time(timeline, sequence=int(seq), play_state="paused")
+                if seq is not None:
+                    client.set_time(timeline, sequence=int(seq), play_state="paused")
         time.sleep(settle_seconds)
         client.take_screenshot(max_size=64)  # a first frame retires expired start-up notifications
         time.sleep(0.5)
