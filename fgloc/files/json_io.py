@@ -69,6 +69,16 @@ def parse_json(text: str | bytes) -> Any:
     return json.loads(text, parse_float=_parse_float, parse_int=_parse_int, parse_constant=NonFinite)
 
 
+def is_number(x: object) -> bool:
+    """A finite JSON number as parsed here (bool and :class:`NonFinite` are other types)."""
+    return type(x) is float or type(x) is int
+
+
+def is_vector3(v: object) -> bool:
+    """Three finite numbers: accepts only what ``survey.schema.json#/$defs/vector3`` accepts."""
+    return type(v) is list and len(v) == 3 and all(map(is_number, v))
+
+
 def show_value(value: Any) -> str:
     """``value`` as the JSON a user wrote (non-finite numbers as written), cut to 60 characters."""
     text = value.text if isinstance(value, NonFinite) else json.dumps(value, default=repr)

@@ -30,7 +30,7 @@ from fgloc.core.model import (
     Survey,
     Truth,
 )
-from fgloc.files.json_io import Bulk, check, load_json, show_value, write_json_atomic
+from fgloc.files.json_io import Bulk, check, is_number, is_vector3, load_json, show_value, write_json_atomic
 
 SURVEY_FORMAT = "fgloc-survey"
 RESULT_FORMAT = "fgloc-result"
@@ -54,37 +54,28 @@ def _check_header(data: Any, expected_format: str, path: str) -> None:
             f"{path}: version: unsupported version {show_value(version)} (this reader knows {FORMAT_VERSION})")
 
 
-def _is_number(x: object) -> bool:
-    """A finite JSON number (bool and the parser's non-finite markers are other types)."""
-    return type(x) is float or type(x) is int
-
-
 def _is_id(x: object) -> bool:
     return type(x) is str and x != ""
 
 
-def _is_vector3(v: object) -> bool:
-    return type(v) is list and len(v) == 3 and all(map(_is_number, v))
-
-
 def _plain_observation(o: Any) -> bool:
     """Pre-accepts the common observation (no own sigma or subset); never laxer than the schema."""
-    return (type(o) is dict and _is_id(o.get("camera")) and _is_id(o.get("node")) and _is_number(o.get("pan"))
-            and _is_number(t := o.get("tilt")) and -_TILT_LIMIT <= t <= _TILT_LIMIT
+    return (type(o) is dict and _is_id(o.get("camera")) and _is_id(o.get("node")) and is_number(o.get("pan"))
+            and is_number(t := o.get("tilt")) and -_TILT_LIMIT <= t <= _TILT_LIMIT
             and "sigma" not in o and "subset" not in o)
 
 
 def _plain_node(v: Any) -> bool:
     """Pre-accepts a result node entry; never laxer than the schema."""
-    if type(v) is not dict or not _is_vector3(v.get("position")):
+    if type(v) is not dict or not is_vector3(v.get("position")):
         return False
     cov = v.get("covariance")
     return (type(cov) is list and 2 <= len(cov) <= 3
-            and all(type(row) is list and all(map(_is_number, row)) for row in cov))
+            and all(type(row) is list and all(map(is_number, row)) for row in cov))
 
 
 _TILT_LIMIT = 1.5707963277948966  # pi/2 + 1e-9, as in survey.schema.json
-_SURVEY_BULK: Bulk = {("observations",): _plain_observation, ("node_ids",): _is_id, ("truth", "nodes"): _is_vector3}
+_SURVEY_BULK: Bulk = {("observations",): _plain_observation, ("node_ids",): _is_id, ("truth", "nodes"): is_vector3}
 _RESULT_BULK: Bulk = {("nodes",): _plain_node}
 
 
