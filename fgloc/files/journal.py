@@ -41,7 +41,7 @@ import numpy as np
 
 from fgloc.core.errors import FglocError
 from fgloc.core.model import CameraPose, Gauge, NodeMode, Observation, Survey, Truth
-from fgloc.files.json_io import check, is_number, is_vector3, parse_json
+from fgloc.files.json_io import Bulk, check, is_number, is_vector3, parse_json
 
 JOURNAL_FORMAT = "fgloc-journal"
 JOURNAL_VERSION = 1
@@ -169,7 +169,7 @@ def _plain_observation(rec: dict) -> bool:
             and "sigma" not in rec)
 
 
-_TRUTH_BULK = {("nodes",): is_vector3}
+_TRUTH_BULK: Bulk = {("nodes",): is_vector3}
 _CHECKED = ("header", "observation", "truth")  # record types with a definition in journal.schema.json
 _NODE_RECORDS = ("node_started", "observation", "not_found", "led_failed", "node_done")
 
@@ -187,7 +187,8 @@ class _Replay:
         return JournalError(f"{self.path}: line {line}: {problem}")
 
     def apply(self, rec: dict, line: int) -> None:
-        state, kind, node = self.state, rec.get("type"), rec.get("node")
+        state, kind = self.state, rec.get("type")
+        node: Any = rec.get("node")
         if kind == "header":
             raise self.fail(line, "a second header record")
         if kind in _CHECKED and not (kind == "observation" and _plain_observation(rec)):

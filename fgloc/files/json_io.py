@@ -26,7 +26,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from jsonschema import Draft202012Validator, ValidationError
+from jsonschema import Draft202012Validator, ValidationError  # type: ignore[import-untyped]
 from referencing import Registry, Resource
 from referencing.jsonschema import DRAFT202012
 
@@ -143,7 +143,7 @@ def describe(err: ValidationError, root: str = "", path: Iterable[str | int] | N
     """(field, problem) for one schema violation, the way every fgloc file error reads.
 
     A subschema may carry ``"x-expected"``, the phrase that follows "expected" when its
-    type, choices, length or size is wrong (``"a non-empty list of node ids"``).
+    type, choices, length, size or range is wrong (``"a non-empty list of node ids"``).
     ``path`` overrides the error's own path to the instance.
     """
     sub = err.schema if isinstance(err.schema, dict) else {}
@@ -159,7 +159,8 @@ def describe(err: ValidationError, root: str = "", path: Iterable[str | int] | N
         return name, f"expected a finite number, got {got}"
     if kw == "enum":
         return name, f"expected {expected or 'one of ' + ', '.join(map(str, err.validator_value))}, got {value!r}"
-    if expected is not None and kw in ("type", "minLength", "minItems", "maxItems", "const", "pattern"):
+    if expected is not None and kw in ("type", "minLength", "minItems", "maxItems", "const", "pattern",
+                                       "minimum", "maximum", "exclusiveMinimum"):
         return name, f"expected {expected}, got {got}"
     if kw == "type":
         types = [err.validator_value] if isinstance(err.validator_value, str) else err.validator_value

@@ -60,9 +60,11 @@ def _is_id(x: object) -> bool:
 
 def _plain_observation(o: Any) -> bool:
     """Pre-accepts the common observation (no own sigma or subset); never laxer than the schema."""
-    return (type(o) is dict and _is_id(o.get("camera")) and _is_id(o.get("node")) and is_number(o.get("pan"))
-            and is_number(t := o.get("tilt")) and -_TILT_LIMIT <= t <= _TILT_LIMIT
-            and "sigma" not in o and "subset" not in o)
+    if type(o) is not dict:
+        return False
+    tilt: Any = o.get("tilt")
+    return (_is_id(o.get("camera")) and _is_id(o.get("node")) and is_number(o.get("pan"))
+            and is_number(tilt) and -_TILT_LIMIT <= tilt <= _TILT_LIMIT and "sigma" not in o and "subset" not in o)
 
 
 def _plain_node(v: Any) -> bool:
