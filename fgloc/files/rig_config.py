@@ -145,7 +145,8 @@ def _intrinsics(value: str | dict, name: str, path: str, base: Path) -> CameraIn
     return CameraIntrinsics(
         fx=float(value["fx"]), fy=float(value["fy"]), cx=float(value["cx"]), cy=float(value["cy"]),
         width=int(value["width"]), height=int(value["height"]),
-        **{k: float(value[k]) for k in ("k1", "k2", "p1", "p2", "k3") if k in value},
+        k1=float(value.get("k1", 0.0)), k2=float(value.get("k2", 0.0)), p1=float(value.get("p1", 0.0)),
+        p2=float(value.get("p2", 0.0)), k3=float(value.get("k3", 0.0)),
     )
 
 
