@@ -10,7 +10,7 @@ Conventions
 turns the image **right** (clockwise seen from above for an upright head),
 positive tilt turns it **up**.
 
-*Spec frame* (``shared/spec/survey-format.md``): radians, pan counter-clockwise
+*Spec frame* (``docs/file-format.md``): radians, pan counter-clockwise
 seen from above about the base z axis (zero along base x), tilt = elevation
 above the base x-y plane, positive up. The base frame is the one the solver
 estimates; we keep its z axis pointing to the world's up for both mountings so

@@ -1,4 +1,4 @@
-"""Pan-tilt geometry against the spec's definitions (shared/spec/survey-format.md)."""
+"""Pan-tilt geometry against the spec's definitions (docs/file-format.md)."""
 
 import numpy as np
 import pytest

@@ -10,7 +10,7 @@ twin), :mod:`fgloc.camera.led_detection` and :mod:`fgloc.camera.pixel_angles`.
   within ``tolerance_px`` of the principal point, then report the read-back
   head angles. Insensitive to intrinsics errors, limited by the head's step.
 
-Angles in radians, spec convention (``shared/spec/survey-format.md``). Both
+Angles in radians, spec convention (``docs/file-format.md``). Both
 modes assume the optical centre is on the rotation axes, which holds only at
 the widest zoom: :func:`check_zoom` warns (:class:`ZoomWarning`) otherwise.
 """

@@ -1,6 +1,6 @@
 """Pan-tilt geometry in pure numpy, vectorized over many observations.
 
-Conventions (``shared/spec/survey-format.md``, version 1):
+Conventions (``docs/file-format.md``, version 1):
 
 * World frame: right-handed, z up. Lengths are in survey units (the planar
   gauge makes the ground baseline between the two gauge cameras the unit).

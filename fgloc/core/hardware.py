@@ -4,7 +4,7 @@ Drivers in ``drivers/`` (real hardware and their simulated twins) implement
 these; measurement and survey code in ``fgloc`` depends only on them, so core
 code never imports a driver.
 
-Angles are radians in the spec's convention (``shared/spec/survey-format.md``):
+Angles are radians in the spec's convention (``docs/file-format.md``):
 pan counter-clockwise seen from above about the base z axis, zero along base x;
 tilt is elevation above the base x-y plane, positive up. Conversion from device
 counts, signs and mounting (a ceiling mount flips) happens inside the driver.

@@ -1,6 +1,6 @@
 """Survey and result data model: small dataclasses, no I/O.
 
-Frames and units follow ``shared/spec/survey-format.md`` (version 1): angles in
+Frames and units follow ``docs/file-format.md`` (version 1): angles in
 radians, positions in the gauge frame (planar: nodes on z = 0, origin camera
 above (0, 0), baseline camera above (1, 0)).
 """

@@ -1,4 +1,4 @@
-"""camera.json: read and write :class:`~fgloc.camera.intrinsics.CameraIntrinsics` (docs/camera-model.md)."""
+"""camera.json: read and write :class:`~fgloc.camera.intrinsics.CameraIntrinsics` (docs/camera-model.md, docs/file-format.md)."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ from typing import Any
 
 from fgloc.camera.intrinsics import CameraIntrinsics
 from fgloc.core.errors import FileFormatError
-from fgloc.files.json_io import JsonFields, write_json_atomic
+from fgloc.files.json_io import check, load_json, write_json_atomic
 
 CAMERA_FORMAT = "fgloc-camera"
 CAMERA_FORMAT_VERSION = 1
@@ -43,30 +43,26 @@ def write_intrinsics(intr: CameraIntrinsics, path: str | os.PathLike[str]) -> No
 
 
 def read_intrinsics(path: str | os.PathLike[str]) -> CameraIntrinsics:
-    """Read and validate a camera.json file; errors name file, field and value in one line."""
-    r, data = JsonFields.load(path, IntrinsicsFormatError)
-    fmt = data.get("format")
-    if fmt != CAMERA_FORMAT:
-        raise r.fail("format", f"expected {CAMERA_FORMAT!r}, got {fmt!r}")
-    version = data.get("version")
-    if isinstance(version, bool) or version != CAMERA_FORMAT_VERSION:
-        raise r.fail("version", f"unsupported version {version!r} (this reader knows {CAMERA_FORMAT_VERSION})")
-    size = r.array(r.get(data, "image_size", ""), "image_size")
-    if len(size) != 2 or not all(isinstance(s, int) and not isinstance(s, bool) and s > 0 for s in size):
-        raise r.fail("image_size", f"expected [width, height] positive integers, got {size!r}")
-    zoom = r.number(r.get(data, "zoom", ""), "zoom")
-    if not 0.0 <= zoom <= 1.0:
-        raise r.fail("zoom", f"must lie in [0, 1], got {zoom!r}")
-    values = {k: r.number(r.get(data, k, ""), k, positive=k in ("fx", "fy")) for k in ("fx", "fy", "cx", "cy")}
-    for key, limit in (("cx", size[0]), ("cy", size[1])):
-        if not -0.5 <= values[key] <= limit - 0.5:
-            raise r.fail(key, f"principal point must lie inside the image (0 .. {limit - 1}), got {values[key]!r}")
-    dist_obj = r.obj(r.get(data, "distortion", ""), "distortion")
-    dist = {k: r.number(dist_obj.get(k, 0.0), f"distortion.{k}") for k in ("k1", "k2", "p1", "p2", "k3")}
+    """Read a camera.json file (pixels) checked against ``schemas/camera.schema.json``; errors are one line."""
+    where = str(path)
+    data = load_json(path, IntrinsicsFormatError)
+    if isinstance(data, dict):  # format and version pick the schema, so they come first
+        fmt, version = data.get("format"), data.get("version")
+        if fmt != CAMERA_FORMAT:
+            raise IntrinsicsFormatError(f"{where}: format: expected {CAMERA_FORMAT!r}, got {fmt!r}")
+        if isinstance(version, bool) or version != CAMERA_FORMAT_VERSION:
+            raise IntrinsicsFormatError(
+                f"{where}: version: unsupported version {version!r} (this reader knows {CAMERA_FORMAT_VERSION})")
+    check(data, "camera", where, IntrinsicsFormatError)
+    width, height = data["image_size"]
+    for key, limit in (("cx", width), ("cy", height)):
+        if not -0.5 <= data[key] <= limit - 0.5:
+            raise IntrinsicsFormatError(
+                f"{where}: {key}: principal point must lie inside the image (0 .. {limit - 1}), got {data[key]!r}")
     rms = data.get("rms_px")
-    rms_px = None if rms is None else r.number(rms, "rms_px")
-    images = data.get("images", [])
-    if not isinstance(images, list) or not all(isinstance(i, str) for i in images):
-        raise r.fail("images", "expected an array of file names")
-    return CameraIntrinsics(width=size[0], height=size[1], zoom=zoom, rms_px=rms_px, images=tuple(images),
-                            **values, **dist)
+    return CameraIntrinsics(
+        width=width, height=height, zoom=float(data["zoom"]),
+        fx=float(data["fx"]), fy=float(data["fy"]), cx=float(data["cx"]), cy=float(data["cy"]),
+        **{k: float(data["distortion"].get(k, 0.0)) for k in ("k1", "k2", "p1", "p2", "k3")},
+        rms_px=None if rms is None else float(rms), images=tuple(data.get("images", ())),
+    )

@@ -1,7 +1,9 @@
 """Append-only survey journal (JSON Lines) that survives being killed at any moment.
 
 A journal is the primary record of a survey; ``survey.json`` is derived from it
-(:func:`journal_to_survey`). Each line is one JSON object with a ``"type"``:
+(:func:`journal_to_survey`). Each line is one JSON object with a ``"type"``
+(docs/file-format.md; header, observation and truth records are checked against
+``schemas/journal.schema.json``):
 
 * ``header`` (first line, exactly once): ``format``, ``version``, the survey's
   ``nodes`` mode, ``gauge``, ``sigma`` (radians), ``camera_ids``, ``node_ids``,
@@ -28,7 +30,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import math
 import os
 import threading
 import time
@@ -40,6 +41,7 @@ import numpy as np
 
 from fgloc.core.errors import FglocError
 from fgloc.core.model import CameraPose, Gauge, NodeMode, Observation, Survey, Truth
+from fgloc.files.json_io import Bulk, check, is_number, is_vector3, parse_json
 
 JOURNAL_FORMAT = "fgloc-journal"
 JOURNAL_VERSION = 1
@@ -160,58 +162,49 @@ def rig_hash(config: Any) -> str:
     return hashlib.sha256(text.encode("utf-8")).hexdigest()
 
 
-def _finite(value: Any) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+def _plain_observation(rec: dict) -> bool:
+    """Pre-accepts the common observation record; never laxer than ``$defs/observation``."""
+    index = rec.get("index")
+    return (type(index) is int and index >= 0 and is_number(rec.get("pan")) and is_number(rec.get("tilt"))
+            and "sigma" not in rec)
 
 
-class _Parser:
-    """Turns journal lines into a :class:`JournalState`, naming ``file:line`` on errors."""
+_TRUTH_BULK: Bulk = {("nodes",): is_vector3}
+_CHECKED = ("header", "observation", "truth")  # record types with a definition in journal.schema.json
+_NODE_RECORDS = ("node_started", "observation", "not_found", "led_failed", "node_done")
 
-    def __init__(self, path: str) -> None:
+
+class _Replay:
+    """Applies checked records to a :class:`JournalState`, naming ``file: line N`` on errors."""
+
+    def __init__(self, path: str, header: JournalHeader) -> None:
         self.path = path
+        self.state = JournalState(header=header)
+        self.cams, self.nodes = set(header.camera_ids), set(header.node_ids)
+        self.started: set[str] = set()
 
     def fail(self, line: int, problem: str) -> JournalError:
         return JournalError(f"{self.path}: line {line}: {problem}")
 
-    def header(self, rec: dict, line: int) -> JournalHeader:
-        if rec.get("type") != "header":
-            raise self.fail(line, f"first record must be the header, got type {rec.get('type')!r}")
-        if rec.get("format") != JOURNAL_FORMAT:
-            raise self.fail(line, f"format: expected {JOURNAL_FORMAT!r}, got {rec.get('format')!r}")
-        if rec.get("version") != JOURNAL_VERSION:
-            raise self.fail(line, f"version: unsupported {rec.get('version')!r}")
-        try:
-            mode = NodeMode(rec["nodes"])
-            gauge = Gauge(origin=str(rec["gauge"]["origin"]), baseline=str(rec["gauge"]["baseline"]))
-            sigma = float(rec["sigma"])
-            camera_ids = [str(c) for c in rec["camera_ids"]]
-            node_ids = [str(n) for n in rec["node_ids"]]
-        except (KeyError, TypeError, ValueError) as exc:
-            raise self.fail(line, f"header: missing or bad field {exc}") from None
-        return JournalHeader(mode, gauge, sigma, camera_ids, node_ids, str(rec.get("rig_hash", "")), dict(rec.get("meta") or {}))
-
-    def apply(self, state: JournalState, rec: dict, line: int) -> None:
-        kind = rec.get("type")
-        cams, nodes = set(state.header.camera_ids), set(state.header.node_ids)
-        node = rec.get("node")
-        if kind in ("node_started", "observation", "not_found", "led_failed", "node_done") and node not in nodes:
+    def apply(self, rec: dict, line: int) -> None:
+        state, kind = self.state, rec.get("type")
+        node: Any = rec.get("node")
+        if kind == "header":
+            raise self.fail(line, "a second header record")
+        if kind in _CHECKED and not (kind == "observation" and _plain_observation(rec)):
+            check(rec, "journal", f"{self.path}: line {line}", JournalError, definition=str(kind), root=str(kind),
+                  bulk=_TRUTH_BULK if kind == "truth" else None)
+        if kind in _NODE_RECORDS and node not in self.nodes:
             raise self.fail(line, f"{kind}.node: unknown node {node!r}")
-        if kind in ("observation", "not_found") and rec.get("camera") not in cams:
+        if kind in ("observation", "not_found") and rec.get("camera") not in self.cams:
             raise self.fail(line, f"{kind}.camera: unknown camera {rec.get('camera')!r}")
         if kind == "node_started":
-            if node not in state.started:
+            if node not in self.started:
+                self.started.add(node)
                 state.started.append(node)
         elif kind == "observation":
-            for name in ("pan", "tilt"):
-                if not _finite(rec.get(name)):
-                    raise self.fail(line, f"observation.{name}: expected a finite number, got {rec.get(name)!r}")
-            index = rec.get("index")
-            if not isinstance(index, int) or isinstance(index, bool) or index < 0:
-                raise self.fail(line, f"observation.index: expected an integer >= 0, got {index!r}")
             sigma = rec.get("sigma")
-            if sigma is not None and not (_finite(sigma) and sigma > 0):
-                raise self.fail(line, f"observation.sigma: expected a number > 0, got {sigma!r}")
-            state.add_observation(JournalObservation(node, rec["camera"], index, float(rec["pan"]),
+            state.add_observation(JournalObservation(node, rec["camera"], int(rec["index"]), float(rec["pan"]),
                                                      float(rec["tilt"]), None if sigma is None else float(sigma)))
         elif kind == "not_found":
             state.not_found.setdefault((node, rec["camera"]), str(rec.get("reason", "")))
@@ -220,17 +213,27 @@ class _Parser:
         elif kind == "node_done":
             state.done.add(node)
         elif kind == "truth":
-            try:
-                state.truth = Truth(
-                    cameras={k: CameraPose(np.array(v["position"], float), np.array(v["rotation"], float))
-                             for k, v in rec["cameras"].items()},
-                    nodes={k: np.array(v, float) for k, v in rec["nodes"].items()},
-                )
-            except (KeyError, TypeError, ValueError) as exc:
-                raise self.fail(line, f"truth: bad field {exc}") from None
-        elif kind == "header":
-            raise self.fail(line, "a second header record")
+            state.truth = Truth(
+                cameras={k: CameraPose(np.array(v["position"], float), np.array(v["rotation"], float))
+                         for k, v in rec["cameras"].items()},
+                nodes={k: np.array(v, float) for k, v in rec["nodes"].items()},
+            )
         # Unknown record types are ignored (forward compatibility), like unknown fields.
+
+
+def _header(rec: dict, path: str, line: int) -> JournalHeader:
+    """The header record, checked against ``$defs/header`` (format and version first)."""
+    where = f"{path}: line {line}"
+    if rec.get("type") != "header":
+        raise JournalError(f"{where}: first record must be the header, got type {rec.get('type')!r}")
+    if rec.get("format") != JOURNAL_FORMAT:
+        raise JournalError(f"{where}: format: expected {JOURNAL_FORMAT!r}, got {rec.get('format')!r}")
+    if isinstance(rec.get("version"), bool) or rec.get("version") != JOURNAL_VERSION:
+        raise JournalError(f"{where}: version: unsupported {rec.get('version')!r}")
+    check(rec, "journal", where, JournalError, definition="header", root="header")
+    return JournalHeader(NodeMode(rec["nodes"]), Gauge(origin=rec["gauge"]["origin"], baseline=rec["gauge"]["baseline"]),
+                         float(rec["sigma"]), list(rec["camera_ids"]), list(rec["node_ids"]),
+                         str(rec.get("rig_hash", "")), dict(rec.get("meta") or {}))
 
 
 def _split_complete(data: bytes) -> tuple[list[bytes], int]:
@@ -249,24 +252,24 @@ def read_journal(path: str | os.PathLike[str]) -> JournalState:
     except OSError as exc:
         raise JournalError(f"{path}: cannot read: {exc.strerror or exc}") from None
     lines, torn = _split_complete(data)
-    parser = _Parser(str(path))
-    state: JournalState | None = None
+    replay: _Replay | None = None
     for number, raw in enumerate(lines, start=1):
         if not raw.strip():
             continue
         try:
-            rec = json.loads(raw)
+            rec = parse_json(raw)
         except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-            raise parser.fail(number, f"not valid JSON ({exc})") from None
+            raise JournalError(f"{path}: line {number}: not valid JSON ({exc})") from None
         if not isinstance(rec, dict):
-            raise parser.fail(number, "record is not a JSON object")
-        if state is None:
-            state = JournalState(header=parser.header(rec, number))
+            raise JournalError(f"{path}: line {number}: record is not a JSON object")
+        if replay is None:
+            replay = _Replay(str(path), _header(rec, str(path), number))
         else:
-            parser.apply(state, rec, number)
-        state.records += 1
-    if state is None:
+            replay.apply(rec, number)
+        replay.state.records += 1
+    if replay is None:
         raise JournalError(f"{path}: no complete header record (empty or torn journal)")
+    state = replay.state
     state.torn_tail_bytes = torn
     return state
 

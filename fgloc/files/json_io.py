@@ -1,27 +1,87 @@
-"""Reading a JSON file field by field, every problem one line ``file: field: problem (got value)``.
+"""JSON files checked against the JSON Schemas shipped in ``fgloc/files/schemas/`` (docs/file-format.md).
 
-:func:`load_json` reads and parses a file; :class:`JsonFields` checks the fields of
-the parsed document (types, finiteness, sizes, unique ids). Both raise the error
-class the caller names, so each file format keeps its own exception type
-(:class:`fgloc.core.errors.FileFormatError` and its subclasses). :func:`write_json_atomic`
-writes a JSON document so that a reader sees either the old or the complete new file.
+:func:`load_json` reads and parses a file, keeping any non-finite number token
+(``NaN``, ``Infinity``, ``1e999``, an integer too large for a float) as a
+:class:`NonFinite` marker, which no schema accepts as a number. :func:`check`
+validates a parsed document with ``jsonschema`` (Draft 2020-12) and raises the
+first problem as one line ``FILE: FIELD: problem (got VALUE)`` in the error class
+the caller names, so each format keeps its own exception type
+(:class:`fgloc.core.errors.FileFormatError` and its subclasses, exit status 2).
+What a schema cannot say (ids that must exist elsewhere in the file, matrix shapes
+that depend on the mode, rotations) the readers check after it.
+
+:func:`write_json_atomic` writes a document so that a reader sees either the old or
+the complete new file.
 """
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 import os
 import tempfile
+from collections.abc import Callable, Iterable, Mapping
+from importlib import resources
 from pathlib import Path
 from typing import Any
 
-import numpy as np
+from jsonschema import Draft202012Validator, ValidationError  # type: ignore[import-untyped]
+from referencing import Registry, Resource
+from referencing.jsonschema import DRAFT202012
+
+#: Predicates that pre-accept the items of a big array or object, keyed by the
+#: items' container path (``("observations",)``). Each must accept only items the
+#: schema accepts; every item it refuses is checked by the schema, which gives the message.
+Bulk = Mapping[tuple[str, ...], Callable[[Any], bool]]
+
+
+class NonFinite:
+    """A JSON number token that is not a finite double (``NaN``, ``-Infinity``, ``1e400``, ...)."""
+
+    __slots__ = ("text",)
+
+    def __init__(self, text: str) -> None:
+        self.text = text
+
+    def __repr__(self) -> str:
+        return self.text
+
+
+def _parse_float(text: str) -> float | NonFinite:
+    value = float(text)
+    return value if math.isfinite(value) else NonFinite(text)
+
+
+def _parse_int(text: str) -> int | NonFinite:
+    if len(text) < 300:
+        return int(text)
+    try:
+        value = int(text)
+        float(value)
+    except (OverflowError, ValueError):  # beyond a double, or beyond Python's digit limit
+        return NonFinite(text)
+    return value
+
+
+def parse_json(text: str | bytes) -> Any:
+    """The document in ``text``; non-finite numbers become :class:`NonFinite`. Raises ``json.JSONDecodeError``."""
+    return json.loads(text, parse_float=_parse_float, parse_int=_parse_int, parse_constant=NonFinite)
+
+
+def is_number(x: object) -> bool:
+    """A finite JSON number as parsed here (bool and :class:`NonFinite` are other types)."""
+    return type(x) is float or type(x) is int
+
+
+def is_vector3(v: object) -> bool:
+    """Three finite numbers: accepts only what ``survey.schema.json#/$defs/vector3`` accepts."""
+    return type(v) is list and len(v) == 3 and all(map(is_number, v))
 
 
 def show_value(value: Any) -> str:
-    """``value`` as the JSON a user wrote (NaN and Infinity as the JSON literals), cut to 60 characters."""
-    text = json.dumps(value)
+    """``value`` as the JSON a user wrote (non-finite numbers as written), cut to 60 characters."""
+    text = value.text if isinstance(value, NonFinite) else json.dumps(value, default=repr)
     return text if len(text) <= 60 else text[:57] + "..."
 
 
@@ -34,80 +94,142 @@ def load_json(path: str | os.PathLike[str], error: type[Exception]) -> Any:
     except (OSError, UnicodeDecodeError) as exc:
         raise error(f"{path}: cannot read: {exc}") from None
     try:
-        return json.loads(text)
+        return parse_json(text)
     except json.JSONDecodeError as exc:
         raise error(f"{path}: not valid JSON: {exc}") from None
 
 
-class JsonFields:
-    """Typed field access to one JSON document that raises ``error`` as ``file: field: problem``."""
+@functools.cache
+def schema(name: str) -> dict[str, Any]:
+    """The shipped schema ``fgloc/files/schemas/NAME.schema.json`` (checked against Draft 2020-12)."""
+    text = resources.files("fgloc.files").joinpath("schemas", f"{name}.schema.json").read_text(encoding="utf-8")
+    doc: dict[str, Any] = json.loads(text)
+    Draft202012Validator.check_schema(doc)
+    return doc
 
-    def __init__(self, path: str, error: type[Exception]) -> None:
-        self.path = path
-        self.error = error
 
-    @classmethod
-    def load(cls, path: str | os.PathLike[str], error: type[Exception]) -> tuple[JsonFields, dict]:
-        """The reader for the file at ``path`` and its top-level object (see :func:`load_json`)."""
-        reader = cls(str(path), error)
-        return reader, reader.obj(load_json(path, error), "(top level)")
+SCHEMAS = ("survey", "result", "camera", "rig", "journal")
 
-    def fail(self, field_name: str, problem: str) -> Exception:
-        """The error to raise for ``field_name`` (``where.key``, ``key[i]``) with ``problem``."""
-        return self.error(f"{self.path}: {field_name}: {problem}")
 
-    def get(self, obj: dict, key: str, where: str, required: bool = True) -> Any:
-        """``obj[key]`` (None when absent and not ``required``); ``where`` names ``obj``."""
-        name = f"{where}.{key}" if where else key
-        if key not in obj:
-            if required:
-                raise self.fail(name, "missing required field")
-            return None
-        return obj[key]
+@functools.cache
+def _registry() -> Registry:
+    """Every shipped schema under its ``$id``, so that they can ``$ref`` each other."""
+    return Registry().with_resources(
+        (schema(n)["$id"], Resource.from_contents(schema(n), default_specification=DRAFT202012)) for n in SCHEMAS
+    )
 
-    def obj(self, value: Any, name: str) -> dict:
-        if not isinstance(value, dict):
-            raise self.fail(name, f"expected an object, got {show_value(value)}")
-        return value
 
-    def array(self, value: Any, name: str) -> list:
-        if not isinstance(value, list):
-            raise self.fail(name, f"expected an array, got {show_value(value)}")
-        return value
+@functools.cache
+def _validator(name: str, definition: str | None) -> Draft202012Validator:
+    root = schema(name)
+    if definition is not None:  # one of the schema's $defs
+        root = {"$schema": root["$schema"], "$ref": f"{root['$id']}#/$defs/{definition}"}
+    return Draft202012Validator(root, registry=_registry())
 
-    def ident(self, value: Any, name: str) -> str:
-        if not isinstance(value, str) or not value:
-            raise self.fail(name, f"expected a non-empty string id, got {show_value(value)}")
-        return value
 
-    def number(self, value: Any, name: str, positive: bool = False) -> float:
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise self.fail(name, f"expected a number, got {show_value(value)}")
-        x = float(value)
-        if not math.isfinite(x):
-            raise self.fail(name, f"expected a finite number, got {show_value(value)}")
-        if positive and x <= 0.0:
-            raise self.fail(name, f"must be > 0, got {show_value(value)}")
-        return x
+def field_name(path: Iterable[str | int], root: str = "") -> str:
+    """``cameras.c1.rotation``, ``observations[3].pan``; ``root`` (or ``(top level)``) for the document itself."""
+    name = root
+    for part in path:
+        name += f"[{part}]" if isinstance(part, int) else (f".{part}" if name else str(part))
+    return name or "(top level)"
 
-    def vector(self, value: Any, name: str, length: int) -> np.ndarray:
-        items = self.array(value, name)
-        if len(items) != length:
-            raise self.fail(name, f"expected {length} numbers, got {show_value(value)}")
-        return np.array([self.number(v, f"{name}[{i}]") for i, v in enumerate(items)])
 
-    def matrix(self, value: Any, name: str, size: int) -> np.ndarray:
-        rows = self.array(value, name)
-        if len(rows) != size:
-            raise self.fail(name, f"expected a {size}x{size} matrix, got {show_value(value)}")
-        return np.array([self.vector(r, f"{name}[{i}]", size) for i, r in enumerate(rows)])
+_TYPE_WORDS = {"object": "an object", "array": "an array", "string": "a string", "number": "a number",
+               "integer": "an integer", "boolean": "true or false", "null": "null"}
 
-    def unique_ids(self, values: list[str], name: str) -> None:
-        seen: set[str] = set()
-        for i, v in enumerate(values):
-            if v in seen:
-                raise self.fail(f"{name}[{i}]", f"duplicate id {show_value(v)}")
-            seen.add(v)
+
+def describe(err: ValidationError, root: str = "", path: Iterable[str | int] | None = None) -> tuple[str, str]:
+    """(field, problem) for one schema violation, the way every fgloc file error reads.
+
+    A subschema may carry ``"x-expected"``, the phrase that follows "expected" when its
+    type, choices, length, size or range is wrong (``"a non-empty list of node ids"``).
+    ``path`` overrides the error's own path to the instance.
+    """
+    sub = err.schema if isinstance(err.schema, dict) else {}
+    kw, value = err.validator, err.instance
+    path = list(err.absolute_path if path is None else path)
+    got = show_value(value)
+    if kw == "required":
+        missing = next(k for k in err.validator_value if k not in value)
+        return field_name([*path, missing], root), "missing required field"
+    name = field_name(path, root)
+    expected = sub.get("x-expected")
+    if kw == "type" and isinstance(value, NonFinite):
+        return name, f"expected a finite number, got {got}"
+    if kw == "enum":
+        return name, f"expected {expected or 'one of ' + ', '.join(map(str, err.validator_value))}, got {value!r}"
+    if expected is not None and kw in ("type", "minLength", "minItems", "maxItems", "const", "pattern",
+                                       "minimum", "maximum", "exclusiveMinimum"):
+        return name, f"expected {expected}, got {got}"
+    if kw == "type":
+        types = [err.validator_value] if isinstance(err.validator_value, str) else err.validator_value
+        return name, f"expected {' or '.join(_TYPE_WORDS[t] for t in types)}, got {got}"
+    if kw in ("minimum", "maximum"):
+        return name, f"must lie in [{sub.get('minimum', -math.inf):g}, {sub.get('maximum', math.inf):g}], got {got}"
+    if kw == "exclusiveMinimum":
+        return name, f"must be > {err.validator_value:g}, got {got}"
+    if kw == "minLength":
+        return name, f"expected a non-empty string, got {got}"
+    if kw in ("minItems", "maxItems"):
+        lo, hi = sub.get("minItems", 0), sub.get("maxItems")
+        size = f"{lo}" if lo == hi else f"at least {lo}" if hi is None else f"{lo} to {hi}"
+        return name, f"expected {size} items, got {got}"
+    if kw == "const":
+        return name, f"expected {show_value(err.validator_value)}, got {got}"
+    return name, err.message.splitlines()[0]
+
+
+def _skeleton(doc: Any, bulk: Bulk) -> tuple[Any, dict[tuple[str, ...], list[int]]]:
+    """``doc`` with each bulk container cut down to the items its predicate refuses.
+
+    Returns the cut document and, for cut arrays, the original index of each kept item.
+    """
+    indexes: dict[tuple[str, ...], list[int]] = {}
+    for where, accept in bulk.items():
+        parent = doc
+        for key in where[:-1]:
+            parent = parent.get(key) if isinstance(parent, dict) else None
+        items = parent.get(where[-1]) if isinstance(parent, dict) else None
+        if isinstance(items, list):
+            kept_index = [i for i, item in enumerate(items) if not accept(item)]
+            cut: Any = [items[i] for i in kept_index]
+            indexes[where] = kept_index
+        elif isinstance(items, dict):
+            cut = {k: v for k, v in items.items() if not accept(v)}
+        else:
+            continue  # not a container: the schema reports it
+        doc = _replace(doc, where, cut)
+    return doc, indexes
+
+
+def _replace(doc: dict, where: tuple[str, ...], value: Any) -> dict:
+    """A copy of ``doc`` with ``doc[where[0]]...[where[-1]]`` set to ``value`` (only the path is copied)."""
+    head, *rest = where
+    return {**doc, head: _replace(doc[head], tuple(rest), value) if rest else value}
+
+
+def check(doc: Any, schema_name: str, where: str, error: type[Exception], *, definition: str | None = None,
+          bulk: Bulk | None = None, root: str = "") -> None:
+    """Raise ``error("WHERE: FIELD: problem")`` for the first way ``doc`` breaks the schema.
+
+    ``definition`` picks one of the schema's ``$defs`` instead of the whole schema;
+    ``root`` prefixes field names (a journal names ``observation.pan``). ``bulk``
+    speeds up big containers (see :data:`Bulk`).
+    """
+    indexes: dict[tuple[str, ...], list[int]] = {}
+    if bulk:
+        doc, indexes = _skeleton(doc, bulk)
+    err = next(iter(_validator(schema_name, definition).iter_errors(doc)), None)
+    if err is None:
+        return
+    path = list(err.absolute_path)
+    for cut, original in indexes.items():  # back to the index the item has in the file
+        n = len(cut)
+        if len(path) > n and tuple(path[:n]) == cut:
+            path[n] = original[path[n]]
+    field, problem = describe(err, root, path)
+    raise error(f"{where}: {field}: {problem}")
 
 
 def write_json_atomic(data: dict, path: str | os.PathLike[str]) -> None:

@@ -1,6 +1,8 @@
-"""Read and write survey.json and result.json (``shared/spec/survey-format.md``, version 1).
+"""Read and write survey.json and result.json (``docs/file-format.md``, version 1).
 
-Reading validates everything a solver relies on and raises :class:`FileFormatError`
+Reading checks the file against ``schemas/survey.schema.json`` or
+``schemas/result.schema.json``, then what a schema cannot say (ids that must exist,
+unique ids, covariance shapes, proper rotations), and raises :class:`FileFormatError`
 with one line naming the file, the field and the offending value. Unknown extra
 fields are ignored. Writes are atomic: a temporary file in the same directory is
 written, flushed, fsynced and renamed over the target.
@@ -28,111 +30,119 @@ from fgloc.core.model import (
     Survey,
     Truth,
 )
-from fgloc.files.json_io import JsonFields, show_value, write_json_atomic
+from fgloc.files.json_io import Bulk, check, is_number, is_vector3, load_json, show_value, write_json_atomic
 
 SURVEY_FORMAT = "fgloc-survey"
 RESULT_FORMAT = "fgloc-result"
 FORMAT_VERSION = 1
 
 
-def _check_header(r: JsonFields, data: dict, expected_format: str) -> None:
-    fmt = r.get(data, "format", "")
+def _check_header(data: Any, expected_format: str, path: str) -> None:
+    """``format`` and ``version`` pick the schema, so they are checked before it."""
+    if not isinstance(data, dict):
+        raise FileFormatError(f"{path}: (top level): expected an object, got {show_value(data)}")
+    fmt = data.get("format")
+    if "format" not in data:
+        raise FileFormatError(f"{path}: format: missing required field")
     if fmt != expected_format:
-        raise r.fail("format", f"expected {show_value(expected_format)}, got {show_value(fmt)}")
-    version = r.get(data, "version", "")
+        raise FileFormatError(f"{path}: format: expected {show_value(expected_format)}, got {show_value(fmt)}")
+    version = data.get("version")
+    if "version" not in data:
+        raise FileFormatError(f"{path}: version: missing required field")
     if isinstance(version, bool) or version != FORMAT_VERSION:
-        raise r.fail("version", f"unsupported version {show_value(version)} (this reader knows {FORMAT_VERSION})")
+        raise FileFormatError(
+            f"{path}: version: unsupported version {show_value(version)} (this reader knows {FORMAT_VERSION})")
 
 
-def _mode(r: JsonFields, data: dict) -> NodeMode:
-    value = r.get(data, "nodes", "")
-    try:
-        return NodeMode(value)
-    except ValueError:
-        raise r.fail("nodes", f'expected "planar" or "3d", got {show_value(value)}') from None
+def _is_id(x: object) -> bool:
+    return type(x) is str and x != ""
 
 
-def _camera_pose(r: JsonFields, value: Any, name: str) -> CameraPose:
-    obj = r.obj(value, name)
-    position = r.vector(r.get(obj, "position", name), f"{name}.position", 3)
-    rotation = r.matrix(r.get(obj, "rotation", name), f"{name}.rotation", 3)
+def _plain_observation(o: Any) -> bool:
+    """Pre-accepts the common observation (no own sigma or subset); never laxer than the schema."""
+    if type(o) is not dict:
+        return False
+    tilt: Any = o.get("tilt")
+    return (_is_id(o.get("camera")) and _is_id(o.get("node")) and is_number(o.get("pan"))
+            and is_number(tilt) and -_TILT_LIMIT <= tilt <= _TILT_LIMIT and "sigma" not in o and "subset" not in o)
+
+
+def _plain_node(v: Any) -> bool:
+    """Pre-accepts a result node entry; never laxer than the schema."""
+    if type(v) is not dict or not is_vector3(v.get("position")):
+        return False
+    cov = v.get("covariance")
+    return (type(cov) is list and 2 <= len(cov) <= 3
+            and all(type(row) is list and all(map(is_number, row)) for row in cov))
+
+
+_TILT_LIMIT = 1.5707963277948966  # pi/2 + 1e-9, as in survey.schema.json
+_SURVEY_BULK: Bulk = {("observations",): _plain_observation, ("node_ids",): _is_id, ("truth", "nodes"): is_vector3}
+_RESULT_BULK: Bulk = {("nodes",): _plain_node}
+
+
+def _fail(path: str, field: str, problem: str) -> FileFormatError:
+    return FileFormatError(f"{path}: {field}: {problem}")
+
+
+def _unique(ids: list[str], name: str, path: str) -> None:
+    seen: set[str] = set()
+    for i, v in enumerate(ids):
+        if v in seen:
+            raise _fail(path, f"{name}[{i}]", f"duplicate id {show_value(v)}")
+        seen.add(v)
+
+
+def _camera_pose(value: dict, name: str, path: str) -> CameraPose:
+    """A schema-checked pose; the rotation must be proper (R^T R = I, det = +1)."""
+    rotation = np.array(value["rotation"], dtype=float)
     if not is_rotation(rotation, tol=1e-5):
-        raise r.fail(f"{name}.rotation", "not a proper rotation matrix (R^T R = I, det = +1)")
-    return CameraPose(position=position, rotation=rotation)
+        raise _fail(path, f"{name}.rotation", "not a proper rotation matrix (R^T R = I, det = +1)")
+    return CameraPose(position=np.array(value["position"], dtype=float), rotation=rotation)
 
 
 def read_survey(path: str | os.PathLike[str]) -> Survey:
-    """Read and validate a survey.json file."""
-    r, data = JsonFields.load(path, FileFormatError)
-    _check_header(r, data, SURVEY_FORMAT)
-    mode = _mode(r, data)
-    sigma = r.number(r.get(data, "sigma", ""), "sigma", positive=True)
+    """Read and validate a survey.json file (angles in radians, truth in the gauge frame)."""
+    where = str(path)
+    data = load_json(path, FileFormatError)
+    _check_header(data, SURVEY_FORMAT, where)
+    check(data, "survey", where, FileFormatError, bulk=_SURVEY_BULK)
 
-    cameras = r.array(r.get(data, "cameras", ""), "cameras")
-    camera_ids = [
-        r.ident(r.get(r.obj(c, f"cameras[{i}]"), "id", f"cameras[{i}]"), f"cameras[{i}].id")
-        for i, c in enumerate(cameras)
-    ]
-    r.unique_ids(camera_ids, "cameras")
-    node_ids = [r.ident(n, f"node_ids[{i}]") for i, n in enumerate(r.array(r.get(data, "node_ids", ""), "node_ids"))]
-    r.unique_ids(node_ids, "node_ids")
-
-    gauge_obj = r.obj(r.get(data, "gauge", ""), "gauge")
-    origin = r.ident(r.get(gauge_obj, "origin", "gauge"), "gauge.origin")
-    baseline = r.ident(r.get(gauge_obj, "baseline", "gauge"), "gauge.baseline")
-    known_cameras = set(camera_ids)
+    camera_ids = [c["id"] for c in data["cameras"]]
+    _unique(camera_ids, "cameras", where)
+    node_ids: list[str] = data["node_ids"]
+    _unique(node_ids, "node_ids", where)
+    origin, baseline = data["gauge"]["origin"], data["gauge"]["baseline"]
+    known_cameras, known_nodes = set(camera_ids), set(node_ids)
     for name, cam in (("gauge.origin", origin), ("gauge.baseline", baseline)):
         if cam not in known_cameras:
-            raise r.fail(name, f"camera {show_value(cam)} is not in cameras")
+            raise _fail(where, name, f"camera {show_value(cam)} is not in cameras")
     if origin == baseline:
-        raise r.fail("gauge.baseline", f"must differ from gauge.origin, both are {show_value(origin)}")
+        raise _fail(where, "gauge.baseline", f"must differ from gauge.origin, both are {show_value(origin)}")
 
-    known_nodes = set(node_ids)
     observations: list[Observation] = []
-    for i, item in enumerate(r.array(r.get(data, "observations", ""), "observations")):
-        where = f"observations[{i}]"
-        o = r.obj(item, where)
-        cam = r.ident(r.get(o, "camera", where), f"{where}.camera")
-        if cam not in known_cameras:
-            raise r.fail(f"{where}.camera", f"unknown camera {show_value(cam)}")
-        node = r.ident(r.get(o, "node", where), f"{where}.node")
-        if node not in known_nodes:
-            raise r.fail(f"{where}.node", f"unknown node {show_value(node)}")
-        pan = r.number(r.get(o, "pan", where), f"{where}.pan")
-        tilt = r.number(r.get(o, "tilt", where), f"{where}.tilt")
-        if abs(tilt) > math.pi / 2 + 1e-9:
-            raise r.fail(f"{where}.tilt", f"must lie in [-pi/2, pi/2], got {show_value(tilt)}")
-        obs_sigma = r.get(o, "sigma", where, required=False)
-        obs_subset = r.get(o, "subset", where, required=False)
-        if obs_subset is not None and (isinstance(obs_subset, bool) or not isinstance(obs_subset, int) or obs_subset < 0):
-            raise r.fail(f"{where}.subset", f"expected a non-negative integer, got {show_value(obs_subset)}")
-        observations.append(
-            Observation(
-                camera=cam,
-                node=node,
-                pan=pan,
-                tilt=tilt,
-                sigma=None if obs_sigma is None else r.number(obs_sigma, f"{where}.sigma", positive=True),
-                subset=obs_subset,
-            )
-        )
+    for i, o in enumerate(data["observations"]):
+        if o["camera"] not in known_cameras:
+            raise _fail(where, f"observations[{i}].camera", f"unknown camera {show_value(o['camera'])}")
+        if o["node"] not in known_nodes:
+            raise _fail(where, f"observations[{i}].node", f"unknown node {show_value(o['node'])}")
+        sigma = o.get("sigma")
+        observations.append(Observation(camera=o["camera"], node=o["node"], pan=float(o["pan"]), tilt=float(o["tilt"]),
+                                        sigma=None if sigma is None else float(sigma), subset=o.get("subset")))
 
     truth = None
-    truth_value = r.get(data, "truth", "", required=False)
-    if truth_value is not None:
-        t = r.obj(truth_value, "truth")
-        cams_obj = r.obj(r.get(t, "cameras", "truth", required=False) or {}, "truth.cameras")
-        nodes_obj = r.obj(r.get(t, "nodes", "truth", required=False) or {}, "truth.nodes")
+    if "truth" in data:
+        t = data["truth"]
         truth = Truth(
-            cameras={k: _camera_pose(r, v, f"truth.cameras.{k}") for k, v in cams_obj.items()},
-            nodes={k: r.vector(v, f"truth.nodes.{k}", 3) for k, v in nodes_obj.items()},
+            cameras={k: _camera_pose(v, f"truth.cameras.{k}", where) for k, v in t.get("cameras", {}).items()},
+            nodes={k: np.array(v, dtype=float) for k, v in t.get("nodes", {}).items()},
         )
     return Survey(
-        mode=mode,
+        mode=NodeMode(data["nodes"]),
         gauge=Gauge(origin=origin, baseline=baseline),
-        sigma=sigma,
+        sigma=float(data["sigma"]),
         camera_ids=camera_ids,
-        node_ids=node_ids,
+        node_ids=list(node_ids),
         observations=observations,
         truth=truth,
     )
@@ -212,55 +222,37 @@ def write_result(result: Result, path: str | os.PathLike[str]) -> None:
     write_json_atomic(result_to_json(result), path)
 
 
-def _residual_or_inf(r: JsonFields, value: object, name: str) -> float:
-    """A flagged reading's whitened residual; null (or absent) stands for infinity."""
-    return math.inf if value is None else r.number(value, name)
-
-
 def read_result(path: str | os.PathLike[str]) -> Result:
-    """Read and validate a result.json file (fgloc's extra fields are optional)."""
-    r, data = JsonFields.load(path, FileFormatError)
-    _check_header(r, data, RESULT_FORMAT)
-    nodes_obj = r.obj(r.get(data, "nodes", ""), "nodes")
+    """Read and validate a result.json file (gauge frame; fgloc's extra fields are optional)."""
+    where = str(path)
+    data = load_json(path, FileFormatError)
+    _check_header(data, RESULT_FORMAT, where)
+    check(data, "result", where, FileFormatError, bulk=_RESULT_BULK)
+
     nodes: dict[str, NodeEstimate] = {}
     dims: set[int] = set()
-    for k, v in nodes_obj.items():
-        where = f"nodes.{k}"
-        o = r.obj(v, where)
-        position = r.vector(r.get(o, "position", where), f"{where}.position", 3)
-        cov_rows = r.array(r.get(o, "covariance", where), f"{where}.covariance")
-        if len(cov_rows) not in (2, 3):
-            raise r.fail(f"{where}.covariance", f"expected a 2x2 or 3x3 matrix, got {show_value(cov_rows)}")
-        cov = r.matrix(cov_rows, f"{where}.covariance", len(cov_rows))
-        dims.add(len(cov_rows))
-        nodes[k] = NodeEstimate(position=position, covariance=cov)
+    for k, v in data["nodes"].items():
+        cov = v["covariance"]
+        n = len(cov)
+        if any(len(row) != n for row in cov):
+            raise _fail(where, f"nodes.{k}.covariance", f"expected a 2x2 or 3x3 matrix, got {show_value(cov)}")
+        dims.add(n)
+        nodes[k] = NodeEstimate(position=np.array(v["position"], dtype=float), covariance=np.array(cov, dtype=float))
     if len(dims) > 1:
-        raise r.fail("nodes", "covariances mix 2x2 and 3x3 matrices")
-    mode_value = data.get("mode")
+        raise _fail(where, "nodes", "covariances mix 2x2 and 3x3 matrices")
+    mode_value = data.get("mode")  # informational extra field; never rejected
     if mode_value in ("planar", "3d"):
         mode = NodeMode(mode_value)
     else:
         mode = NodeMode.THREE_D if dims == {3} else NodeMode.PLANAR
-    cams_obj = r.obj(r.get(data, "cameras", ""), "cameras")
-    cameras = {k: _camera_pose(r, v, f"cameras.{k}") for k, v in cams_obj.items()}
-    unloc_obj = r.obj(r.get(data, "unlocalized", "", required=False) or {}, "unlocalized")
-    unlocalized = {}
-    for k, v in unloc_obj.items():
-        if not isinstance(v, str):
-            raise r.fail(f"unlocalized.{k}", f"expected a reason string, got {show_value(v)}")
-        unlocalized[k] = v
-    flagged = []
-    for i, f in enumerate(r.array(data.get("flagged_observations", []), "flagged_observations")):
-        where = f"flagged_observations[{i}]"
-        fo = r.obj(f, where)
-        flagged.append(
-            FlaggedObservation(
-                camera=r.ident(r.get(fo, "camera", where), f"{where}.camera"),
-                node=r.ident(r.get(fo, "node", where), f"{where}.node"),
-                index=int(r.number(r.get(fo, "index", where), f"{where}.index")),
-                whitened_residual=_residual_or_inf(r, fo.get("whitened_residual"), f"{where}.whitened_residual"),
-            )
-        )
+    cameras = {k: _camera_pose(v, f"cameras.{k}", where) for k, v in data["cameras"].items()}
+    flagged = [
+        FlaggedObservation(camera=f["camera"], node=f["node"], index=int(f["index"]),
+                           # null (or absent) stands for infinity: no estimate without this reading
+                           whitened_residual=math.inf if f.get("whitened_residual") is None
+                           else float(f["whitened_residual"]))
+        for f in data.get("flagged_observations", [])
+    ]
     stats = None
     solver = data.get("solver")
     if isinstance(solver, dict):
@@ -276,4 +268,5 @@ def read_result(path: str | os.PathLike[str]) -> Result:
             )
         except (KeyError, TypeError, ValueError):
             stats = None  # informational only; never reject a result for it
-    return Result(mode=mode, nodes=nodes, cameras=cameras, unlocalized=unlocalized, flagged=flagged, stats=stats)
+    return Result(mode=mode, nodes=nodes, cameras=cameras, unlocalized=dict(data.get("unlocalized", {})),
+                  flagged=flagged, stats=stats)

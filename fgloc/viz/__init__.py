@@ -4,7 +4,7 @@ The only fgloc package that imports ``rerun`` (``import fgloc`` does not import 
 explicit :class:`rerun.RecordingStream` (no global state), either saved to an
 ``.rrd`` file or shown in a viewer this package starts on 127.0.0.1 only.
 
-World frame: the gauge frame of ``shared/spec/survey-format.md`` (right-handed,
+World frame: the gauge frame of ``docs/file-format.md`` (right-handed,
 z up, baseline = 1, nodes of planar surveys on z = 0). Entity paths:
 
 ==============================  ==================================================
