@@ -16,7 +16,7 @@ $(STAMP): pyproject.toml
 demo: $(STAMP)
 	$(VENV)/bin/fgloc demo -o out
 
-test: $(STAMP)
+test: lint
 	$(PY) -m pytest
 
 # Static checks on the installed layout (a plain, non-editable install into build/pkg):

@@ -292,6 +292,7 @@ class IncrementalLocalizer:
         return values
 
     def _gauge_factors(self) -> list[gtsam.NonlinearFactor]:
+        assert self.gauge_sigma is not None  # fixed by the bootstrap
         gauge = BaselinePrior(
             NodeMode.PLANAR,
             camera_key(self._cam_index[self.gauge.origin]),

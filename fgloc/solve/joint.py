@@ -203,8 +203,8 @@ def build_problem(
         graph.add(f)
     gauge_sigma = options.gauge_sigma if options.gauge_sigma is not None else auto_gauge_sigma(survey, initial)
     gauge = BaselinePrior(survey.mode, camera_keys[survey.gauge.origin], camera_keys[survey.gauge.baseline], gauge_sigma)
-    for f in gauge.factors():
-        graph.add(f)
+    for gauge_factor in gauge.factors():
+        graph.add(gauge_factor)
     return LocalizationProblem(
         survey=survey,
         graph=graph,

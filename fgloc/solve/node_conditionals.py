@@ -26,6 +26,7 @@ camera clique, without that clique having to be re-eliminated with every node.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -39,7 +40,7 @@ class ConditionalBatch:
     only handed back by :meth:`MarginalizedNodes.batches`.
     """
 
-    camera_points: dict[int, object]
+    camera_points: dict[int, Any]
 
 
 class MarginalizedNodes:
@@ -68,7 +69,7 @@ class MarginalizedNodes:
     def batches(self) -> list[ConditionalBatch]:
         return self._batches
 
-    def new_batch(self, camera_points: dict[int, object]) -> int:
+    def new_batch(self, camera_points: dict[int, Any]) -> int:
         """Open a batch whose conditionals refer to ``camera_points``; returns its index."""
         self._batches.append(ConditionalBatch(dict(camera_points)))
         return len(self._batches) - 1
