@@ -46,7 +46,7 @@ def plan_picture(plan: PlacementPlan, path: str | os.PathLike[str], polygon: np.
     ax.scatter(p.nodes_xy[:, 0], p.nodes_xy[:, 1], s=2, color="tab:blue", label="nodes")
     for i, c in enumerate(plan.chosen):
         colour = "tab:red" if i < 2 else "k"
-        ax.scatter(*p.xy[c], s=80, marker="^", color=colour)
+        ax.scatter([p.xy[c][0]], [p.xy[c][1]], s=80, marker="^", color=colour)
         ax.annotate(f"cam{i} {p.heights[c]:g} m", p.xy[c], textcoords="offset points", xytext=(5, 5), fontsize=8)
     pe = plan.predicted
     ax.set_title(f"{plan.objective}: median {pe.median * 100:.1f} cm, 95% {pe.p95 * 100:.1f} cm, worst "
