@@ -27,6 +27,7 @@ from fgloc.cli import (  # noqa: E402
     calibrate,
     demo,
     motes,
+    plan,
     ptz,
     report,
     score,
@@ -37,7 +38,7 @@ from fgloc.cli import (  # noqa: E402
 )
 from fgloc.core.errors import FglocError  # noqa: E402
 
-COMMANDS: list[ModuleType] = [simulate, solve, score, demo, view, report, survey, calibrate, ptz, motes, bench]
+COMMANDS: list[ModuleType] = [simulate, solve, score, demo, view, report, survey, calibrate, ptz, motes, bench, plan]
 
 
 def build_parser() -> argparse.ArgumentParser:
