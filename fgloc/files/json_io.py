@@ -108,7 +108,7 @@ def schema(name: str) -> dict[str, Any]:
     return doc
 
 
-SCHEMAS = ("survey", "result", "camera", "rig", "journal")
+SCHEMAS = ("survey", "result", "camera", "rig", "journal", "sites")
 
 
 @functools.cache

@@ -22,78 +22,61 @@ from typing import Any
 import numpy as np
 
 from fgloc.core.errors import FileFormatError
-from fgloc.files.json_io import JsonFields, show_value, write_json_atomic
+from fgloc.files.json_io import check, load_json, show_value, write_json_atomic
 from fgloc.plan.placement import PlacementPlan
 from fgloc.plan.site import PlanProblem, Visibility, grid_sites, sample_polygon
 
 
-def _points(f: JsonFields, value: Any, name: str, at_least: int) -> np.ndarray:
-    rows = f.array(value, name)
-    if len(rows) < at_least:
-        raise f.fail(name, f"expected at least {at_least} [x, y] points, got {show_value(value)}")
-    return np.array([f.vector(r, f"{name}[{i}]", 2) for i, r in enumerate(rows)], float)
-
-
-def _heights(f: JsonFields, value: Any, name: str) -> tuple[float, ...]:
-    hs = f.array(value, name)
-    if not hs:
-        raise f.fail(name, "expected a non-empty list of heights in metres, got []")
-    return tuple(f.number(h, f"{name}[{i}]", positive=True) for i, h in enumerate(hs))
+def _fail(path: str | os.PathLike[str], name: str, problem: str) -> FileFormatError:
+    return FileFormatError(f"{path}: {name}: {problem}")
 
 
 def read_site_file(path: str | os.PathLike[str], sigma_deg: float | None = None) -> tuple[PlanProblem, np.ndarray | None]:
-    """The planning problem of a site file and its field polygon (None when nodes are listed)."""
-    f, top = JsonFields.load(path, FileFormatError)
-    field = f.obj(f.get(top, "field", ""), "field")
+    """The planning problem of a site file and its field polygon (None when nodes are listed).
+
+    The structure is checked against ``fgloc/files/schemas/sites.schema.json``; what a
+    schema cannot say (unique ids, ordered bounds, enough sites) is checked here.
+    """
+    top = load_json(path, FileFormatError)
+    check(top, "sites", str(path), FileFormatError)
+    field = top["field"]
     polygon = None
-    nodes_raw = f.get(field, "nodes", "field")
-    if isinstance(nodes_raw, list):
-        nodes = _points(f, nodes_raw, "field.nodes", 4)
+    if isinstance(field["nodes"], list):
+        nodes = np.array(field["nodes"], float)
     else:
-        n = f.number(nodes_raw, "field.nodes", positive=True)
-        if n != int(n) or n < 4:
-            raise f.fail("field.nodes", f"expected a node count >= 4 or a list of [x, y], got {show_value(nodes_raw)}")
-        polygon = _points(f, f.get(field, "polygon", "field"), "field.polygon", 3)
-        seed = int(f.number(field.get("seed", 0), "field.seed"))
-        nodes = sample_polygon(polygon, int(n), seed)
+        polygon = np.array(field["polygon"], float)
+        nodes = sample_polygon(polygon, int(field["nodes"]), int(field.get("seed", 0)))
     ids: list[str] = []
     xy: list[np.ndarray] = []
     heights: list[float] = []
-    for i, s in enumerate(f.array(top.get("sites", []), "sites")):
-        o = f.obj(s, f"sites[{i}]")
-        sid = f.ident(f.get(o, "id", f"sites[{i}]"), f"sites[{i}].id")
-        if sid in ids:
-            raise f.fail(f"sites[{i}].id", f"duplicate site id {show_value(sid)}")
-        pos = f.vector(f.get(o, "xy", f"sites[{i}]"), f"sites[{i}].xy", 2)
-        for h in _heights(f, f.get(o, "heights", f"sites[{i}]"), f"sites[{i}].heights"):
-            ids.append(sid)
-            xy.append(pos)
-            heights.append(h)
+    for i, site in enumerate(top.get("sites", [])):
+        if site["id"] in ids:
+            raise _fail(path, f"sites[{i}].id", f"duplicate site id {show_value(site['id'])}")
+        for h in site["heights"]:
+            ids.append(site["id"])
+            xy.append(np.array(site["xy"], float))
+            heights.append(float(h))
     if "grid" in top:
-        g = f.obj(top["grid"], "grid")
-        bounds = f.vector(f.get(g, "bounds", "grid"), "grid.bounds", 4)
+        g = top["grid"]
+        bounds = np.array(g["bounds"], float)
         if bounds[2] < bounds[0] or bounds[3] < bounds[1]:
-            raise f.fail("grid.bounds", f"expected [xmin, ymin, xmax, ymax], got {show_value(bounds.tolist())}")
-        step = f.number(f.get(g, "step", "grid"), "grid.step", positive=True)
+            raise _fail(path, "grid.bounds", f"expected [xmin, ymin, xmax, ymax], got {show_value(bounds.tolist())}")
+        step = float(g["step"])
         if (bounds[2] - bounds[0]) * (bounds[3] - bounds[1]) / step**2 > 1e5:
-            raise f.fail("grid.step", f"more than 100000 grid points, got {step:g}")
-        gi, gxy, gh = grid_sites(tuple(bounds), step, _heights(f, f.get(g, "heights", "grid"), "grid.heights"))
+            raise _fail(path, "grid.step", f"more than 100000 grid points, got {step:g}")
+        gi, gxy, gh = grid_sites(tuple(bounds), step, tuple(float(h) for h in g["heights"]))
         ids += list(gi)
         xy += list(gxy)
         heights += list(gh)
     if len(set(ids)) < 2:
-        raise f.fail("sites", f"expected at least 2 candidate sites (in sites or grid), got {len(set(ids))}")
-    v = f.obj(top.get("visibility", {}), "visibility")
-    occluders = tuple(
-        tuple(tuple(p) for p in _points(f, poly, f"visibility.occluders[{i}]", 2).tolist())
-        for i, poly in enumerate(f.array(v.get("occluders", []), "visibility.occluders"))
-    )
+        raise _fail(path, "sites", f"expected at least 2 candidate sites (in sites or grid), got {len(set(ids))}")
+    v = top.get("visibility", {})
     vis = Visibility(
-        min_range=f.number(v.get("min_range", 2.0), "visibility.min_range"),
-        max_range=f.number(v.get("max_range", 1e12), "visibility.max_range", positive=True),
-        occluders=occluders,
+        min_range=float(v.get("min_range", 2.0)),
+        max_range=float(v.get("max_range", 1e12)),
+        occluders=tuple(tuple(tuple(float(c) for c in p) for p in poly) for poly in v.get("occluders", [])),
     )
-    sd = sigma_deg if sigma_deg is not None else f.number(top.get("sigma_deg", 0.1), "sigma_deg", positive=True)
+    sd = sigma_deg if sigma_deg is not None else float(top.get("sigma_deg", 0.1))
     problem = PlanProblem(nodes, tuple(ids), np.array(xy, float), np.array(heights, float), math.radians(sd), vis)
     return problem, polygon
 
