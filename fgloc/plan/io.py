@@ -74,7 +74,7 @@ def read_site_file(path: str | os.PathLike[str], sigma_deg: float | None = None)
     vis = Visibility(
         min_range=float(v.get("min_range", 2.0)),
         max_range=float(v.get("max_range", 1e12)),
-        occluders=tuple(tuple(tuple(float(c) for c in p) for p in poly) for poly in v.get("occluders", [])),
+        occluders=tuple(tuple((float(x), float(y)) for x, y in poly) for poly in v.get("occluders", [])),
     )
     sd = sigma_deg if sigma_deg is not None else float(top.get("sigma_deg", 0.1))
     problem = PlanProblem(nodes, tuple(ids), np.array(xy, float), np.array(heights, float), math.radians(sd), vis)
