@@ -71,7 +71,7 @@ class MoteFieldEmulator:
         return [(self.radio_delay, led_report(node, on, packet.group))]
 
 
-class BaseStationSerialTwin(PtyTwin):
+class BaseStationSerialTwin(PtyTwin[bytes]):
     """Base station on a pty at the byte level; open :attr:`port` with pyserial. Context manager."""
 
     def __init__(self, field: MoteFieldEmulator | None = None, faults: FaultConfig | None = None) -> None:
