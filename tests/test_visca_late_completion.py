@@ -9,7 +9,7 @@ import time
 import pytest
 
 from fgloc.drivers.twins.visca_camera import ViscaSerialTwin
-from fgloc.drivers.visca.codec import cmd_pan_tilt_absolute, cmd_power, cmd_power_inquiry, cmd_pan_tilt_drive
+from fgloc.drivers.visca.codec import cmd_pan_tilt_absolute, cmd_pan_tilt_drive, cmd_power, cmd_power_inquiry
 from fgloc.drivers.visca.errors import ViscaTimeout
 from fgloc.drivers.visca.head import open_serial_head
 from fgloc.drivers.visca.session import Timeouts

@@ -19,7 +19,6 @@ from typing import Generic, Self, TypeVar
 from fgloc.drivers.twins.faults import FaultConfig, FaultInjector
 from fgloc.drivers.twins.pty_port import PtyPort
 
-
 T = TypeVar("T")
 
 
