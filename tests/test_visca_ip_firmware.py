@@ -159,3 +159,35 @@ def test_rig_json_reply_port_is_checked() -> None:
     data["cameras"][0]["reply_port"] = REPLY_PORT  # on a serial camera: refused, naming the driver
     with pytest.raises(RigConfigError, match=r"cameras\[0\]\.reply_port: only for driver visca-ip, not visca-serial"):
         parse_rig(data, "rig.json", EXAMPLE.parent)
+
+
+def test_a_late_completion_over_ip_is_dropped_by_its_sequence_number() -> None:
+    """Over IP a Completion carries its request's sequence number: a late one of an abandoned command,
+    arriving while a newer move runs on the same socket, is dropped by the link (no read-back needed)."""
+    import threading
+    import time
+
+    from fgloc.drivers.visca.errors import ViscaTimeout
+
+    with ViscaIpTwin(time_scale=1.0) as twin, open_ip_head(twin.url, timeouts=FAST) as head:
+        head.position_counts()
+        link = head.session.link
+        head.session.timeouts.retries = 0
+        with pytest.raises(ViscaTimeout):
+            head.session.command(cmd_pan_tilt_absolute(1, 1440, 0, 0x0C, 0x0C), completion_timeout=0.05)
+        abandoned = link._sequence
+        head.session.timeouts.retries = 3
+        assert head.session.stray == {}  # sequence numbers make stray windows unnecessary
+        head.settings.pan_speed = 0x0C
+        head._last_counts = None
+        done = threading.Event()
+        thread = threading.Thread(target=lambda: (head.move_to_counts(150, 0), done.set()))
+        stale_before = link.stale
+        thread.start()
+        time.sleep(0.1)  # the 0.47 s move is under way
+        twin._sock.sendto(encode_message(TYPE_REPLY, abandoned, H("90 51 FF")), link._sock.getsockname())
+        time.sleep(0.1)
+        assert not done.is_set()  # not fooled by the late Completion
+        thread.join(timeout=5.0)
+        assert done.is_set() and link.stale > stale_before
+        assert head.read_counts_once() == (150, 0)

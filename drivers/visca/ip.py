@@ -108,6 +108,10 @@ def parse_udp_url(url: str) -> tuple[str, int]:
 class ViscaIpLink:
     """A :class:`fgloc.drivers.visca.session.ViscaLink` over UDP with sequence numbers and RESET."""
 
+    #: replies echo their request's sequence number and replies to earlier requests are dropped here,
+    #: so the session needs no stray-Completion windows on this link
+    tags_replies = True
+
     def __init__(self, host: str, port: int = DEFAULT_PORT, local_port: int = 0,
                  reset_timeout: float = 0.3, reset_tries: int = 3, inquiry_type: int = TYPE_INQUIRY) -> None:
         self.host, self.port, self.local_port = host, port, local_port

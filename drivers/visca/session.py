@@ -13,7 +13,9 @@ cancelled (Sony: no Completion follows a cancel, but a firmware that sends it an
 not fool us). For such a socket the session opens a *stray window* (until the abandoned
 command's deadline plus its budget, :attr:`ViscaSession.stray`); a Completion on it inside
 the window is taken only if the command's ``confirm()`` check (the head is at the target)
-holds, otherwise it is counted in ``stats.stray`` and the wait goes on.
+holds, otherwise it is counted in ``stats.stray`` and the wait goes on. A link whose replies
+carry their request's tag (VISCA over IP: the sequence number) already drops every reply to an
+earlier request, so over such a link no stray window is opened.
 """
 
 from __future__ import annotations
@@ -60,6 +62,10 @@ class ViscaLink(Protocol):
 
     def close(self) -> None:
         """Release the port/socket."""
+
+    # Optional class attribute ``tags_replies = True``: every reply carries its request's tag (the
+    # VISCA-over-IP sequence number) and the link drops replies to earlier requests itself, so no
+    # Completion can be a stray one and the session opens no stray windows.
 
 
 
@@ -137,8 +143,9 @@ class ViscaSession:
                     self.stats.timeouts += 1
                     raise ViscaTimeout(f"no reply from camera {self.address} to cancel socket {socket}")
                 if reply.kind is ReplyKind.ERROR and reply.socket == socket and reply.error_code in (0x04, 0x05):
-                    until = time.monotonic() + self.timeouts.completion_margin
-                    self.stray[socket] = max(self.stray.get(socket, 0.0), until)
+                    if not getattr(self.link, "tags_replies", False):
+                        until = time.monotonic() + self.timeouts.completion_margin
+                        self.stray[socket] = max(self.stray.get(socket, 0.0), until)
                     return reply.error_code == 0x04
                 if reply.kind is ReplyKind.ERROR and reply.socket in (0, socket):
                     raise error_for(reply.error_code, reply.socket, f"cancel socket {socket}")
@@ -233,8 +240,9 @@ class ViscaSession:
             try:
                 self._await_completion(socket, completion_timeout, name, confirm)
             except ViscaTimeout:  # the camera may still send this command's Completion later
-                until = acked_at + 2 * completion_timeout
-                self.stray[socket] = max(self.stray.get(socket, 0.0), until)
+                if not getattr(self.link, "tags_replies", False):
+                    until = acked_at + 2 * completion_timeout
+                    self.stray[socket] = max(self.stray.get(socket, 0.0), until)
                 raise
 
         def retryable(error: BaseException) -> bool:  # buffer full answers in place of the ACK only
