@@ -3,6 +3,8 @@
 * ``/dev/ttyUSB0`` (any path / ``COM3``) -> VISCA over RS-232 (:mod:`fgloc.drivers.visca.serial_link`)
   for heads, TinyOS serial BaseStation (:mod:`fgloc.drivers.tinyos`) for motes;
 * ``udp://HOST[:PORT]``  -> VISCA over IP (:mod:`fgloc.drivers.visca.ip`), port 52381 by default;
+  ``HeadOptions.reply_port`` (rig.json ``reply_port``) binds the controller side to a fixed
+  port for cameras that send replies there (52381) instead of to the sender's port;
 * ``http://[USER:PASSWORD@]HOST[:PORT]`` -> Sony CGI (:mod:`fgloc.drivers.sony_cgi`); credentials
   may instead come from ``FGLOC_CAMERA_USER`` / ``FGLOC_CAMERA_PASSWORD``;
 * ``tcp://HOST[:PORT]``  -> SerialForwarder (motes only), port 9002 by default.
@@ -44,6 +46,7 @@ class HeadOptions:
     completion_margin: float = 1.0  # added to the nominal move time before a Completion counts as lost
     http_timeout: float | None = None  # per HTTP request; None: max(timeout, 2 s)
     video: str | None = None  # cv2.VideoCapture source for grab_frame
+    reply_port: int | None = None  # udp only: fixed local port the camera replies to (e.g. 52381)
 
 
 def transport_of(port: str) -> str:
@@ -68,6 +71,8 @@ def open_head(port: str, options: HeadOptions | None = None, frames: FrameSource
     transport = transport_of(port)
     if transport == "tcp":
         raise FglocError(f"--port {port}: tcp:// is for a mote SerialForwarder, not a camera")
+    if o.reply_port is not None and transport != "udp":
+        raise FglocError(f"--port {transport}: reply_port is for VISCA over IP (udp://) only ({o.reply_port})")
     model = camera_model(o.camera_model) if o.camera_model else default_model(transport)
     units = PanTiltUnits(model, mounting(o.mount))
     if frames is None and o.video:
@@ -82,7 +87,7 @@ def open_head(port: str, options: HeadOptions | None = None, frames: FrameSource
     if transport == "udp":
         from fgloc.drivers.visca.ip import open_ip_head
 
-        return open_ip_head(port, None, units, timeouts, frames)
+        return open_ip_head(port, None, units, timeouts, frames, local_port=o.reply_port or 0)
     from fgloc.drivers.sony_cgi import Credentials, open_cgi_head, split_url
 
     _, url_creds = split_url(port)

@@ -278,3 +278,18 @@ def test_driver_acks_a_packet_with_ack_from_the_mote_side() -> None:
         while not twin.acks_received and time.monotonic() < deadline:
             time.sleep(0.01)
         assert twin.acks_received == [7] and net.link.stats.acks_sent == 1
+
+
+def test_serialforwarder_forwards_every_packet_to_every_client() -> None:
+    """Like TinyOS's SerialForwarder: a node's report reaches every connected client, not only the
+    client whose command caused it; a command from one client goes to the motes only."""
+    with SerialForwarderTwin() as twin, open_mote_network(twin.url, report_timeout=0.5) as a, \
+            open_mote_network(twin.url, report_timeout=0.5) as b:
+        assert a.set_led("n1", True)
+        seen_by_b = b.link.receive(1.0)
+        assert seen_by_b is not None and parse_led_report(seen_by_b) == (1, True)
+        assert b.set_led("n2", False)
+        seen_by_a = a.link.receive(1.0)
+        assert seen_by_a is not None and parse_led_report(seen_by_a) == (2, False)
+        assert a.link.receive(0.1) is None and b.link.receive(0.1) is None  # one copy each, no echo of commands
+        assert [p.dest for p in twin.field.received] == [1, 2]

@@ -10,7 +10,9 @@ called on each change, so a simulated scene can light the LED in rendered frames
 0x44 frame whose CRC is right (as SerialP does, before the application sees it),
 ignores frames with a bad CRC, and sends reports as 0x45 frames.
 :class:`SerialForwarderTwin` is a SerialForwarder on 127.0.0.1 (``U `` handshake,
-length-prefixed packets). Both take a :class:`~fgloc.drivers.twins.faults.FaultConfig`:
+length-prefixed packets); like the real one it forwards every packet from the motes to
+*every* connected client, not only to the client whose command caused it (a packet a
+client sends goes to the motes only, as in TinyOS 2's SerialForwarder). Both take a :class:`~fgloc.drivers.twins.faults.FaultConfig`:
 ``drop`` loses an outgoing ACK/report, ``garble`` corrupts one byte of it, ``error``
 answers with an unknown-protocol (0xFF) frame (serial) or drops the command (SF),
 ``slow`` delays it, ``disconnect`` closes the pty / TCP connection.
@@ -71,7 +73,7 @@ class MoteFieldEmulator:
         return [(self.radio_delay, led_report(node, on, packet.group))]
 
 
-class BaseStationSerialTwin(PtyTwin):
+class BaseStationSerialTwin(PtyTwin[bytes]):
     """Base station on a pty at the byte level; open :attr:`port` with pyserial. Context manager."""
 
     def __init__(self, field: MoteFieldEmulator | None = None, faults: FaultConfig | None = None) -> None:
@@ -140,6 +142,8 @@ class SerialForwarderTwin:
         self._stop = threading.Event()
         self._clients: list[socket.socket] = []
         self._lock = threading.Lock()
+        self._send_lock = threading.Lock()
+        self._ready: set[socket.socket] = set()  # clients past the handshake (they get forwarded packets)
         self._down_until: float | None = None
         self.malformed = 0
         self._thread = threading.Thread(target=self._accept, name="sf-twin", daemon=True)
@@ -159,6 +163,7 @@ class SerialForwarderTwin:
                     pass
                 c.close()
             self._clients.clear()
+            self._ready.clear()
             self._down_until = float("inf") if reconnect_after is None else time.monotonic() + reconnect_after
 
     def _accept(self) -> None:
@@ -174,7 +179,9 @@ class SerialForwarderTwin:
                 self._clients.append(client)
             threading.Thread(target=self._serve, args=(client,), daemon=True).start()
 
-    def _send(self, client: socket.socket, packet: AmPacket) -> None:
+    def _forward(self, packet: AmPacket) -> None:
+        """One packet from the motes to every connected client (its faults decided once, as for a
+        radio packet the base station received once)."""
         # line noise included: TCP itself never corrupts; it models a bad radio packet
         sent = self.faults.faulted_reply(packet.pack(), can_be_slow=True)
         if sent is None:
@@ -182,10 +189,14 @@ class SerialForwarderTwin:
         delay, data = sent
         if delay:
             time.sleep(delay)
-        try:
-            client.sendall(bytes([len(data)]) + data)
-        except OSError:
-            pass
+        with self._lock:
+            clients = [c for c in self._clients if c in self._ready]
+        with self._send_lock:  # whole packets: two serving threads never interleave their bytes
+            for client in clients:
+                try:
+                    client.sendall(bytes([len(data)]) + data)
+                except OSError:
+                    pass
 
     def _serve(self, client: socket.socket) -> None:
         try:
@@ -199,6 +210,8 @@ class SerialForwarderTwin:
                 peer += chunk
             if peer[:1] != b"U":
                 return
+            with self._lock:
+                self._ready.add(client)
             client.settimeout(0.05)
             buf = bytearray()
             while not self._stop.is_set():
@@ -229,11 +242,12 @@ class SerialForwarderTwin:
                     for delay, reply in self.field.handle(packet):
                         if delay:
                             time.sleep(delay)
-                        self._send(client, reply)
+                        self._forward(reply)
         except OSError:
             return
         finally:
             with self._lock:
+                self._ready.discard(client)
                 if client in self._clients:
                     self._clients.remove(client)
             try:

@@ -14,32 +14,34 @@ import heapq
 import itertools
 import threading
 import time
-from typing import Self
+from typing import Generic, Self, TypeVar
 
 from fgloc.drivers.twins.faults import FaultConfig, FaultInjector
 from fgloc.drivers.twins.pty_port import PtyPort
 
+T = TypeVar("T")
 
-class ScheduledReplies:
-    """A time-ordered queue of outgoing byte strings (thread-safe)."""
+
+class ScheduledReplies(Generic[T]):
+    """A time-ordered queue of outgoing items (byte strings, or bytes with routing data; thread-safe)."""
 
     def __init__(self) -> None:
-        self._heap: list[tuple[float, int, bytes]] = []
+        self._heap: list[tuple[float, int, T]] = []
         self._seq = itertools.count()
         self._lock = threading.Lock()
 
-    def put(self, due: float, payload: bytes) -> None:
+    def put(self, due: float, payload: T) -> None:
         with self._lock:
             heapq.heappush(self._heap, (due, next(self._seq), payload))
 
-    def pop_one(self, now: float) -> bytes | None:
+    def pop_one(self, now: float) -> T | None:
         with self._lock:
             if self._heap and self._heap[0][0] <= now:
                 return heapq.heappop(self._heap)[2]
             return None
 
-    def pop_due(self, now: float) -> list[bytes]:
-        out = []
+    def pop_due(self, now: float) -> list[T]:
+        out: list[T] = []
         with self._lock:
             while self._heap and self._heap[0][0] <= now:
                 out.append(heapq.heappop(self._heap)[2])
@@ -54,9 +56,10 @@ class ScheduledReplies:
             self._heap.clear()
 
 
-class PtyTwin:
+class PtyTwin(Generic[T]):
     """A simulated serial device on a pty, served by a daemon thread; open :attr:`port` with pyserial.
 
+    ``T`` is the type of a scheduled reply (bytes unless the subclass routes more with it).
     A subclass sets up its own state, then calls ``super().__init__`` (which starts the
     thread), and implements :meth:`_on_bytes`; it may override :meth:`_reset_link`,
     :meth:`_read_timeout` and :meth:`_write_due`. Use as a context manager.
@@ -65,7 +68,7 @@ class PtyTwin:
     def __init__(self, pty_name: str, thread_name: str, faults: FaultConfig | None = None) -> None:
         self.faults = FaultInjector(faults)
         self._pty = PtyPort(pty_name)
-        self._out = ScheduledReplies()
+        self._out: ScheduledReplies[T] = ScheduledReplies()
         self._stop = threading.Event()
         self._reconnect_at: float | None = None
         self._thread = threading.Thread(target=self._serve, name=thread_name, daemon=True)
@@ -102,6 +105,7 @@ class PtyTwin:
     def _write_due(self) -> None:
         """Write every reply that is due."""
         for out in self._out.pop_due(time.monotonic()):
+            assert isinstance(out, bytes)  # subclasses scheduling other items override this
             self._pty.write(out)
 
     # -- the serving thread

@@ -47,12 +47,16 @@ SpecRenderer = Callable[[str, float, float, float], np.ndarray]
 
 @dataclass(frozen=True)
 class TwinCamera:
-    """One simulated camera: id, transport (``serial``, ``udp``, ``http``), model name, mounting."""
+    """One simulated camera: id, transport (``serial``, ``udp``, ``http``), model name, mounting.
+
+    ``reply_port`` (udp only): the twin sends every reply to that controller port (52381 on
+    cameras that ignore the sender's port); ``open_head`` then receives there."""
 
     camera_id: str
     transport: str = "serial"
     model: str = "EVI-D100"
     mount: str = "desk"
+    reply_port: int | None = None
 
     @property
     def units(self) -> PanTiltUnits:
@@ -84,7 +88,7 @@ class TwinRig:
                     twin = ViscaSerialTwin(emulator, f)
                     self.ports[cam.camera_id] = twin.port
                 elif cam.transport == "udp":
-                    twin = ViscaIpTwin(emulator, f)
+                    twin = ViscaIpTwin(emulator, f, reply_port=cam.reply_port)
                     self.ports[cam.camera_id] = twin.url
                 elif cam.transport == "http":
                     twin = SonyCgiTwin(emulator, f)
@@ -141,7 +145,8 @@ class TwinRig:
         frames = self.frame_source(camera_id) if self._render else None
         head = open_head(self.ports[camera_id], HeadOptions(cam.model, cam.mount, timeout=timeout, retries=retries,
                                                                 completion_margin=completion_margin,
-                                                                http_timeout=max(3 * timeout, 0.2)),
+                                                                http_timeout=max(3 * timeout, 0.2),
+                                                                reply_port=cam.reply_port),
                          frames=frames)
         self._opened.append(head)
         return head

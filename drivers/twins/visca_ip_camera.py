@@ -1,11 +1,19 @@
 """A simulated VISCA-over-IP camera on a UDP socket bound to 127.0.0.1.
 
-Serves :class:`fgloc.drivers.twins.visca_camera.ViscaCameraEmulator` with the real
+Serves :class:`fgloc.drivers.twins.visca_emulator.ViscaCameraEmulator` with the real
 datagrams: RESET handling, sequence-number checking (a repeat of the last
-executed number gets ``0F 01`` and is not executed again, like a Sony SRG), a
-``0F 02`` for a payload-type mismatch, replies echoing the request's sequence
-number, and the shared fault injection. A disconnect closes the socket (the
-driver sees ICMP "connection refused") and rebinds the same port later.
+executed number gets ``0F 01`` and is not executed again, like a Sony SRG), replies
+echoing the request's sequence number, and the shared fault injection. A disconnect
+closes the socket (the driver sees ICMP "connection refused") and rebinds the same
+port later.
+
+Payload types, as forgiving as SRG firmware: an inquiry is answered whether it comes
+as ``01 10`` (Sony's document) or as ``01 00`` (what SRG firmware also accepts and
+clients rely on); ``inquiry_types`` narrows that to model a stricter camera. A
+command sent as ``01 10`` and any other type get ``0F 02`` (message-type abnormality).
+
+``reply_port``: several cameras of the family send every reply to that fixed UDP
+port on the controller (52381) instead of the sender's port; set it to model them.
 """
 
 from __future__ import annotations
@@ -40,12 +48,15 @@ class ViscaIpTwin:
 
     def __init__(self, emulator: ViscaCameraEmulator | None = None, faults: FaultConfig | None = None,
                  model: CameraModel = VISCA_IP_GENERIC, time_scale: float = 0.0,
-                 renderer: Renderer | None = None, port: int = 0) -> None:
+                 renderer: Renderer | None = None, port: int = 0, reply_port: int | None = None,
+                 inquiry_types: tuple[int, ...] = (TYPE_INQUIRY, TYPE_COMMAND)) -> None:
+        self.reply_port = reply_port
+        self.inquiry_types = inquiry_types
         self.emulator = emulator or ViscaCameraEmulator(model, time_scale=time_scale, renderer=renderer)
         self.faults = FaultInjector(faults)
         self._sock = self._bind(port)
         self.port = self._sock.getsockname()[1]
-        self._out = ScheduledReplies()
+        self._out: ScheduledReplies[tuple[bytes, tuple[str, int], int | None]] = ScheduledReplies()
         self._last_sequence: int | None = None
         self._stop = threading.Event()
         self._reconnect_at: float | None = None
@@ -100,19 +111,20 @@ class ViscaIpTwin:
                 data, peer = None, None
             if data is not None:
                 self._handle(data, peer)
-            for payload, addr in self._pop_due():
+            for payload, addr, job in self._out.pop_due(time.monotonic()):
+                if job is not None and self.emulator.completion_withdrawn(job):
+                    continue  # the command was cancelled or interrupted: no Completion
                 try:
                     self._sock.sendto(payload, addr)
                 except OSError:
                     pass
 
-    def _pop_due(self) -> list[tuple[bytes, tuple]]:
-        return self._out.pop_due(time.monotonic())  # type: ignore[return-value]
+    def _reply(self, due: float, payload_type: int, sequence: int, payload: bytes, peer: tuple[str, int],
+               job: int | None = None) -> None:
+        to = peer if self.reply_port is None else (peer[0], self.reply_port)
+        self._out.put(due, (encode_message(payload_type, sequence, payload), to, job))
 
-    def _reply(self, due: float, payload_type: int, sequence: int, payload: bytes, peer) -> None:
-        self._out.put(due, (encode_message(payload_type, sequence, payload), peer))  # type: ignore[arg-type]
-
-    def _handle(self, data: bytes, peer) -> None:
+    def _handle(self, data: bytes, peer: tuple[str, int]) -> None:
         try:
             msg = decode_message(data)
         except ViscaProtocolError:
@@ -123,10 +135,8 @@ class ViscaIpTwin:
                 self._last_sequence = None
                 self._reply(now, TYPE_CONTROL_REPLY, msg.sequence, CONTROL_ACK, peer)
             return
-        if msg.payload_type not in (TYPE_COMMAND, TYPE_INQUIRY):
-            self._reply(now, TYPE_CONTROL_REPLY, msg.sequence, ERROR_MESSAGE_TYPE, peer)
-            return
-        if (msg.payload_type == TYPE_INQUIRY) != is_inquiry(msg.payload):
+        allowed = self.inquiry_types if is_inquiry(msg.payload) else (TYPE_COMMAND,)
+        if msg.payload_type not in allowed:
             self._reply(now, TYPE_CONTROL_REPLY, msg.sequence, ERROR_MESSAGE_TYPE, peer)
             return
         if msg.sequence == self._last_sequence:
@@ -136,8 +146,8 @@ class ViscaIpTwin:
             self.disconnect(self.faults.config.reconnect_after)
             return
         self._last_sequence = msg.sequence
-        for due, reply in apply_reply_faults(self.faults, self.emulator, msg.payload, now):
-            self._reply(due, TYPE_REPLY, msg.sequence, reply, peer)
+        for due, reply, job in apply_reply_faults(self.faults, self.emulator, msg.payload, now):
+            self._reply(due, TYPE_REPLY, msg.sequence, reply, peer, job)
 
     def close(self) -> None:
         self._stop.set()

@@ -139,6 +139,56 @@ def cmd_version_inquiry(address: int = 1) -> bytes:
     return _packet(address, 0x09, 0x00, 0x02)
 
 
+def cmd_power(address: int, on: bool) -> bytes:
+    """CAM_Power On ``8x 01 04 00 02 FF`` / Off ``8x 01 04 00 03 FF``."""
+    return _packet(address, 0x01, 0x04, 0x00, 0x02 if on else 0x03)
+
+
+def cmd_power_inquiry(address: int = 1) -> bytes:
+    """CAM_PowerInq ``8x 09 04 00 FF`` (reply ``y0 50 02 FF`` on, ``03`` off)."""
+    return _packet(address, 0x09, 0x04, 0x00)
+
+
+PAN_LEFT, PAN_RIGHT, TILT_UP, TILT_DOWN, NO_MOVE = 0x01, 0x02, 0x01, 0x02, 0x03
+
+
+def cmd_pan_tilt_drive(address: int, pan_dir: int, tilt_dir: int, pan_speed: int = 0x18,
+                       tilt_speed: int = 0x14) -> bytes:
+    """Pan-tiltDrive ``8x 01 06 01 VV WW pp tt FF``: pan 01 left / 02 right / 03 none, tilt 01 up /
+    02 down / 03 none (03 03 = Stop); legal speeds always (protocols.md 1.10 item 1)."""
+    _check_speed(pan_speed, 0x18, "pan")
+    _check_speed(tilt_speed, 0x18, "tilt")
+    if pan_dir not in (1, 2, 3) or tilt_dir not in (1, 2, 3):
+        raise ValueError(f"pan-tilt drive directions must be 1..3, got {pan_dir}, {tilt_dir}")
+    return _packet(address, 0x01, 0x06, 0x01, pan_speed, tilt_speed, pan_dir, tilt_dir)
+
+
+def cmd_pan_tilt_relative(address: int, dpan: int, dtilt: int, pan_speed: int = 0x18,
+                          tilt_speed: int = 0x14) -> bytes:
+    """RelativePosition ``8x 01 06 03 VV WW 0Y.. 0Z.. FF`` (signed count offsets)."""
+    _check_speed(pan_speed, 0x18, "pan")
+    _check_speed(tilt_speed, 0x18, "tilt")
+    return _packet(address, 0x01, 0x06, 0x03, pan_speed, tilt_speed, encode_nibbles(dpan, 4),
+                   encode_nibbles(dtilt, 4))
+
+
+def cmd_zoom_drive(address: int, tele: bool, speed: int | None = None) -> bytes:
+    """CAM_Zoom Tele/Wide: standard ``8x 01 04 07 02/03 FF``, variable ``2p``/``3p`` (p = 0..7)."""
+    if speed is None:
+        return _packet(address, 0x01, 0x04, 0x07, 0x02 if tele else 0x03)
+    if not 0 <= speed <= 7:
+        raise ValueError(f"variable zoom speed must be 0..7, got {speed}")
+    return _packet(address, 0x01, 0x04, 0x07, (0x20 if tele else 0x30) | speed)
+
+
+def decode_version(data: bytes) -> tuple[int, int, int, int]:
+    """Version inquiry data ``gg gg hh hh jj jj kk`` -> (vendor, model, ROM version, sockets)."""
+    if len(data) != 7:
+        raise ViscaProtocolError(f"version inquiry data has {len(data)} bytes, expected 7")
+    return (int.from_bytes(data[0:2], "big"), int.from_bytes(data[2:4], "big"), int.from_bytes(data[4:6], "big"),
+            data[6])
+
+
 def is_inquiry(packet: bytes) -> bool:
     """True for an inquiry packet ``8x 09 ...``."""
     return len(packet) >= 3 and packet[1] == 0x09

@@ -22,9 +22,11 @@ from fgloc.drivers.visca.codec import (
     cmd_pan_tilt_absolute,
     cmd_pan_tilt_position_inquiry,
     cmd_pan_tilt_stop,
+    cmd_version_inquiry,
     cmd_zoom_direct,
     cmd_zoom_position_inquiry,
     decode_pan_tilt,
+    decode_version,
     decode_zoom,
 )
 from fgloc.drivers.visca.errors import ViscaError, ViscaProtocolError, ViscaTimeout
@@ -32,6 +34,9 @@ from fgloc.drivers.visca.serial_link import SerialLink
 from fgloc.drivers.visca.session import Timeouts, ViscaSession
 
 log = logging.getLogger(__name__)
+
+#: counts a read-back may differ from the target when a possibly-stray Completion is checked
+CONFIRM_COUNTS = 2
 
 
 @dataclass
@@ -124,10 +129,16 @@ class ViscaHead(HeadAdapter):
             dp, dt = pan - start[0], tilt - start[1]
         wait = m.move_seconds(dp, dt, ps, ts) * 1.2 + self.session.timeouts.completion_margin
         packet = cmd_pan_tilt_absolute(self.address, pan, tilt, ps, ts, m.pan_nibbles)
-        self.session.command(packet, completion_timeout=wait, name="pan-tilt absolute move")
+        self.session.command(packet, completion_timeout=wait, name="pan-tilt absolute move",
+                             confirm=lambda: self._at(pan, tilt))
         self._last_counts = (pan, tilt)
         if self.settings.settle_seconds > 0:
             time.sleep(self.settings.settle_seconds)
+
+    def _at(self, pan: int, tilt: int) -> bool:
+        """The head reads back (pan, tilt) within CONFIRM_COUNTS (checks a possibly-stray Completion)."""
+        p, t = self.read_counts_once()
+        return abs(p - pan) <= CONFIRM_COUNTS and abs(t - tilt) <= CONFIRM_COUNTS
 
     def read_counts_once(self) -> tuple[int, int]:
         """One pan-tilt position inquiry: (pan, tilt) signed device counts."""
@@ -143,7 +154,8 @@ class ViscaHead(HeadAdapter):
     def set_zoom_counts(self, counts: int) -> None:
         """CAM_Zoom Direct to ``counts``; blocks until completion."""
         wait = 3.0 + self.session.timeouts.completion_margin
-        self.session.command(cmd_zoom_direct(self.address, counts), completion_timeout=wait, name="zoom direct")
+        self.session.command(cmd_zoom_direct(self.address, counts), completion_timeout=wait, name="zoom direct",
+                             confirm=lambda: abs(self.zoom_counts() - counts) <= CONFIRM_COUNTS)
 
     def zoom_counts(self) -> int:
         data = self.session.inquiry(cmd_zoom_position_inquiry(self.address), 4, name="zoom position inquiry")
@@ -164,8 +176,14 @@ class ViscaHead(HeadAdapter):
         ps, ts = self._speeds()
         wait = m.move_seconds(m.pan_max - m.pan_min, m.tilt_max - m.tilt_min, ps, ts) * 1.2 \
             + self.session.timeouts.completion_margin
-        self.session.command(cmd_home(self.address), completion_timeout=wait, name="home")
+        self.session.command(cmd_home(self.address), completion_timeout=wait, name="home",
+                             confirm=lambda: self._at(0, 0))
         self._last_counts = (0, 0)
+
+    def version(self) -> tuple[int, int, int, int]:
+        """CAM_VersionInq: (vendor, model, ROM version, number of sockets); vendor 0x0001 = Sony."""
+        data = self.session.inquiry(cmd_version_inquiry(self.address), 7, name="version inquiry", nibbles=False)
+        return decode_version(data)
 
     def _frame_without_source(self) -> np.ndarray:
         raise ViscaError("this head has no frame source (give --video or a FrameSource)")

@@ -14,7 +14,20 @@ link reuses the *same* sequence number. If the original arrived and only the
 reply was lost, the camera answers ``0F 01`` (sequence abnormality: already
 executed); the link then gives the next resend a *new* number so the (idempotent)
 command runs again and its ACK/Completion come back. Replies whose sequence
-number belongs to no outstanding request are dropped as stale.
+number belongs to no outstanding request are dropped as stale: a late Completion of
+an earlier command can never pass for the current one's (an inquiry sent while a
+command waits for its Completion keeps that command's number outstanding).
+
+Payload type of inquiries: ``01 10`` (Sony's document) by default. Sony SRG firmware
+also accepts ``01 00``; a camera that accepts only ``01 00`` answers ``0F 02``
+(message-type abnormality) to a ``01 10`` inquiry, and the link then switches to
+``01 00`` for inquiries and resends at once (``inquiry_type`` chooses the start).
+
+Fixed reply port: several cameras of the family send replies to UDP port 52381 on the
+controller instead of the sender's port; ``local_port=52381`` binds the link there
+(with ``SO_REUSEADDR``, so several camera links can share the port: each socket is
+connected to its camera, and the kernel delivers a datagram to the socket connected
+to its sender).
 """
 
 from __future__ import annotations
@@ -95,12 +108,19 @@ def parse_udp_url(url: str) -> tuple[str, int]:
 class ViscaIpLink:
     """A :class:`fgloc.drivers.visca.session.ViscaLink` over UDP with sequence numbers and RESET."""
 
+    #: replies echo their request's sequence number and replies to earlier requests are dropped here,
+    #: so the session needs no stray-Completion windows on this link
+    tags_replies = True
+
     def __init__(self, host: str, port: int = DEFAULT_PORT, local_port: int = 0,
-                 reset_timeout: float = 0.3, reset_tries: int = 3) -> None:
+                 reset_timeout: float = 0.3, reset_tries: int = 3, inquiry_type: int = TYPE_INQUIRY) -> None:
         self.host, self.port, self.local_port = host, port, local_port
         self.reset_timeout, self.reset_tries = reset_timeout, reset_tries
+        self.inquiry_type = inquiry_type
         self._sequence = 0
-        self._outstanding: set[int] = set()
+        self._outstanding: set[int] = set()  # sequence numbers of the current request (and its resends)
+        self._command_outstanding: set[int] = set()  # the current command's, kept while inquiries run
+        self._last: bytes | None = None
         self._new_sequence_needed = False
         self.stale = 0
         self.sequence_errors = 0
@@ -112,9 +132,20 @@ class ViscaIpLink:
             infos = socket.getaddrinfo(self.host, self.port, type=socket.SOCK_DGRAM)
             family, _, _, _, address = infos[0]
             sock = socket.socket(family, socket.SOCK_DGRAM)
+        except OSError as exc:
+            raise ViscaDisconnected(f"udp://{self.host}:{self.port}: {exc.strerror or exc}") from None
+        try:
+            if self.local_port:  # a fixed reply port may be shared by the links to several cameras
+                sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
             sock.bind(("", self.local_port) if family == socket.AF_INET else ("::", self.local_port))
+        except OSError as exc:
+            sock.close()
+            raise ViscaDisconnected(f"udp://{self.host}:{self.port}: cannot receive on local UDP port "
+                                    f"{self.local_port} ({exc.strerror or exc})") from None
+        try:
             sock.connect(address)  # receive only from the camera; ICMP errors become ConnectionRefused
         except OSError as exc:
+            sock.close()
             raise ViscaDisconnected(f"udp://{self.host}:{self.port}: {exc.strerror or exc}") from None
         return sock
 
@@ -156,22 +187,29 @@ class ViscaIpLink:
                     continue
                 if msg.payload_type == TYPE_CONTROL_REPLY and msg.payload == CONTROL_ACK:
                     return
-            raise ViscaTimeout(f"{self.where}: no reply to the VISCA-over-IP RESET (camera off or wrong port?)")
+            raise ViscaTimeout(f"{self.where}: no reply to the VISCA-over-IP RESET (camera off, wrong port, "
+                               "or it replies to a fixed port: set reply_port)")
 
         RetryPolicy(self.reset_tries, ViscaTimeout).call(attempt)
         self._sequence = 0
         self._outstanding.clear()
+        self._command_outstanding.clear()
         self._new_sequence_needed = False
 
     def send(self, packet: bytes, retransmit: bool = False) -> None:
+        inquiry = is_inquiry(packet)
         if not retransmit or self._new_sequence_needed or not self._outstanding:
             self._sequence = (self._sequence + 1) & 0xFFFFFFFF
             if not retransmit:
                 self._outstanding.clear()
+                if not inquiry:
+                    self._command_outstanding.clear()
             self._new_sequence_needed = False
         self._outstanding.add(self._sequence)
-        kind = TYPE_INQUIRY if is_inquiry(packet) else TYPE_COMMAND
-        self._raw_send(encode_message(kind, self._sequence, packet))
+        if not inquiry:
+            self._command_outstanding.add(self._sequence)
+        self._last = packet
+        self._raw_send(encode_message(self.inquiry_type if inquiry else TYPE_COMMAND, self._sequence, packet))
 
     def receive(self, timeout: float) -> bytes | None:
         deadline = time.monotonic() + timeout
@@ -184,7 +222,7 @@ class ViscaIpLink:
             except ViscaProtocolError:
                 self.stale += 1
                 continue
-            if msg.sequence not in self._outstanding:
+            if msg.sequence not in self._outstanding and msg.sequence not in self._command_outstanding:
                 self.stale += 1
                 continue
             if msg.payload_type == TYPE_CONTROL_REPLY:
@@ -192,6 +230,10 @@ class ViscaIpLink:
                     self.sequence_errors += 1
                     self._new_sequence_needed = True  # already executed; rerun under a new number
                 elif msg.payload == ERROR_MESSAGE_TYPE:
+                    if self._last is not None and is_inquiry(self._last) and self.inquiry_type == TYPE_INQUIRY:
+                        self.inquiry_type = TYPE_COMMAND  # a camera that takes inquiries only as 01 00
+                        self.send(self._last)
+                        continue
                     raise ViscaProtocolError(f"{self.where}: camera rejected the message type")
                 continue
             if msg.payload_type == TYPE_REPLY:
@@ -216,13 +258,16 @@ class ViscaIpLink:
 
 
 def open_ip_head(url_or_host: str, port: int | None = None, units=None, timeouts: Timeouts | None = None,
-                 frames=None, settings: HeadSettings | None = None) -> ViscaHead:
-    """Open a VISCA-over-IP head (``udp://HOST[:PORT]`` or a host name): RESET, then IF_Clear."""
+                 frames=None, settings: HeadSettings | None = None, local_port: int = 0) -> ViscaHead:
+    """Open a VISCA-over-IP head (``udp://HOST[:PORT]`` or a host name): RESET, then IF_Clear.
+
+    ``local_port`` (0 = any): the controller port to receive on, 52381 for cameras that send
+    their replies there rather than to the sender's port."""
     if url_or_host.startswith("udp://"):
         host, p = parse_udp_url(url_or_host)
     else:
         host, p = url_or_host, port or DEFAULT_PORT
-    link = ViscaIpLink(host, port or p)
+    link = ViscaIpLink(host, port or p, local_port=local_port)
     head = ViscaHead(ViscaSession(link, 1, timeouts), units, frames, settings)
     try:
         head.initialize(address_set=False)  # Address Set is not used over IP

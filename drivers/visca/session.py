@@ -5,6 +5,17 @@ of other sockets are skipped); inquiries wait for ``y0 50 data FF``; timeouts ar
 retried (all commands used here are idempotent absolute commands, so a resend is
 safe); every error reply raises a :class:`fgloc.drivers.visca.errors.ViscaErrorReply`
 subclass. All times are seconds.
+
+Which Completion is ours (socket and order, protocols.md 1.4-1.5): only one that arrives
+*after* our ACK, on the ACKed socket. That is not enough when the camera still owes a
+Completion on that socket: a command we gave up on (no Completion within its budget) or
+cancelled (Sony: no Completion follows a cancel, but a firmware that sends it anyway must
+not fool us). For such a socket the session opens a *stray window* (until the abandoned
+command's deadline plus its budget, :attr:`ViscaSession.stray`); a Completion on it inside
+the window is taken only if the command's ``confirm()`` check (the head is at the target)
+holds, otherwise it is counted in ``stats.stray`` and the wait goes on. A link whose replies
+carry their request's tag (VISCA over IP: the sequence number) already drops every reply to an
+earlier request, so over such a link no stray window is opened.
 """
 
 from __future__ import annotations
@@ -52,6 +63,10 @@ class ViscaLink(Protocol):
     def close(self) -> None:
         """Release the port/socket."""
 
+    # Optional class attribute ``tags_replies = True``: every reply carries its request's tag (the
+    # VISCA-over-IP sequence number) and the link drops replies to earlier requests itself, so no
+    # Completion can be a stray one and the session opens no stray windows.
+
 
 
 @dataclass
@@ -65,6 +80,7 @@ class SessionStats:
     stale: int = 0
     network_changes: int = 0
     reconnects: int = 0
+    stray: int = 0  # Completions refused because they belong to an abandoned or cancelled command
 
 
 @dataclass
@@ -93,22 +109,58 @@ class ViscaSession:
         self.stats = SessionStats()
         self._lock = threading.RLock()
         self._on_reconnect = on_reconnect
+        #: socket -> monotonic time until which a Completion there may be a stray one (see module doc)
+        self.stray: dict[int, float] = {}
+        self._held: list[Reply] = []  # replies met during a confirm() inquiry, re-read afterwards
+        self._holding = False
 
     # -- public
-    def command(self, packet: bytes, completion_timeout: float | None = None, name: str = "") -> None:
+    def command(self, packet: bytes, completion_timeout: float | None = None, name: str = "",
+                confirm: Callable[[], bool] | None = None) -> None:
         """Send a command; wait for its ACK, then its Completion on the same socket.
 
         ``completion_timeout`` (s) defaults to the completion margin. A timeout at
-        either stage resends the command (idempotent commands only).
+        either stage resends the command (idempotent commands only). ``confirm()``
+        (e.g. "the head reads back the target") decides whether a Completion that may be
+        a stray one (see the module doc) is ours; without it such a Completion is taken.
         """
         name = name or packet.hex(" ")
         wait = completion_timeout if completion_timeout is not None else self.timeouts.completion_margin
-        self._with_reconnect(lambda: self._command(packet, wait, name))
+        self._with_reconnect(lambda: self._command(packet, wait, name, confirm))
 
-    def inquiry(self, packet: bytes, expect_len: int, name: str = "") -> bytes:
-        """Send an inquiry; return the data bytes of the ``y0 50 data FF`` reply (length checked)."""
+    def cancel(self, socket: int) -> bool:
+        """Command cancel ``8x 2y FF``: True if the camera cancelled a command (``z0 6y 04 FF``),
+        False if the socket was empty (``z0 6y 05 FF``). Either way the socket gets a stray window
+        of ``completion_margin`` s: a Completion there is checked before it is believed."""
+        from fgloc.drivers.visca.codec import cmd_cancel
+
+        def attempt(n: int) -> bool:
+            self._send(cmd_cancel(self.address, socket), n > 0)
+            deadline = time.monotonic() + self.timeouts.ack
+            while True:
+                reply = self._next(deadline)
+                if reply is None:
+                    self.stats.timeouts += 1
+                    raise ViscaTimeout(f"no reply from camera {self.address} to cancel socket {socket}")
+                if reply.kind is ReplyKind.ERROR and reply.socket == socket and reply.error_code in (0x04, 0x05):
+                    if not getattr(self.link, "tags_replies", False):
+                        until = time.monotonic() + self.timeouts.completion_margin
+                        self.stray[socket] = max(self.stray.get(socket, 0.0), until)
+                    return reply.error_code == 0x04
+                if reply.kind is ReplyKind.ERROR and reply.socket in (0, socket):
+                    raise error_for(reply.error_code, reply.socket, f"cancel socket {socket}")
+                self.stats.stale += 1
+
+        def run() -> bool:
+            return RetryPolicy(self.timeouts.retries + 1, ViscaTimeout).call(attempt, self._count_retry)
+
+        return self._with_reconnect(run)
+
+    def inquiry(self, packet: bytes, expect_len: int, name: str = "", nibbles: bool = True) -> bytes:
+        """Send an inquiry; return the data bytes of the ``y0 50 data FF`` reply (length checked;
+        with ``nibbles`` every data byte must be ``0x0?``, as in position replies)."""
         name = name or packet.hex(" ")
-        return self._with_reconnect(lambda: self._inquiry(packet, expect_len, name))
+        return self._with_reconnect(lambda: self._inquiry(packet, expect_len, name, nibbles))
 
     def if_clear(self) -> None:
         """IF_Clear to this camera: waits for ``z0 50 FF`` (no ACK)."""
@@ -147,6 +199,8 @@ class ViscaSession:
 
     def _next(self, deadline: float) -> Reply | None:
         """Next well-formed reply from our camera before ``deadline``; None on timeout."""
+        if self._held and not self._holding:
+            return self._held.pop(0)
         while True:
             remaining = deadline - time.monotonic()
             if remaining <= 0:
@@ -170,7 +224,8 @@ class ViscaSession:
                 continue
             return reply
 
-    def _command(self, packet: bytes, completion_timeout: float, name: str) -> None:
+    def _command(self, packet: bytes, completion_timeout: float, name: str,
+                 confirm: Callable[[], bool] | None = None) -> None:
         """Send, wait for ACK (``ack`` s), then for the Completion on that socket; timeouts resend."""
         t = self.timeouts
         acked = True  # a resend after an ACKed attempt is a new message, not a retransmission
@@ -181,7 +236,14 @@ class ViscaSession:
             acked = False
             socket = self._await_ack(name)
             acked = True
-            self._await_completion(socket, completion_timeout, name)
+            acked_at = time.monotonic()
+            try:
+                self._await_completion(socket, completion_timeout, name, confirm)
+            except ViscaTimeout:  # the camera may still send this command's Completion later
+                if not getattr(self.link, "tags_replies", False):
+                    until = acked_at + 2 * completion_timeout
+                    self.stray[socket] = max(self.stray.get(socket, 0.0), until)
+                raise
 
         def retryable(error: BaseException) -> bool:  # buffer full answers in place of the ACK only
             return isinstance(error, ViscaTimeout) or (isinstance(error, CommandBufferFull) and not acked)
@@ -205,8 +267,10 @@ class ViscaSession:
                 raise error_for(reply.error_code, reply.socket, name)
             self.stats.stale += 1
 
-    def _await_completion(self, socket: int, timeout: float, name: str) -> None:
-        """The Completion (or error) on ``socket`` within ``timeout`` s; other sockets' packets are stale."""
+    def _await_completion(self, socket: int, timeout: float, name: str,
+                          confirm: Callable[[], bool] | None = None) -> None:
+        """The Completion (or error) on ``socket`` within ``timeout`` s; other sockets' packets are stale,
+        and a Completion in the socket's stray window counts only if ``confirm()`` holds."""
         deadline = time.monotonic() + timeout
         while True:
             reply = self._next(deadline)
@@ -217,10 +281,31 @@ class ViscaSession:
                 self.stats.stale += 1
                 continue
             if reply.kind is ReplyKind.COMPLETION:
-                return
+                if self._believe(socket, confirm, name):
+                    return
+                continue
             raise error_for(reply.error_code, reply.socket, name)
 
-    def _inquiry(self, packet: bytes, expect_len: int, name: str) -> bytes:
+    def _believe(self, socket: int, confirm: Callable[[], bool] | None, name: str) -> bool:
+        """Is a Completion on ``socket`` ours? Yes outside a stray window; inside, if ``confirm()`` holds."""
+        until = self.stray.get(socket)
+        if until is None or time.monotonic() >= until:
+            self.stray.pop(socket, None)
+            return True
+        if confirm is None:
+            return True
+        self._holding = True  # replies met by confirm's inquiries are re-read afterwards, not dropped
+        try:
+            ok = confirm()
+        finally:
+            self._holding = False
+        if not ok:
+            self.stats.stray += 1
+            log.warning("camera %d: ignoring a Completion on socket %d that is not %s's (a stray one of an "
+                        "abandoned or cancelled command)", self.address, socket, name)
+        return ok
+
+    def _inquiry(self, packet: bytes, expect_len: int, name: str, nibbles: bool = True) -> bytes:
         """Send an inquiry, wait ``timeouts.inquiry`` s for its data; timeouts and garbled replies ask again."""
 
         def attempt(n: int) -> bytes:
@@ -236,13 +321,16 @@ class ViscaSession:
                         self.stats.garbled += 1
                         raise ViscaGarbledReply(f"reply to {name} has {len(reply.data)} data bytes, "
                                                 f"expected {expect_len}")
-                    if any(b & 0xF0 for b in reply.data):
+                    if nibbles and any(b & 0xF0 for b in reply.data):
                         self.stats.garbled += 1
                         raise ViscaGarbledReply(f"reply to {name} has corrupted nibbles")
                     return reply.data
                 if reply.kind is ReplyKind.ERROR and reply.socket == 0:
                     raise error_for(reply.error_code, 0, name)
-                self.stats.stale += 1
+                if self._holding:
+                    self._held.append(reply)
+                else:
+                    self.stats.stale += 1
 
         policy = RetryPolicy(self.timeouts.retries + 1, (ViscaTimeout, ViscaGarbledReply, CommandBufferFull))
         return policy.call(attempt, self._count_retry)

@@ -53,6 +53,7 @@ class CameraConfig:
     zoom: float
     address: int = 1
     video: str | None = None  # cv2.VideoCapture source for frames: device index ("0") or stream URL
+    reply_port: int | None = None  # visca-ip: fixed controller UDP port the camera replies to (e.g. 52381)
 
 
 @dataclass(frozen=True)
@@ -184,7 +185,10 @@ def parse_rig(data: Any, path: str = "rig.json", base: Path | None = None) -> Ri
             zoom=float(o.get("zoom", 0.0)),
             address=int(o.get("address", 1)),
             video=None if o.get("video") is None else str(o["video"]),
+            reply_port=None if o.get("reply_port") is None else int(o["reply_port"]),
         ))
+        if o.get("reply_port") is not None and driver != "visca-ip":
+            raise _fail(path, f"{w}.reply_port", f"only for driver visca-ip, not {driver} ({o['reply_port']!r})")
     ids = [c.id for c in cameras]
 
     g = top.get("gauge", {"origin": ids[0], "baseline": ids[1]})

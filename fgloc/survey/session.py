@@ -63,7 +63,7 @@ def open_hardware(rig: RigConfig) -> OpenedRig:
     def open_camera(camera_id: str) -> PanTiltHead:
         cam = by_id[camera_id]
         return open_head(cam.port, HeadOptions(camera_model=cam.model, mount=cam.mounting, address=cam.address,
-                                               video=cam.video))
+                                               video=cam.video, reply_port=cam.reply_port))
 
     leds = open_leds(rig.motes.port, rig.motes.addresses)
     return OpenedRig(open_head=open_camera, leds=leds, close=getattr(leds, "close", lambda: None))
