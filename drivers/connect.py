@@ -78,7 +78,18 @@ def open_head(port: str, options: HeadOptions | None = None, frames: FrameSource
     if frames is None and o.video:
         from fgloc.drivers.frames import open_frame_source
 
-        frames = open_frame_source(o.video)
+        source = open_frame_source(o.video)
+        try:
+            return _open_head(port, transport, units, o, source)
+        except BaseException:
+            if source is not None:
+                source.close()  # the video device is not left open when the head does not open
+            raise
+    return _open_head(port, transport, units, o, frames)
+
+
+def _open_head(port: str, transport: str, units: PanTiltUnits, o: HeadOptions, frames: FrameSourceArg
+               ) -> PanTiltHead:
     timeouts = Timeouts(ack=o.timeout, inquiry=o.timeout, completion_margin=o.completion_margin, retries=o.retries)
     if transport == "serial":
         from fgloc.drivers.visca.head import open_serial_head

@@ -122,6 +122,10 @@ def test_every_prefix_of_a_journal_reads(tmp_path):
          "line 2: observation.pan: expected a finite number"),
         (["HEADER", '{"type":"observation","node":"n1","camera":"a","index":-1,"pan":0,"tilt":0}'],
          "line 2: observation.index"),
+        (["HEADER", '{"type":"rig_changed","rig_hash":"x","changed":"port","rig_operational":{}}'],
+         "line 2: rig_changed.changed: expected an array"),
+        (["HEADER", '{"type":"rig_changed","rig_hash":"x","changed":[]}'],
+         "line 2: rig_changed.rig_operational: missing required field"),
     ],
 )
 def test_bad_journals_fail_with_one_line(tmp_path, lines, message):
@@ -153,3 +157,28 @@ def test_records_are_fsynced(tmp_path, monkeypatch):
         before = len(calls)
         w.observation(JournalObservation("n1", "a", 0, 0.1, 0.2))
         assert len(calls) == before + 1
+
+
+def test_rig_records_replay_and_older_readers_ignore_them(tmp_path):
+    """The header's rig_meaning / rig_operational and rig_changed records (docs/file-format.md)
+    read back as written; survey_stopped is informational; the survey they record is unchanged."""
+    path = tmp_path / "j.jsonl"
+    header = replace(_header(), rig_hash="h0", rig_meaning={"sigma_deg": 0.1, "cameras": ["a", "b"]},
+                     rig_operational={"cameras[a].port": "http://***@h", "retry.backoff_s": 0.05})
+    with JournalWriter.create(path, header) as w:
+        w.observation(JournalObservation("n1", "a", 0, 0.1, -0.2))
+        w.rig_changed("h1", ["retry.backoff_s"], {"cameras[a].port": "http://***@h", "retry.backoff_s": 0.2})
+        w.append({"type": "survey_stopped", "camera": "b", "misses": 25, "reason": "camera error: x"})
+        w.observation(JournalObservation("n1", "b", 0, 0.3, -0.4))
+    state = read_journal(path)
+    assert state.header.rig_meaning == header.rig_meaning and state.header.rig_operational == header.rig_operational
+    assert state.rig_hash == "h1" and state.rig_operational == {"cameras[a].port": "http://***@h",
+                                                                "retry.backoff_s": 0.2}
+    assert [c["changed"] for c in state.rig_changes] == [["retry.backoff_s"]]
+    assert len(journal_to_survey(state).observations) == 2
+    # a journal without them (as older fgloc versions wrote) reads with the header's hash
+    plain = tmp_path / "plain.jsonl"
+    JournalWriter.create(plain, replace(_header(), rig_hash="h0")).close()
+    old = read_journal(plain)
+    assert old.rig_hash == "h0" and old.rig_operational is None and old.header.rig_meaning is None
+    assert "rig_meaning" not in plain.read_text()

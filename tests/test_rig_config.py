@@ -138,3 +138,57 @@ def test_mote_driver_and_port_must_agree(tmp_path):
     (tmp_path / "rig.json").write_text(json.dumps(data))
     with pytest.raises(RigConfigError, match=r"motes\.port: driver serial-forwarder needs tcp://"):
         load_rig(tmp_path / "rig.json")
+
+
+SECRET = "Hunter2-zq"
+
+
+@pytest.mark.parametrize(("where", "value", "shown"), [
+    (("cameras", 0, "driver", "visca-ip"), f"http://admin:{SECRET}@10.0.0.5", "got 'http://***@10.0.0.5'"),
+    (("cameras", 0, "driver", "sony-cgi"), f"htp://admin:{SECRET}@10.0.0.5", "got 'htp://***@10.0.0.5'"),
+    (("cameras", 0, "driver", "visca-serial"), f"http://admin:{SECRET}@10.0.0.5/", "got 'http://***@10.0.0.5/'"),
+    (("motes", None, "driver", "serial-forwarder"), f"http://u:{SECRET}@h:9002", "got 'http://***@h:9002'"),
+    (("motes", None, "driver", "tinyos-serial"), f"tcp://u:{SECRET}@h:9002", "got 'tcp://***@h:9002'"),
+])
+def test_a_password_in_a_port_is_never_echoed(tmp_path, capsys, where, value, shown):
+    """The issue's case: a port with user info given to the wrong driver or with a scheme typo.
+    The one-line error names the field and shows the URL with its user info as ***."""
+    data = _example()
+    section, index, key, driver = where
+    target = data[section][index] if index is not None else data[section]
+    target |= {key: driver, "port": value}
+    (tmp_path / "rig.json").write_text(json.dumps(data))
+    with pytest.raises(RigConfigError) as err:
+        load_rig(tmp_path / "rig.json")
+    assert SECRET not in str(err.value) and shown in str(err.value)
+    assert main(["survey", "--rig", str(tmp_path / "rig.json"), "-o", str(tmp_path / "out"), "--simulate"]) == 2
+    out = capsys.readouterr()
+    assert out.err.count("\n") == 1 and shown in out.err and SECRET not in out.err + out.out
+
+
+def test_any_rig_error_hides_user_info_even_from_the_schema_check(tmp_path):
+    data = _example()
+    data["cameras"][0]["video"] = ""  # the schema's own message would show the value
+    data["cameras"][0]["mounting"] = f"rtsp://me:{SECRET}@cam"
+    with pytest.raises(RigConfigError) as err:
+        parse_rig(data)
+    assert "mounting" in str(err.value) and SECRET not in str(err.value) and "rtsp://***@cam" in str(err.value)
+
+
+def test_meaning_and_operational_fields_split_the_rig():
+    from fgloc.files.rig_config import rig_meaning, rig_operational
+
+    data = _example()
+    data["cameras"][1] |= {"driver": "sony-cgi", "port": f"http://admin:{SECRET}@10.0.0.5", "video": "0"}
+    data["retry"] = {"backoff_s": 0.1}
+    rig = parse_rig(data)
+    meaning, operational = rig_meaning(rig, simulated=True), rig_operational(rig)
+    assert meaning["cameras[cam1].intrinsics.fx"] == 440.0 and meaning["cameras[cam0].mounting"] == "upright"
+    assert meaning["sigma_deg"] == pytest.approx(0.1) and meaning["simulation.seed"] == 1
+    assert "simulation.seed" not in rig_meaning(rig, simulated=False)
+    assert operational["cameras[cam1].port"] == "http://***@10.0.0.5"
+    assert operational["cameras[cam1].video"] == "0" and operational["retry.backoff_s"] == 0.1
+    assert not set(meaning) & set(operational)
+    assert SECRET not in json.dumps([meaning, operational])
+    # an intrinsics file and the same values inline mean the same
+    assert all(not k.startswith("cameras[cam0].intrinsics") for k in operational)

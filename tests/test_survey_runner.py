@@ -84,8 +84,9 @@ def test_resume_refuses_another_rig_and_new_run_refuses_existing_journal(tmp_pat
     run_survey(rig, tmp_path, opened=opened(rig)[0])
     with pytest.raises(FglocError, match="journal already exists"):
         run_survey(rig, tmp_path, opened=opened(rig)[0])
-    other = small_rig(5, seed=2)
-    with pytest.raises(FglocError, match="rig_hash: journal was recorded with a different"):
+    other = small_rig(5, seed=2)  # another simulated scene: other truth, other readings
+    with pytest.raises(FglocError, match=r"simulation\.seed: changes what the readings recorded in .* mean "
+                                         r"\(was 1, now 2\)"):
         run_survey(other, tmp_path, resume=True, opened=opened(other)[0])
 
 

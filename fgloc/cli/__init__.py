@@ -37,6 +37,7 @@ from fgloc.cli import (  # noqa: E402
     view,
 )
 from fgloc.core.errors import FglocError  # noqa: E402
+from fgloc.core.redact import redact_urls  # noqa: E402
 
 COMMANDS: list[ModuleType] = [simulate, solve, score, demo, view, report, survey, calibrate, ptz, motes, bench, plan]
 
@@ -68,11 +69,11 @@ def _run(args: argparse.Namespace) -> int:
     try:
         return int(args.run(args) or 0)
     except FglocError as exc:
-        print(f"fgloc: error: {exc}", file=sys.stderr)
+        print(f"fgloc: error: {redact_urls(str(exc))}", file=sys.stderr)  # never a URL's password
         return 2
     except OSError as exc:
         where = f"{exc.filename}: " if getattr(exc, "filename", None) else ""
-        print(f"fgloc: error: {where}{exc.strerror or exc}", file=sys.stderr)
+        print(redact_urls(f"fgloc: error: {where}{exc.strerror or exc}"), file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         print("fgloc: interrupted", file=sys.stderr)

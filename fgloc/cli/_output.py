@@ -20,6 +20,8 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from typing import TYPE_CHECKING, Any
 
+from fgloc.core.redact import redact_urls
+
 if TYPE_CHECKING:
     from tqdm import tqdm
 
@@ -44,7 +46,7 @@ class StderrFormatter(logging.Formatter):
         text = f"fgloc: {level}: {where}{record.getMessage()}"
         if record.exc_info:
             text += "\n" + self.formatException(record.exc_info)
-        return text
+        return redact_urls(text)
 
 
 class StderrHandler(logging.Handler):

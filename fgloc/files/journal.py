@@ -7,7 +7,9 @@ A journal is the primary record of a survey; ``survey.json`` is derived from it
 
 * ``header`` (first line, exactly once): ``format``, ``version``, the survey's
   ``nodes`` mode, ``gauge``, ``sigma`` (radians), ``camera_ids``, ``node_ids``,
-  ``rig_hash`` (sha256 of the rig configuration) and free-form ``meta``.
+  ``rig_hash`` (sha256 of the rig configuration), free-form ``meta`` and, from
+  surveys run by ``fgloc survey``, ``rig_meaning`` and ``rig_operational`` (the rig.json
+  fields that fix what the readings mean, and the others with URL user info redacted).
 * ``node_started`` ``{node}``: the node's LED is about to be lit.
 * ``observation`` ``{node, camera, index, pan, tilt[, sigma]}``: one reading in
   radians (spec convention). ``(node, camera, index)`` is its identity:
@@ -16,6 +18,10 @@ A journal is the primary record of a survey; ``survey.json`` is derived from it
 * ``led_failed`` ``{node, reason}``: the node never acknowledged the LED command.
 * ``node_done`` ``{node}``: every camera has a final outcome for the node.
 * ``truth`` ``{cameras, nodes}``: ground truth of a simulated survey (gauge frame).
+* ``rig_changed`` ``{rig_hash, changed, rig_operational}``: a resume accepted a rig.json
+  whose operational fields differ (``changed`` names them); later resumes compare with it.
+* ``survey_stopped`` ``{camera, misses, reason}``: a camera found nothing for too many
+  nodes in a row and the run stopped (informational; a resume continues).
 
 Every record is written with one ``os.write`` of a complete line, then
 ``os.fsync``. A torn last line (power loss or kill mid-write) has no trailing
@@ -62,8 +68,12 @@ class JournalHeader:
     node_ids: list[str]
     rig_hash: str = ""
     meta: dict[str, Any] = field(default_factory=dict)
+    rig_meaning: dict[str, Any] | None = None
+    rig_operational: dict[str, Any] | None = None
 
     def to_record(self) -> dict[str, Any]:
+        rig = {k: v for k, v in (("rig_meaning", self.rig_meaning), ("rig_operational", self.rig_operational))
+               if v is not None}
         return {
             "type": "header",
             "format": JOURNAL_FORMAT,
@@ -75,7 +85,7 @@ class JournalHeader:
             "node_ids": list(self.node_ids),
             "rig_hash": self.rig_hash,
             "meta": self.meta,
-        }
+        } | rig
 
 
 ObservationKey = tuple[str, str, int]  # (node, camera, index)
@@ -111,6 +121,7 @@ class JournalState:
     led_failed: dict[str, str] = field(default_factory=dict)
     not_found: dict[tuple[str, str], str] = field(default_factory=dict)  # (node, camera) -> reason
     truth: Truth | None = None
+    rig_changes: list[dict[str, Any]] = field(default_factory=list)  # rig_changed records, in order
     records: int = 0
     torn_tail_bytes: int = 0
     duplicates_ignored: int = 0
@@ -142,6 +153,16 @@ class JournalState:
         """True when the camera has a final outcome for the node (all readings or gave up)."""
         return (node, camera) in self.not_found or len(self.observations_of(node, camera)) >= repeats
 
+    @property
+    def rig_hash(self) -> str:
+        """The rig hash the survey runs with now: the last ``rig_changed``'s, else the header's."""
+        return str(self.rig_changes[-1]["rig_hash"]) if self.rig_changes else self.header.rig_hash
+
+    @property
+    def rig_operational(self) -> dict[str, Any] | None:
+        """The operational rig fields in force now (last ``rig_changed``, else the header's)."""
+        return self.rig_changes[-1]["rig_operational"] if self.rig_changes else self.header.rig_operational
+
     def last_observation(self, camera: str) -> JournalObservation | None:
         """The camera's most recent reading in journal order (None before the first)."""
         return self._last.get(camera)
@@ -170,7 +191,7 @@ def _plain_observation(rec: dict) -> bool:
 
 
 _TRUTH_BULK: Bulk = {("nodes",): is_vector3}
-_CHECKED = ("header", "observation", "truth")  # record types with a definition in journal.schema.json
+_CHECKED = ("header", "observation", "truth", "rig_changed")  # record types with a definition in journal.schema.json
 _NODE_RECORDS = ("node_started", "observation", "not_found", "led_failed", "node_done")
 
 
@@ -212,6 +233,8 @@ class _Replay:
             state.led_failed.setdefault(node, str(rec.get("reason", "")))
         elif kind == "node_done":
             state.done.add(node)
+        elif kind == "rig_changed":
+            state.rig_changes.append(rec)
         elif kind == "truth":
             state.truth = Truth(
                 cameras={k: CameraPose(np.array(v["position"], float), np.array(v["rotation"], float))
@@ -233,7 +256,8 @@ def _header(rec: dict, path: str, line: int) -> JournalHeader:
     check(rec, "journal", where, JournalError, definition="header", root="header")
     return JournalHeader(NodeMode(rec["nodes"]), Gauge(origin=rec["gauge"]["origin"], baseline=rec["gauge"]["baseline"]),
                          float(rec["sigma"]), list(rec["camera_ids"]), list(rec["node_ids"]),
-                         str(rec.get("rig_hash", "")), dict(rec.get("meta") or {}))
+                         str(rec.get("rig_hash", "")), dict(rec.get("meta") or {}), rec.get("rig_meaning"),
+                         rec.get("rig_operational"))
 
 
 def _split_complete(data: bytes) -> tuple[list[bytes], int]:
@@ -361,6 +385,11 @@ class JournalWriter:
 
     def node_done(self, node: str) -> None:
         self.append({"type": "node_done", "node": node})
+
+    def rig_changed(self, rig_hash_value: str, changed: list[str], operational: dict[str, Any]) -> None:
+        """Record a resume's accepted operational rig.json change (values without credentials)."""
+        self.append({"type": "rig_changed", "rig_hash": rig_hash_value, "changed": list(changed),
+                     "rig_operational": operational})
 
     def truth(self, truth: Truth) -> None:
         self.append({

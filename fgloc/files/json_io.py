@@ -17,10 +17,12 @@ the complete new file.
 from __future__ import annotations
 
 import functools
+import glob
 import json
 import math
 import os
 import tempfile
+import time
 from collections.abc import Callable, Iterable, Mapping
 from importlib import resources
 from pathlib import Path
@@ -232,11 +234,48 @@ def check(doc: Any, schema_name: str, where: str, error: type[Exception], *, def
     raise error(f"{where}: {field}: {problem}")
 
 
+def _temp_is_stale(tmp: Path, prefix: str) -> bool:
+    """A ``PREFIX PID.XXXX.tmp`` file whose writer (PID, on this host) is gone; an old-style name
+    without a pid when it is over an hour old."""
+    pid_text = tmp.name[len(prefix):].split(".", 1)[0]
+    try:
+        if pid_text.isdigit():
+            try:
+                os.kill(int(pid_text), 0)
+            except ProcessLookupError:
+                return True
+            except (PermissionError, OverflowError):
+                return False
+            return False
+        return time.time() - tmp.stat().st_mtime > 3600
+    except OSError:
+        return False
+
+
+def remove_stale_temps(directory: str | os.PathLike[str], name: str = "*") -> list[Path]:
+    """Remove the temporary files of interrupted :func:`write_json_atomic` calls in ``directory``
+    (of file ``name``, or of any file): those whose writing process is gone. Returns them."""
+    removed = []
+    for tmp in Path(directory).glob(f".{name if name == '*' else glob.escape(name)}.*.tmp"):
+        target = tmp.name[1:].rsplit(".", 3)[0] if name == "*" else name
+        if _temp_is_stale(tmp, f".{target}."):
+            try:
+                tmp.unlink()
+                removed.append(tmp)
+            except OSError:
+                pass
+    return removed
+
+
 def write_json_atomic(data: dict, path: str | os.PathLike[str]) -> None:
-    """Write JSON so that ``path`` holds either the old or the complete new content."""
+    """Write JSON so that ``path`` holds either the old or the complete new content.
+
+    The content goes to ``.NAME.PID.XXXX.tmp`` beside ``path`` first; temporary files left
+    by killed writers of ``path`` are removed (:func:`remove_stale_temps`)."""
     target = Path(path)
     target.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
+    remove_stale_temps(target.parent, target.name)
+    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.{os.getpid()}.", suffix=".tmp", dir=target.parent)
     try:
         umask = os.umask(0)
         os.umask(umask)

@@ -18,6 +18,7 @@ from fgloc.camera.intrinsics import CameraIntrinsics
 from fgloc.camera.led_search import SearchConfig
 from fgloc.core.errors import FglocError
 from fgloc.core.model import Gauge, NodeMode
+from fgloc.core.redact import redact_urls
 from fgloc.files.camera_file import read_intrinsics
 from fgloc.files.journal import rig_hash
 from fgloc.files.json_io import check, load_json, show_value
@@ -33,7 +34,10 @@ SIMULATION_FRAMES = ("spot", "rendered")
 
 
 class RigConfigError(FglocError):
-    """A rig.json that does not describe a usable rig."""
+    """A rig.json that does not describe a usable rig. The message never shows a URL's user info."""
+
+    def __init__(self, message: str) -> None:
+        super().__init__(redact_urls(message))
 
 
 @dataclass(frozen=True)
@@ -70,12 +74,17 @@ class MotesConfig:
 
 @dataclass(frozen=True)
 class RetryConfig:
-    """How hard to try before recording a failure."""
+    """How hard to try before recording a failure, and when to give up on a camera.
+
+    ``max_consecutive_misses``: a camera that finds nothing (``not_found``) for this many
+    lit nodes in a row stops the survey (0 = never stop); see docs/survey.md.
+    """
 
     led_attempts: int = 4
     head_attempts: int = 4
     reconnects: int = 3
     backoff_s: float = 0.05
+    max_consecutive_misses: int = 25
 
 
 @dataclass(frozen=True)
@@ -241,6 +250,7 @@ def parse_rig(data: Any, path: str = "rig.json", base: Path | None = None) -> Ri
         head_attempts=int(r.get("head_attempts", rd.head_attempts)),
         reconnects=int(r.get("reconnects", rd.reconnects)),
         backoff_s=float(r.get("backoff_s", rd.backoff_s)),
+        max_consecutive_misses=int(r.get("max_consecutive_misses", rd.max_consecutive_misses)),
     )
 
     sim = top.get("simulation", {})
@@ -282,6 +292,72 @@ def parse_rig(data: Any, path: str = "rig.json", base: Path | None = None) -> Ri
         hash=rig_hash(top),
         raw=top,
     )
+
+
+# -- what a resumed survey may change (docs/survey.md, "Resuming after a rig.json edit")
+_MEANING_TOP = ("format", "nodes", "sigma_deg", "gauge", "repeats", "node_ids")
+_MEANING_CAMERA = ("id", "model", "mounting", "zoom")
+_SCENE = ("seed", "heights", "occlusion", "dead_nodes")
+_INTRINSICS = ("fx", "fy", "cx", "cy", "width", "height", "k1", "k2", "p1", "p2", "k3")
+
+
+def rig_meaning(rig: RigConfig, simulated: bool = False) -> dict[str, Any]:
+    """What the readings of a survey on ``rig`` mean, flat by rig.json field name (JSON values).
+
+    Cameras (ids in order; model, mounting, zoom and the intrinsics' values, wherever
+    they come from), nodes (mode, ids in order, mote addresses), gauge, ``sigma_deg``,
+    ``repeats`` and ``search.method``; for a ``simulated`` survey also the scene
+    (``simulation.seed``, ``heights``, ``occlusion``, ``dead_nodes``), which fixes its truth.
+    A journal recorded with other values cannot be continued. Never holds credentials.
+    """
+    m: dict[str, Any] = {
+        "nodes": rig.mode.value, "sigma_deg": math.degrees(rig.sigma), "gauge.origin": rig.gauge.origin,
+        "gauge.baseline": rig.gauge.baseline, "repeats": rig.repeats, "node_ids": list(rig.node_ids),
+        "cameras": list(rig.camera_ids), "motes.addresses": rig.motes.addresses, "search.method": rig.search.method,
+    }
+    for c in rig.cameras:
+        w = f"cameras[{c.id}]"
+        m |= {f"{w}.model": c.model.lower(), f"{w}.mounting": c.mounting, f"{w}.zoom": c.zoom}
+        m |= {f"{w}.intrinsics.{k}": getattr(c.intrinsics, k) for k in _INTRINSICS}
+    if simulated:
+        sim = rig.simulation
+        m |= {"simulation.seed": sim.seed, "simulation.heights": list(sim.heights),
+              "simulation.occlusion": sim.occlusion, "simulation.dead_nodes": list(sim.dead_nodes)}
+    return m
+
+
+def rig_operational(rig: RigConfig) -> dict[str, Any]:
+    """Every rig.json field :func:`rig_meaning` leaves out, flat (``cameras[cam0].port``,
+    ``retry.backoff_s``): how to reach and drive the rig. URL user info is redacted, so the
+    values can be journaled; a credential change shows only in the full ``rig.hash``."""
+    out: dict[str, Any] = {}
+
+    def put(name: str, value: Any) -> None:
+        if isinstance(value, dict) and value:
+            for k, v in value.items():
+                put(f"{name}.{k}", v)
+        elif isinstance(value, list):
+            out[name] = [redact_urls(v) if isinstance(v, str) else v for v in value]
+        else:
+            out[name] = redact_urls(value) if isinstance(value, str) else value
+
+    for key, value in rig.raw.items():
+        if key in _MEANING_TOP:
+            continue
+        if key == "cameras":
+            for cam in value:
+                w = f"cameras[{cam['id']}]"
+                for k, v in cam.items():
+                    if k not in _MEANING_CAMERA and not (k == "intrinsics" and isinstance(v, dict)):
+                        put(f"{w}.{k}", v)
+        elif isinstance(value, dict):
+            for k, v in value.items():
+                if not ((key, k) == ("motes", "addresses") or (key, k) == ("search", "method")
+                        or (key == "simulation" and k in _SCENE)):
+                    put(f"{key}.{k}", v)
+        else:
+            put(key, value)
+    return out
 
 
 def load_rig(path: str | os.PathLike[str]) -> RigConfig:

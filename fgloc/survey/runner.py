@@ -18,6 +18,11 @@ head is reopened (``open_head``) up to ``retry.reconnects`` times; a camera that
 still fails is journaled ``not_found`` with the error for that node and tried
 again on the next one.
 
+A camera that finds nothing (``not_found``, for any reason) for
+``retry.max_consecutive_misses`` lit nodes in a row stops the survey after that node:
+a ``survey_stopped`` record is journaled and :class:`SurveyStopped` raised (the journal
+stays resumable). 0 turns the rule off.
+
 Live estimates: after each node (once at least five nodes are seen by two
 cameras) an :class:`Estimator` solves the journal so far; the default is the
 batch joint solve. An incremental (iSAM2) estimator can be passed instead.
@@ -143,6 +148,10 @@ class Progress:
     observations: int
     failures: int
     eta_s: float | None
+
+
+class SurveyStopped(FglocError):
+    """A camera found nothing for ``retry.max_consecutive_misses`` nodes in a row; the journal is resumable."""
 
 
 class CameraFailed(Exception):
@@ -287,6 +296,8 @@ class SurveyRunner:
         self._state_lock = threading.Lock()
         self._led_lock = threading.Lock()
         self._node_seconds: list[float] = []
+        self.misses: dict[str, int] = {c: 0 for c in rig.camera_ids}  # consecutive not_found per camera
+        self._last_miss: dict[str, str] = {}
 
     # -- journal helpers: every record also updates the in-memory state the same way replay would
     def _record_observation(self, obs: JournalObservation) -> None:
@@ -362,7 +373,9 @@ class SurveyRunner:
                 }
                 for cam, future in pending.items():
                     reason = future.result()
+                    self.misses[cam] = 0 if reason is None else self.misses[cam] + 1
                     if reason is not None:
+                        self._last_miss[cam] = reason
                         self.journal.not_found(node, cam, reason)
                         st.not_found[(node, cam)] = reason
                         self.stats.not_found += 1
@@ -374,6 +387,22 @@ class SurveyRunner:
                     logger.warning(f"{node}: LED did not acknowledge switching off")
         self.journal.node_done(node)
         st.done.add(node)
+        self._check_misses(node)
+
+    def _check_misses(self, node: str) -> None:
+        """Stop the survey when a camera reached ``retry.max_consecutive_misses`` misses in a row."""
+        limit = self.rig.retry.max_consecutive_misses
+        for cam in self.rig.camera_ids:
+            if limit and self.misses[cam] >= limit:
+                reason = self._last_miss.get(cam, "")
+                self.journal.append({"type": "survey_stopped", "camera": cam, "misses": self.misses[cam],
+                                     "reason": reason})
+                short = " ".join(reason.split())
+                short = short if len(short) <= 120 else short[:117] + "..."
+                raise SurveyStopped(
+                    f"{self.rig.path}: retry.max_consecutive_misses: camera {cam} found nothing for "
+                    f"{self.misses[cam]} nodes in a row (last: {short}); survey stopped after node {node}, "
+                    "journal kept: fix the camera, then run again with --resume")
 
     def estimate(self) -> LiveEstimate | None:
         """Solve the journal so far (None until MIN_SHARED_NODES nodes are seen by two cameras)."""
@@ -412,21 +441,25 @@ class SurveyRunner:
         self.stats.nodes_skipped = len(self.rig.node_ids) - len(todo)
         if self.on_progress is not None:
             self.on_progress(self.progress())
-        with ThreadPoolExecutor(max_workers=len(self.rig.camera_ids), thread_name_prefix="camera") as pool:
-            for k, node in enumerate(todo):
-                t0 = time.perf_counter()
-                self.run_node(node, pool)
-                self.stats.nodes_measured += 1
-                self._node_seconds.append(time.perf_counter() - t0)
-                if (k + 1) % self.live_every == 0 or k + 1 == len(todo):
-                    self.estimate()
-                if self.on_progress is not None:
-                    self.on_progress(self.progress())
-        for w in self.workers.values():
-            try:
-                w.close()
-            except Exception:  # noqa: BLE001 - closing a dead link must not lose the survey
-                pass
+        try:
+            with ThreadPoolExecutor(max_workers=len(self.rig.camera_ids), thread_name_prefix="camera") as pool:
+                for k, node in enumerate(todo):
+                    t0 = time.perf_counter()
+                    try:
+                        self.run_node(node, pool)
+                    finally:
+                        self.stats.nodes_measured += node in self.state.done
+                    self._node_seconds.append(time.perf_counter() - t0)
+                    if (k + 1) % self.live_every == 0 or k + 1 == len(todo):
+                        self.estimate()
+                    if self.on_progress is not None:
+                        self.on_progress(self.progress())
+        finally:
+            for w in self.workers.values():
+                try:
+                    w.close()
+                except Exception:  # noqa: BLE001 - closing a dead link must not lose the survey
+                    pass
         return journal_to_survey(self.state)
 
 

@@ -5,11 +5,19 @@ besides the CLI that opens drivers. Output directory layout:
 
 * ``journal.jsonl`` - the append-only journal (the primary record);
 * ``survey.json``   - derived from the journal after every run (atomic write);
-* ``estimate.json`` - the last live estimate as a result.json (when one exists).
+* ``estimate.json`` - the last live estimate as a result.json (when one exists);
+* ``survey.lock``   - held (``flock``) by the one process surveying into the directory.
+
+A run, in order (docs/survey.md): lock the directory (:mod:`fgloc.survey.lock`; a second
+survey is refused), remove temporary files of killed atomic writes, check the rig.json
+alone (:func:`fgloc.survey.preflight.check_rig`), check that the journal may be started or
+continued with this rig (:mod:`fgloc.survey.resume`), open the devices and check each one
+without moving it (:func:`fgloc.survey.preflight.check_devices`), then survey.
 """
 
 from __future__ import annotations
 
+import logging
 import os
 from collections.abc import Callable
 from dataclasses import dataclass, replace
@@ -18,10 +26,17 @@ from pathlib import Path
 from fgloc.core.errors import FglocError
 from fgloc.core.hardware import LedController, PanTiltHead
 from fgloc.core.model import Survey
-from fgloc.files.journal import JournalHeader, JournalWriter, journal_to_survey, read_journal
-from fgloc.files.rig_config import RigConfig
+from fgloc.core.redact import redact_urls
+from fgloc.files.journal import JournalHeader, JournalState, JournalWriter, journal_to_survey, read_journal
+from fgloc.files.json_io import remove_stale_temps
+from fgloc.files.rig_config import RigConfig, rig_meaning, rig_operational
 from fgloc.files.survey_result import write_result, write_survey
-from fgloc.survey.runner import Estimator, LiveEstimate, Progress, SurveyRunner
+from fgloc.survey.lock import SurveyLock
+from fgloc.survey.preflight import PreflightError, check_devices, check_rig
+from fgloc.survey.resume import resume_change
+from fgloc.survey.runner import Estimator, LiveEstimate, Progress, SurveyRunner, SurveyStopped
+
+logger = logging.getLogger(__name__)
 
 JOURNAL_NAME = "journal.jsonl"
 SURVEY_NAME = "survey.json"
@@ -36,6 +51,7 @@ class OpenedRig:
     leds: LedController
     simulated: object | None = None  # the simulated rig, when simulating
     close: Callable[[], None] = lambda: None
+    check_devices: bool = False  # open, read and grab from every camera before the survey (preflight)
 
 
 def open_simulated(rig: RigConfig) -> OpenedRig:
@@ -45,7 +61,8 @@ def open_simulated(rig: RigConfig) -> OpenedRig:
 
         twins = ViscaTwinRig(rig)
         assert twins.leds is not None  # the constructor started the base-station twin
-        return OpenedRig(open_head=twins.open_head, leds=twins.leds, simulated=twins, close=twins.close)
+        return OpenedRig(open_head=twins.open_head, leds=twins.leds, simulated=twins, close=twins.close,
+                         check_devices=True)
     from fgloc.drivers.inprocess_rig import InProcessRig
 
     sim = InProcessRig(rig)
@@ -65,31 +82,62 @@ def open_hardware(rig: RigConfig) -> OpenedRig:
         return open_head(cam.port, HeadOptions(camera_model=cam.model, mount=cam.mounting, address=cam.address,
                                                video=cam.video, reply_port=cam.reply_port))
 
-    leds = open_leds(rig.motes.port, rig.motes.addresses)
-    return OpenedRig(open_head=open_camera, leds=leds, close=getattr(leds, "close", lambda: None))
+    try:
+        leds = open_leds(rig.motes.port, rig.motes.addresses)
+    except Exception as exc:  # noqa: BLE001 - any driver error is one line naming the base station
+        text = " ".join(str(exc).split()) or type(exc).__name__
+        raise PreflightError(f"{rig.path}: motes.port: base station ({rig.motes.driver}) cannot be opened: "
+                             f"{type(exc).__name__}: {text}") from None
+    return OpenedRig(open_head=open_camera, leds=leds, close=getattr(leds, "close", lambda: None),
+                     check_devices=True)
+
+
+def _existing_journal(rig: RigConfig, out_dir: str | os.PathLike[str], resume: bool) -> JournalState | None:
+    """The journal to continue (None: start a new one); refuses a journal without --resume."""
+    path = Path(out_dir) / JOURNAL_NAME
+    if not path.exists() or path.stat().st_size == 0:
+        return None
+    if not resume:
+        raise FglocError(f"{path}: journal already exists (use --resume to continue it, or another -o)")
+    try:
+        return read_journal(path)
+    except FglocError as exc:
+        if "no complete header" not in str(exc):
+            raise
+        return None  # killed while creating it: start over
+
+
+def check_journal(rig: RigConfig, out_dir: str | os.PathLike[str], resume: bool, simulated: bool) -> None:
+    """Refuse, before any device is opened, what :func:`start_journal` would refuse."""
+    state = _existing_journal(rig, out_dir, resume)
+    if state is not None:
+        resume_change(rig, state, Path(out_dir) / JOURNAL_NAME, simulated)
 
 
 def start_journal(rig: RigConfig, out_dir: str | os.PathLike[str], resume: bool, simulated: object | None = None):
-    """Create or reopen ``out_dir/journal.jsonl``; checks a resumed journal belongs to this rig."""
+    """Create or reopen ``out_dir/journal.jsonl``; a resumed journal must belong to this rig
+    (operational rig.json changes are accepted and journaled, see :mod:`fgloc.survey.resume`)."""
     path = Path(out_dir) / JOURNAL_NAME
-    if resume and path.exists():
+    if _existing_journal(rig, out_dir, resume) is not None:
+        writer, state = JournalWriter.open_existing(path)
         try:
-            writer, state = JournalWriter.open_existing(path)
-        except FglocError as exc:
-            if "no complete header" not in str(exc):
-                raise
-        else:
-            if state.header.rig_hash != rig.hash:
-                writer.close()
-                raise FglocError(f"{path}: header.rig_hash: journal was recorded with a different {rig.path}")
-            if simulated is not None and state.truth is None:  # killed before the truth record
-                writer.truth(simulated.scene.truth)  # type: ignore[attr-defined]
-                state.truth = simulated.scene.truth  # type: ignore[attr-defined]
-            return writer, state
-    elif path.exists() and path.stat().st_size > 0 and not resume:
-        raise FglocError(f"{path}: journal already exists (use --resume to continue it, or another -o)")
+            change = resume_change(rig, state, path, simulated is not None)
+        except BaseException:
+            writer.close()
+            raise
+        if change is not None:
+            changed, operational = change
+            writer.rig_changed(rig.hash, changed, operational)
+            state.rig_changes.append({"type": "rig_changed", "rig_hash": rig.hash, "changed": changed,
+                                      "rig_operational": operational})
+            logger.warning(redact_urls(f"{rig.path}: resuming with changed {', '.join(changed)} (journaled)"))
+        if simulated is not None and state.truth is None:  # killed before the truth record
+            writer.truth(simulated.scene.truth)  # type: ignore[attr-defined]
+            state.truth = simulated.scene.truth  # type: ignore[attr-defined]
+        return writer, state
     header = JournalHeader(rig.mode, rig.gauge, rig.sigma, rig.camera_ids, rig.node_ids, rig.hash,
-                           {"rig": str(rig.path), "simulated": simulated is not None})
+                           {"rig": str(rig.path), "simulated": simulated is not None},
+                           rig_meaning(rig, simulated is not None), rig_operational(rig))
     writer = JournalWriter.create(path, header)
     if simulated is not None:
         writer.truth(simulated.scene.truth)  # type: ignore[attr-defined]
@@ -113,25 +161,37 @@ def run_survey(
     What goes wrong along the way (LED or camera failures, failed live estimates) is logged
     on the ``fgloc.survey.runner`` logger; ``on_progress`` is called before the first node
     and after every node."""
-    own = opened is None
-    opened = opened or (open_simulated(rig) if simulate else open_hardware(rig))
-    try:
-        writer, state = start_journal(rig, out_dir, resume, opened.simulated)
+    check_rig(rig, simulate)
+    with SurveyLock(out_dir):
+        remove_stale_temps(out_dir)
+        own = opened is None
+        check_journal(rig, out_dir, resume, simulate if opened is None else opened.simulated is not None)
+        opened = opened or (open_simulated(rig) if simulate else open_hardware(rig))
+        stopped: SurveyStopped | None = None
         try:
-            runner = SurveyRunner(rig, opened.open_head, opened.leds, writer, state, estimator=estimator,
-                                  live_every=live_every, on_estimate=on_estimate, on_progress=on_progress)
-            survey = runner.run()
+            if opened.check_devices:
+                check_devices(rig, opened.open_head)
+            writer, state = start_journal(rig, out_dir, resume, opened.simulated)
+            try:
+                runner = SurveyRunner(rig, opened.open_head, opened.leds, writer, state, estimator=estimator,
+                                      live_every=live_every, on_estimate=on_estimate, on_progress=on_progress)
+                try:
+                    survey = runner.run()
+                except SurveyStopped as exc:
+                    stopped, survey = exc, journal_to_survey(runner.state)
+            finally:
+                writer.close()
         finally:
-            writer.close()
-    finally:
-        if own:
-            opened.close()
-    write_survey(survey, Path(out_dir) / SURVEY_NAME)
-    if runner.latest is not None:
-        try:
-            write_result(runner.latest.result, Path(out_dir) / ESTIMATE_NAME)
-        except ValueError:  # non-finite solver statistics (e.g. an incremental solver's NaN costs)
-            write_result(replace(runner.latest.result, stats=None), Path(out_dir) / ESTIMATE_NAME)
+            if own:
+                opened.close()
+        write_survey(survey, Path(out_dir) / SURVEY_NAME)
+        if runner.latest is not None:
+            try:
+                write_result(runner.latest.result, Path(out_dir) / ESTIMATE_NAME)
+            except ValueError:  # non-finite solver statistics (e.g. an incremental solver's NaN costs)
+                write_result(replace(runner.latest.result, stats=None), Path(out_dir) / ESTIMATE_NAME)
+    if stopped is not None:
+        raise stopped
     return survey, runner
 
 
