@@ -177,23 +177,27 @@ def decode_view(
         bits[is_on] = 1
         bits[is_off] = 0
         on_f = flux[is_on]
-        if on_f.size >= cfg.min_on_samples:
-            spread = 1.4826 * float(np.median(np.abs(on_f - np.median(on_f)))) / amp
-            ys, xs = np.mgrid[-r:r + 1, -r:r + 1]
-            wts = np.clip(big[is_on][:, 4:-4, 4:-4] - bgk[is_on][:, None, None], 0.0, None)
-            tot = wts.sum(axis=(1, 2))
-            us = (wts * xs).sum(axis=(1, 2)) / tot + cu
-            vs = (wts * ys).sum(axis=(1, 2)) / tot + cv
-            cspread = float(np.hypot(1.4826 * np.median(np.abs(us - np.median(us))),
-                                     1.4826 * np.median(np.abs(vs - np.median(vs)))))
-            if spread > cfg.max_on_spread or cspread > cfg.max_centroid_spread_px:
-                refused.append(RefusedBlob(cand.u, cand.v, "ambiguous",
-                                           f"on frames vary (flux spread {spread:.2f}, centroid spread "
-                                           f"{cspread:.2f} px): LEDs closer than the detector separates"))
-                continue
-        else:
+        lit = valid & (flux > off + cfg.level_band * amp)  # any frame with light, partial ones too
+        if on_f.size < cfg.min_on_samples:
             refused.append(RefusedBlob(cand.u, cand.v, "rejected", f"only {on_f.size} on samples"))
             continue
+        ys, xs = np.mgrid[-r:r + 1, -r:r + 1]
+        wts = np.clip(big[lit][:, 4:-4, 4:-4] - bgk[lit][:, None, None], 0.0, None)
+        tot = np.maximum(wts.sum(axis=(1, 2)), 1e-9)
+        us_all = (wts * xs).sum(axis=(1, 2)) / tot + cu
+        vs_all = (wts * ys).sum(axis=(1, 2)) / tot + cv
+        cspread = float(np.hypot(1.4826 * np.median(np.abs(us_all - np.median(us_all))),
+                                 1.4826 * np.median(np.abs(vs_all - np.median(vs_all)))))
+        bright = flux[lit] >= off + 0.6 * amp  # centroids of bright frames are precise: one outlier counts
+        dev = np.hypot(us_all - np.median(us_all), vs_all - np.median(vs_all))
+        cmax = float(np.max(dev[bright])) if bright.any() else 0.0
+        spread = 1.4826 * float(np.median(np.abs(on_f - np.median(on_f)))) / amp
+        if spread > cfg.max_on_spread or cspread > cfg.max_centroid_spread_px or cmax > 3 * cfg.max_centroid_spread_px:
+            refused.append(RefusedBlob(cand.u, cand.v, "ambiguous",
+                                       f"lit frames vary (flux spread {spread:.2f}, centroid spread {cspread:.2f} px,"
+                                       f" max {cmax:.2f} px): LEDs closer than the detector separates"))
+            continue
+        us, vs = us_all[is_on[lit]], vs_all[is_on[lit]]
         length = book.length
         word_bits = np.full(length, -1, dtype=np.int8)
         conflict = False

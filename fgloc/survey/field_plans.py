@@ -192,10 +192,10 @@ def coded_survey_time(
                      frames_per_view, sum(len(v) for v in refine_views.values()))
 
 
-def frames_for(code_length: int, drop_rate: float = 0.05) -> int:
-    """Frames per view: two code periods (every bit read twice) plus a margin for drops."""
-    base = 2 * code_length
-    return base + math.ceil(2.0 * drop_rate * base) + 2
+def frames_for(code_length: int) -> int:
+    """Frames per view: three code periods (each bit read three times, so ~9 % erased
+    samples from drops and repeats rarely erase a bit completely) plus two."""
+    return 3 * code_length + 2
 
 
 def close_motes(pan_tilt: np.ndarray, pixel_angle: float, separation_px: float) -> np.ndarray:
