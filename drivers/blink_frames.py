@@ -124,12 +124,12 @@ def render_view(
     if motes:
         pts = np.array([m.position for m in motes], dtype=float)
         uv, front = base_to_pixel(intr, camera.base_directions(pts), pan, tilt)
-        for k in np.flatnonzero(front & in_image(intr, uv, -10.0)):
+        for k in np.flatnonzero(front & in_image(intr, uv, -10.0)).tolist():
             flux = c.led_flux * motes[k].on_fraction(t, c.exposure_s)
             spots.append((float(uv[k, 0]), float(uv[k, 1]), flux, c.led_sigma_px))
     if statics is not None and len(statics):
         uv, front = base_to_pixel(intr, camera.base_directions(np.asarray(statics, float)), pan, tilt)
-        for k in np.flatnonzero(front & in_image(intr, uv, -10.0)):
+        for k in np.flatnonzero(front & in_image(intr, uv, -10.0)).tolist():
             phase = rng.uniform(0.0, 2.0 * math.pi)
             flux = c.static_flux * _flicker_mean(t, c.exposure_s, 2.0 * c.mains_hz, c.flicker_depth, phase)
             spots.append((float(uv[k, 0]), float(uv[k, 1]), flux, c.static_sigma_px))

@@ -201,7 +201,7 @@ def decode_view(
         length = book.length
         word_bits = np.full(length, -1, dtype=np.int8)
         conflict = False
-        for i in np.flatnonzero(bits >= 0):
+        for i in np.flatnonzero(bits >= 0).tolist():
             p = i % length
             if word_bits[p] == -1:
                 word_bits[p] = bits[i]
@@ -223,11 +223,11 @@ def decode_view(
         sig = max(sig, cand.sigma_px / math.sqrt(max(us.size, 1)))
         p_, t_ = pixel_to_pan_tilt(intr, np.array([u, v]), head_pan, head_tilt)
         decoded.append((DecodedReading(hit[0], u, v, sig, float(p_), float(t_), int(us.size)), hit[0]))
-    counts = Counter(i for _, i in decoded)
+    counts = Counter(code for _, code in decoded)
     readings = []
-    for rd, i in decoded:
-        if counts[i] > 1:
-            refused.append(RefusedBlob(rd.u, rd.v, "duplicate", f"code {i} decoded from {counts[i]} blobs"))
+    for rd, code in decoded:
+        if counts[code] > 1:
+            refused.append(RefusedBlob(rd.u, rd.v, "duplicate", f"code {code} decoded from {counts[code]} blobs"))
         else:
             readings.append(rd)
     return ViewDecode(tuple(readings), tuple(refused), n, int(n - valid.sum()))

@@ -129,7 +129,8 @@ def sequential_survey_time(
             h.ops, h.centring = [], False
             b = bearings[c][j]
             h.target = None if not np.all(np.isfinite(b)) else np.asarray(b, float)
-            start = last[c] if last[c] is not None else (0.5 * (search[c].pan_min + search[c].pan_max), 0.0)
+            prev = last[c]
+            start = prev if prev is not None else (0.5 * (search[c].pan_min + search[c].pan_max), 0.0)
             got = locators[c].locate(lambda op, h=h: op(h), start)  # type: ignore[misc]
             if got is None:
                 missing += 1

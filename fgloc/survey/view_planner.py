@@ -73,7 +73,7 @@ def plan_views(
         todo &= ~cov[best]
     order: list[tuple[float, float]] = []
     here = pan_tilt_bearing(*start)
-    left = [tuple(map(float, cand[i])) for i in chosen]
+    left = [(float(cand[i, 0]), float(cand[i, 1])) for i in chosen]
     while left:
         d = [math.acos(min(1.0, float(pan_tilt_bearing(*v) @ here))) for v in left]
         k = int(np.argmin(d))
