@@ -1,0 +1,113 @@
+"""The blink-code command: start (or stop) a mote's coded LED sequence, as a TinyOS Active Message.
+
+**Command**, PC -> node, AM type ``0x8B`` (:data:`AM_BLINK_CODE`), dest = node address,
+payload 10 bytes, multi-byte fields big-endian (``nx_`` types)::
+
+    offset size field
+    0      1    command      0x00 stop (LED off), 0x01 start
+    1      1    length       code length L in bits, 8..32 (0 with stop)
+    2      4    code         the code word in the low L bits; bit L-1 is sent first
+    6      2    bit_period   one bit lasts bit_period x 10 us (e.g. 3337 = 33.37 ms,
+                             one NTSC frame); 0 with stop
+    8      2    cycles       how many times the word is repeated, 0 = until stopped
+
+The node repeats the word from the moment the command arrives, LED on for a 1 bit,
+and confirms with a **blink report**, node -> PC, AM type ``0x8C``
+(:data:`AM_BLINK_REPORT`), dest 0xFFFF, src = node, payload 8 bytes: node address (2),
+state (0x00 stopped, 0x01 running), length (1), code (4), so the base station knows
+that the node runs the right word. Start times need no coordination: the code book
+(:mod:`fgloc.camera.blink_codes`) is rotation-free.
+
+Example (protocols.md 3.4 framing): start node 5 with the 16-bit word 0x0A5F at
+33.37 ms per bit until stopped, seq 0x01::
+
+    AM packet  00 00 05 00 00 0A 22 8B 01 10 00 00 0A 5F 0D 09 00 00
+    on wire    7E 44 01 <the packet> 25 4A 7E   (CRC-16/XMODEM 0x4A25, low byte first)
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from fgloc.drivers.tinyos.errors import MoteProtocolError
+from fgloc.drivers.tinyos.messages import AM_BROADCAST, DEFAULT_GROUP, AmPacket
+
+AM_BLINK_CODE = 0x8B
+AM_BLINK_REPORT = 0x8C
+BLINK_STOP, BLINK_START = 0x00, 0x01
+MAX_CODE_BITS = 32
+BIT_PERIOD_UNIT_S = 1e-5
+
+
+@dataclass(frozen=True)
+class BlinkCommand:
+    """A blink-code command: ``start`` or stop, code word ``code`` of ``length`` bits,
+    ``bit_period_s`` seconds per bit (10 us resolution), ``cycles`` repeats (0 = forever)."""
+
+    start: bool
+    length: int = 0
+    code: int = 0
+    bit_period_s: float = 0.0
+    cycles: int = 0
+
+    def payload(self) -> bytes:
+        """The 10-byte payload (see the module docstring)."""
+        if not self.start:
+            return bytes(10)
+        if not 8 <= self.length <= MAX_CODE_BITS:
+            raise ValueError(f"code length {self.length} not in 8..{MAX_CODE_BITS}")
+        if not 0 <= self.code < (1 << self.length):
+            raise ValueError(f"code {self.code:#x} does not fit in {self.length} bits")
+        period = round(self.bit_period_s / BIT_PERIOD_UNIT_S)
+        if not 1 <= period <= 0xFFFF:
+            raise ValueError(f"bit period {self.bit_period_s} s not in 10 us .. 655.35 ms")
+        if not 0 <= self.cycles <= 0xFFFF:
+            raise ValueError(f"cycles {self.cycles} not in 0..65535")
+        return (bytes([BLINK_START, self.length]) + self.code.to_bytes(4, "big")
+                + period.to_bytes(2, "big") + self.cycles.to_bytes(2, "big"))
+
+    @staticmethod
+    def from_payload(payload: bytes) -> BlinkCommand:
+        """Inverse of :meth:`payload`; MoteProtocolError on a malformed payload."""
+        if len(payload) != 10 or payload[0] not in (BLINK_STOP, BLINK_START):
+            raise MoteProtocolError(f"not a blink command payload: {payload.hex(' ')}")
+        if payload[0] == BLINK_STOP:
+            return BlinkCommand(start=False)
+        length = payload[1]
+        code = int.from_bytes(payload[2:6], "big")
+        period = int.from_bytes(payload[6:8], "big")
+        if not 8 <= length <= MAX_CODE_BITS or code >> length or period == 0:
+            raise MoteProtocolError(f"blink command: bad length/code/period: {payload.hex(' ')}")
+        return BlinkCommand(True, length, code, period * BIT_PERIOD_UNIT_S, int.from_bytes(payload[8:10], "big"))
+
+
+def blink_command(node: int, command: BlinkCommand, src: int = 0, group: int = DEFAULT_GROUP) -> AmPacket:
+    """The AM packet carrying ``command`` to node address ``node``."""
+    return AmPacket(dest=node, src=src, am_type=AM_BLINK_CODE, payload=command.payload(), group=group)
+
+
+def parse_blink_command(packet: AmPacket) -> BlinkCommand | None:
+    """The command in ``packet``, or None when it is not a (well-formed) blink command."""
+    if packet.am_type != AM_BLINK_CODE:
+        return None
+    try:
+        return BlinkCommand.from_payload(packet.payload)
+    except MoteProtocolError:
+        return None
+
+
+def blink_report(node: int, running: bool, length: int, code: int, group: int = DEFAULT_GROUP) -> AmPacket:
+    """The report a node sends after a blink command (used by the twin and tests)."""
+    payload = node.to_bytes(2, "big") + bytes([0x01 if running else 0x00, length]) + code.to_bytes(4, "big")
+    return AmPacket(dest=AM_BROADCAST, src=node, am_type=AM_BLINK_REPORT, payload=payload, group=group)
+
+
+def parse_blink_report(packet: AmPacket) -> tuple[int, bool, int, int] | None:
+    """(node, running, length, code) from a blink report, or None if the packet is not one."""
+    p = packet.payload
+    if packet.am_type != AM_BLINK_REPORT or len(p) != 8 or p[2] not in (0x00, 0x01):
+        return None
+    node = int.from_bytes(p[0:2], "big")
+    if node != packet.src:
+        return None
+    return node, p[2] == 0x01, p[3], int.from_bytes(p[4:8], "big")

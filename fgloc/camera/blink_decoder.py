@@ -1,0 +1,233 @@
+"""Decode the blink codes of every mote in one view: IDs, sub-pixel centroids, (pan, tilt).
+
+Input: the frames one camera recorded with its head still at a read-back (pan, tilt),
+each with a timestamp (seconds), at a nominal frame period equal to the motes' bit
+period, and the :class:`~fgloc.camera.blink_codes.CodeBook`. Steps:
+
+1. **Samples.** Each frame's timestamp gives its sample index ``round((t - t_first) /
+   period)``; a missing index (dropped frame) is an erasure, a second frame on one index
+   is ignored, and a frame identical to the previous delivered one (a grabber repeating a
+   stale buffer) is an erasure.
+2. **Blobs.** The per-pixel maximum and minimum over the stack are compared with
+   :func:`fgloc.camera.led_detection.detect_led` (on = max, off = min): static scene and
+   static lights cancel; everything that changed is a candidate blob.
+3. **Levels.** Per frame, each blob's flux is the sum over a small aperture minus the
+   aperture's share of the median of a surrounding annulus (a global ambient change
+   cancels). The fluxes are split into an off and an on level (two-means); the on-off
+   amplitude must exceed ``min_snr`` flux sigmas, the off level must be that of the
+   background (a flickering lamp never goes dark; an LED does), and each sample within
+   ``level_band`` x amplitude of its level is a bit, anything between is an erasure.
+4. **Word.** With L the book's length, samples ``i`` and ``i + L`` carry the same bit:
+   every bit position needs at least one sample, and all samples of a position must
+   agree. The folded word must equal a rotation of a book word **exactly**; with a
+   book distance of 3, up to two bit errors are detected, never corrected.
+5. **Refusals.** A blob whose on-frame fluxes or centroids vary more than one LED's
+   can (two LEDs closer than the detector separates) is reported *ambiguous*. An ID
+   decoded from two blobs is reported *duplicate* for both. Unknown words, conflicts
+   and incomplete words are *rejected* with the reason. Nothing is ever guessed.
+6. **Angles.** The decoded centroid (mean over on frames) becomes (pan, tilt) by the
+   exact composition :func:`fgloc.camera.pixel_angles.pixel_to_pan_tilt`.
+
+Pixels: OpenCV convention (centre of the top-left pixel is (0, 0)); angles radians.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from fgloc.camera.blink_codes import CodeBook, word_of
+from fgloc.camera.intrinsics import CameraIntrinsics
+from fgloc.camera.led_detection import DetectorConfig, detect_led, to_gray
+from fgloc.camera.pixel_angles import pixel_to_pan_tilt
+
+
+@dataclass(frozen=True)
+class DecoderConfig:
+    """Decoder thresholds (pixels, flux sigmas, fractions of the on-off amplitude)."""
+
+    min_snr: float = 12.0  #: on-off amplitude in flux-noise sigmas
+    level_band: float = 0.3  #: a sample within this x amplitude of a level is that bit
+    max_off_level: float = 0.2  #: off level over amplitude above which the blob is no LED
+    max_on_spread: float = 0.2  #: robust spread of on fluxes over amplitude (one LED)
+    max_centroid_spread_px: float = 0.35  #: robust spread of on-frame centroids (one LED)
+    min_on_samples: int = 3
+    detector: DetectorConfig = DetectorConfig(max_blobs=5000, max_elongation=2.0)
+
+
+@dataclass(frozen=True)
+class DecodedReading:
+    """One identified mote: book ``index``, centroid (u, v) px with sigma, and (pan, tilt) rad."""
+
+    index: int
+    u: float
+    v: float
+    sigma_px: float
+    pan: float
+    tilt: float
+    on_samples: int
+
+
+@dataclass(frozen=True)
+class RefusedBlob:
+    """A blob that yields no reading: ``kind`` is ambiguous, duplicate or rejected."""
+
+    u: float
+    v: float
+    kind: str
+    reason: str
+
+
+@dataclass(frozen=True)
+class ViewDecode:
+    """Everything one view gave: readings, refusals, and the sample count (with erasures)."""
+
+    readings: tuple[DecodedReading, ...]
+    refused: tuple[RefusedBlob, ...]
+    samples: int
+    erased: int
+
+    def ambiguous(self) -> list[RefusedBlob]:
+        return [r for r in self.refused if r.kind == "ambiguous"]
+
+
+def sample_stack(frames: Sequence[tuple[float, np.ndarray]], period: float) -> tuple[np.ndarray, np.ndarray]:
+    """(stack (N, H, W) float32 with NaN-free zeros for erased samples, valid (N,) bool)."""
+    if not frames:
+        return np.zeros((0, 0, 0), np.float32), np.zeros(0, bool)
+    t0 = frames[0][0]
+    idx = [int(round((t - t0) / period)) for t, _ in frames]
+    n = max(idx) + 1
+    first = to_gray(frames[0][1])
+    stack = np.zeros((n, *first.shape), np.float32)
+    valid = np.zeros(n, bool)
+    previous: np.ndarray | None = None
+    for k, (_, img) in zip(idx, frames):
+        same = previous is not None and previous.shape == img.shape and np.array_equal(previous, img)
+        previous = img
+        if k < 0 or valid[k] or same:
+            continue
+        stack[k] = to_gray(img)
+        valid[k] = True
+    return stack, valid
+
+
+def _two_means(x: np.ndarray) -> tuple[float, float]:
+    lo, hi = float(x.min()), float(x.max())
+    for _ in range(20):
+        mid = 0.5 * (lo + hi)
+        a, b = x[x <= mid], x[x > mid]
+        if a.size == 0 or b.size == 0:
+            break
+        nlo, nhi = float(np.median(a)), float(np.median(b))
+        if nlo == lo and nhi == hi:
+            break
+        lo, hi = nlo, nhi
+    return lo, hi
+
+
+def decode_view(
+    frames: Sequence[tuple[float, np.ndarray]], period: float, book: CodeBook, intr: CameraIntrinsics,
+    head_pan: float, head_tilt: float, config: DecoderConfig | None = None,
+) -> ViewDecode:
+    """Decode every mote in ``frames`` (see the module docstring)."""
+    cfg = config or DecoderConfig()
+    stack, valid = sample_stack(frames, period)
+    n = int(valid.size)
+    if valid.sum() < book.length:
+        return ViewDecode((), (), n, int(n - valid.sum()))
+    good = stack[valid]
+    det = detect_led(good.max(axis=0), good.min(axis=0), cfg.detector)
+    refused: list[RefusedBlob] = [RefusedBlob(b.u, b.v, "ambiguous", f"unresolved blob: {b.reason}")
+                                  for b in det.rejected if "elongation" in b.reason]
+    decoded: list[tuple[DecodedReading, int]] = []
+    h, w = stack.shape[1:]
+    for cand in det.candidates:
+        cu, cv = int(round(cand.u)), int(round(cand.v))
+        r = 3
+        if not (r + 4 <= cu < w - r - 4 and r + 4 <= cv < h - r - 4):
+            refused.append(RefusedBlob(cand.u, cand.v, "rejected", "too close to the image border"))
+            continue
+        big = stack[:, cv - r - 4: cv + r + 5, cu - r - 4: cu + r + 5]
+        yy, xx = np.mgrid[-r - 4: r + 5, -r - 4: r + 5]
+        ring = (np.maximum(abs(yy), abs(xx)) > r + 1)
+        core = (np.maximum(abs(yy), abs(xx)) <= r)
+        bgk = np.median(big[:, ring], axis=1)
+        win = big[:, core] - bgk[:, None]
+        flux = win.sum(axis=1)
+        noise = float(det.noise_sigma) * math.sqrt(core.sum() * 2.0)
+        f = flux[valid]
+        off, on = _two_means(f)
+        amp = on - off
+        why = None
+        if amp < cfg.min_snr * noise:
+            why = f"on-off amplitude {amp:.0f} < {cfg.min_snr} x {noise:.1f}"
+        elif abs(off) > cfg.max_off_level * amp + 4.0 * noise:
+            why = f"never dark (off level {off:.0f} of amplitude {amp:.0f}): a flickering light"
+        if why is not None:
+            refused.append(RefusedBlob(cand.u, cand.v, "rejected", why))
+            continue
+        bits = np.full(n, -1, dtype=np.int8)
+        is_on = valid & (np.abs(flux - on) <= cfg.level_band * amp)
+        is_off = valid & (np.abs(flux - off) <= cfg.level_band * amp)
+        bits[is_on] = 1
+        bits[is_off] = 0
+        on_f = flux[is_on]
+        lit = valid & (flux > off + cfg.level_band * amp)  # any frame with light, partial ones too
+        if on_f.size < cfg.min_on_samples:
+            refused.append(RefusedBlob(cand.u, cand.v, "rejected", f"only {on_f.size} on samples"))
+            continue
+        ys, xs = np.mgrid[-r:r + 1, -r:r + 1]
+        wts = np.clip(big[lit][:, 4:-4, 4:-4] - bgk[lit][:, None, None], 0.0, None)
+        tot = np.maximum(wts.sum(axis=(1, 2)), 1e-9)
+        us_all = (wts * xs).sum(axis=(1, 2)) / tot + cu
+        vs_all = (wts * ys).sum(axis=(1, 2)) / tot + cv
+        cspread = float(np.hypot(1.4826 * np.median(np.abs(us_all - np.median(us_all))),
+                                 1.4826 * np.median(np.abs(vs_all - np.median(vs_all)))))
+        bright = flux[lit] >= off + 0.6 * amp  # centroids of bright frames are precise: one outlier counts
+        dev = np.hypot(us_all - np.median(us_all), vs_all - np.median(vs_all))
+        cmax = float(np.max(dev[bright])) if bright.any() else 0.0
+        spread = 1.4826 * float(np.median(np.abs(on_f - np.median(on_f)))) / amp
+        if spread > cfg.max_on_spread or cspread > cfg.max_centroid_spread_px or cmax > 3 * cfg.max_centroid_spread_px:
+            refused.append(RefusedBlob(cand.u, cand.v, "ambiguous",
+                                       f"lit frames vary (flux spread {spread:.2f}, centroid spread {cspread:.2f} px,"
+                                       f" max {cmax:.2f} px): LEDs closer than the detector separates"))
+            continue
+        us, vs = us_all[is_on[lit]], vs_all[is_on[lit]]
+        length = book.length
+        word_bits = np.full(length, -1, dtype=np.int8)
+        conflict = False
+        for i in np.flatnonzero(bits >= 0).tolist():
+            p = i % length
+            if word_bits[p] == -1:
+                word_bits[p] = bits[i]
+            elif word_bits[p] != bits[i]:
+                conflict = True
+        if conflict:
+            refused.append(RefusedBlob(cand.u, cand.v, "rejected", "samples one period apart disagree"))
+            continue
+        if (word_bits < 0).any():
+            refused.append(RefusedBlob(cand.u, cand.v, "rejected",
+                                       f"{int((word_bits < 0).sum())} of {length} bits never read cleanly"))
+            continue
+        hit = book.identify(word_of(word_bits))
+        if hit is None:
+            refused.append(RefusedBlob(cand.u, cand.v, "rejected", "word is no rotation of a book code"))
+            continue
+        u, v = float(np.mean(us)), float(np.mean(vs))
+        sig = float(np.hypot(np.std(us), np.std(vs)) / math.sqrt(max(us.size, 1)))
+        sig = max(sig, cand.sigma_px / math.sqrt(max(us.size, 1)))
+        p_, t_ = pixel_to_pan_tilt(intr, np.array([u, v]), head_pan, head_tilt)
+        decoded.append((DecodedReading(hit[0], u, v, sig, float(p_), float(t_), int(us.size)), hit[0]))
+    counts = Counter(code for _, code in decoded)
+    readings = []
+    for rd, code in decoded:
+        if counts[code] > 1:
+            refused.append(RefusedBlob(rd.u, rd.v, "duplicate", f"code {code} decoded from {counts[code]} blobs"))
+        else:
+            readings.append(rd)
+    return ViewDecode(tuple(readings), tuple(refused), n, int(n - valid.sum()))

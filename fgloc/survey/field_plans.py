@@ -1,0 +1,208 @@
+"""Predicted field time of a sequential and of a coded survey on one rig model (survey clock).
+
+**Sequential** (the runner's procedure, ``fgloc.survey.runner``): per node the LED is
+switched on (one acknowledged radio command), every camera runs the real
+:class:`fgloc.camera.led_search.LedLocator` (look where its last reading was, search
+the grid nearest-first, centre, read back) on a :class:`ClockedHead` that records every
+move, settle, frame and position read instead of moving, then the LED goes off.
+Cameras work in parallel, so a node costs the radio plus its slowest camera.
+
+**Coded** (:mod:`fgloc.camera.blink_codes`): one start command per mote (unicast, each
+mote gets its own word), then every camera records ``frames_per_view`` frames in each
+view of its plan (:mod:`fgloc.survey.view_planner`), all cameras in parallel, then one
+stop broadcast. ``retry_fraction`` of the views are recorded a second time (motes
+missed in the first window); motes too close to separate at the survey zoom are
+recorded again in refinement views at tele zoom (planned like the wide views).
+
+Angles radians, times seconds.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from fgloc.camera.intrinsics import CameraIntrinsics
+from fgloc.camera.led_search import LedLocator, PinholePixelModel, SearchConfig, Spot
+from fgloc.core.geometry import FloatArray, pan_tilt_bearing
+from fgloc.survey.clock import (
+    FieldTime,
+    Frames,
+    Op,
+    PositionRead,
+    Radio,
+    RigTiming,
+    Settle,
+    Slew,
+    Zoom,
+    parallel,
+    price,
+    sum_times,
+)
+
+
+class ClockedHead:
+    """A head that only keeps time: moves are instant in code and priced as clock operations.
+
+    ``grab_frame`` returns a 1x1 placeholder; :meth:`spot_finder` says where the lit
+    target appears (pinhole geometry), so the real search logic runs unchanged.
+    """
+
+    def __init__(self, pixels: PinholePixelModel, margin_px: float = 5.0) -> None:
+        self.pixels = pixels
+        self.margin_px = margin_px
+        self.pan = 0.0
+        self.tilt = 0.0
+        self.ops: list[Op] = []
+        self.target: FloatArray | None = None
+        self.centring = False
+
+    def move_to(self, pan: float, tilt: float) -> None:
+        dpan = math.remainder(pan - self.pan, 2 * math.pi)
+        self.ops += [Slew(dpan, tilt - self.tilt, "centring" if self.centring else "slew"), Settle()]
+        self.pan, self.tilt = pan, tilt
+
+    def position(self) -> tuple[float, float]:
+        self.ops.append(PositionRead())
+        return self.pan, self.tilt
+
+    def set_zoom(self, zoom: float) -> None:
+        pass
+
+    def zoom(self) -> float:
+        return 0.0
+
+    def stop(self) -> None:
+        pass
+
+    def home(self) -> None:
+        self.move_to(0.0, 0.0)
+
+    def grab_frame(self) -> np.ndarray:
+        self.ops.append(Frames(1))
+        return np.zeros((1, 1), np.uint8)
+
+    def spot_finder(self, _frame: np.ndarray) -> Spot | None:
+        if self.target is None:
+            return None
+        px = self.pixels.bearing_to_pixel(self.pan, self.tilt, self.target)
+        k = self.pixels.intrinsics
+        if px is None or not (self.margin_px <= px[0] <= k.width - 1 - self.margin_px
+                              and self.margin_px <= px[1] <= k.height - 1 - self.margin_px):
+            return None
+        self.centring = True  # every move after the first sighting is a centring step
+        return Spot(px[0], px[1], 255.0)
+
+
+@dataclass
+class SequentialTime:
+    """Field time of a sequential survey and its counts."""
+
+    time: FieldTime
+    nodes: int
+    looks: int
+    not_found: int
+    per_camera: dict[str, FieldTime] = field(default_factory=dict)
+
+
+def sequential_survey_time(
+    bearings: dict[str, FloatArray], intr: CameraIntrinsics, search: dict[str, SearchConfig], timing: RigTiming,
+) -> SequentialTime:
+    """Price the sequential survey. ``bearings[camera]`` is (N, 3) base-frame directions of the
+    nodes in survey order (NaN rows: not visible); ``search[camera]`` its search range."""
+    cams = list(bearings)
+    n = len(next(iter(bearings.values())))
+    pixels = PinholePixelModel(intr)
+    heads = {c: ClockedHead(pixels) for c in cams}
+    locators = {c: LedLocator(search[c], pixels, spot_finder=heads[c].spot_finder) for c in cams}
+    last: dict[str, tuple[float, float] | None] = dict.fromkeys(cams)
+    total: list[FieldTime] = []
+    per_cam = {c: FieldTime({}) for c in cams}
+    looks = missing = 0
+    for j in range(n):
+        lanes = []
+        for c in cams:
+            h = heads[c]
+            h.ops, h.centring = [], False
+            b = bearings[c][j]
+            h.target = None if not np.all(np.isfinite(b)) else np.asarray(b, float)
+            prev = last[c]
+            start = prev if prev is not None else (0.5 * (search[c].pan_min + search[c].pan_max), 0.0)
+            got = locators[c].locate(lambda op, h=h: op(h), start)  # type: ignore[misc]
+            if got is None:
+                missing += 1
+            else:
+                last[c] = got
+            looks += sum(isinstance(o, Frames) for o in h.ops)
+            lane = price(h.ops, timing)
+            per_cam[c] = per_cam[c] + lane
+            lanes.append(lane)
+        total.append(price([Radio(unicast=1)], timing) + parallel(lanes) + price([Radio(unicast=1)], timing))
+    return SequentialTime(sum_times(total), n, looks, missing, per_cam)
+
+
+@dataclass
+class CodedTime:
+    """Field time of a coded survey and its counts."""
+
+    time: FieldTime
+    views: dict[str, int]
+    frames_per_view: int
+    refinements: int  #: refinement views (all cameras)
+
+
+def coded_view_ops(views: Sequence[tuple[float, float]], frames_per_view: int, retry_fraction: float,
+                   start: tuple[float, float] = (0.0, 0.0)) -> list[Op]:
+    """Clock operations of one camera visiting ``views`` in order and recording each."""
+    ops: list[Op] = []
+    pan, tilt = start
+    for p, t in views:
+        ops += [Slew(math.remainder(p - pan, 2 * math.pi), t - tilt), Settle(), PositionRead(),
+                Frames(frames_per_view)]
+        pan, tilt = p, t
+    extra = round(retry_fraction * len(views))
+    ops += [Frames(frames_per_view, "frames")] * extra
+    return ops
+
+
+def coded_survey_time(
+    views: dict[str, list[tuple[float, float]]], n_motes: int, frames_per_view: int, timing: RigTiming,
+    retry_fraction: float = 0.0, refine_views: dict[str, list[tuple[float, float]]] | None = None,
+    refine_dzoom: float = 1.0,
+) -> CodedTime:
+    """Price the coded survey (see the module docstring). ``refine_views[camera]`` are the
+    views recorded at zoom ``refine_dzoom`` (fraction of the optical range) after the wide
+    pass, to resolve pairs the wide views could not separate: one zoom in, the views, one
+    zoom out."""
+    refine_views = refine_views or {}
+    lanes = []
+    for cam, vs in views.items():
+        ops = coded_view_ops(vs, frames_per_view, retry_fraction, vs[0] if vs else (0.0, 0.0))
+        rv = refine_views.get(cam, [])
+        if rv:
+            here = vs[-1] if vs else (0.0, 0.0)
+            ops += [Zoom(refine_dzoom, "centring")]
+            ops += [replace(o, phase="centring") for o in coded_view_ops(rv, frames_per_view, 0.0, here)]
+            ops += [Zoom(refine_dzoom, "centring")]
+        lanes.append(price(ops, timing))
+    radio = price([Radio(unicast=n_motes, broadcast=1)], timing)
+    return CodedTime(radio + parallel(lanes), {c: len(v) for c, v in views.items()},
+                     frames_per_view, sum(len(v) for v in refine_views.values()))
+
+
+def frames_for(code_length: int) -> int:
+    """Frames per view: three code periods (each bit read three times, so ~9 % erased
+    samples from drops and repeats rarely erase a bit completely) plus two."""
+    return 3 * code_length + 2
+
+
+def close_motes(pan_tilt: np.ndarray, pixel_angle: float, separation_px: float) -> np.ndarray:
+    """(N,) bool: motes (rows (pan, tilt) rad) with another within ``separation_px`` pixels of
+    ``pixel_angle`` rad/px: the pairs one view at that scale cannot separate."""
+    b = pan_tilt_bearing(pan_tilt[:, 0], pan_tilt[:, 1])
+    ang = np.arccos(np.clip(b @ b.T, -1.0, 1.0))
+    np.fill_diagonal(ang, np.inf)
+    return np.asarray(ang.min(axis=1) < separation_px * pixel_angle)

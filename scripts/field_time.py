@@ -1,0 +1,104 @@
+"""Predicted field time of sequential vs coded surveys (survey clock), 100/1000 motes, 2/4 cameras.
+
+Scene: motes uniform in the unit square on z = 0 (seeded), cameras 0.1 above the
+square's corners ((0,0), (1,0) for two; all four corners for four), each base turned
+towards the square's centre. Both surveys search the same region: the pan-tilt box
+(sequential) or the directions (coded) of the square seen from each camera.
+Camera: 640 x 480, 65 deg horizontal field of view (EVI-D100 wide end).
+
+    OPENBLAS_NUM_THREADS=1 .venv/bin/python scripts/field_time.py [--miss-rate Q] [--head EVI-D100]
+
+``--miss-rate`` is the per-decode miss rate measured by scripts/blink_montecarlo.py;
+a view in which any of its motes is expected to be missed is recorded twice.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+
+import numpy as np
+
+from fgloc.camera.blink_codes import code_book
+from fgloc.camera.intrinsics import CameraIntrinsics
+from fgloc.camera.led_search import SearchConfig
+from fgloc.core.geometry import bearing_pan_tilt, rot_z, world_to_base
+from fgloc.core.model import CameraPose
+from fgloc.survey.clock import HEAD_MODELS, CameraTiming, RigTiming
+from fgloc.survey.field_plans import close_motes, coded_survey_time, frames_for, sequential_survey_time
+from fgloc.survey.view_planner import coverage, plan_views
+
+
+def cameras(n: int, height: float = 0.1) -> dict[str, CameraPose]:
+    corners = [(0.0, 0.0), (1.0, 0.0), (1.0, 1.0), (0.0, 1.0)][:n]
+    out = {}
+    for i, (x, y) in enumerate(corners):
+        yaw = math.atan2(0.5 - y, 0.5 - x)
+        out[f"cam{i}"] = CameraPose(np.array([x, y, height]), rot_z(yaw))
+    return out
+
+
+def field_directions(pose: CameraPose, step: float = 0.01) -> np.ndarray:
+    g = np.arange(0.0, 1.0 + 1e-9, step)
+    xx, yy = np.meshgrid(g, g)
+    pts = np.column_stack([xx.ravel(), yy.ravel(), np.zeros(xx.size)])
+    p, t = bearing_pan_tilt(world_to_base(pose.rotation, pose.position, pts))
+    return np.column_stack([p, t])
+
+
+def run(n_motes: int, n_cams: int, timing: RigTiming, miss_rate: float, seed: int = 0) -> dict[str, float]:
+    rng = np.random.default_rng(seed)
+    nodes = np.column_stack([rng.uniform(0, 1, (n_motes, 2)), np.zeros(n_motes)])
+    intr = CameraIntrinsics.from_fov(640, 480, 65.0)
+    tele = intr.at_zoom(1.0)
+    cams = cameras(n_cams)
+    bearings, searches, views = {}, {}, {}
+    refine: dict[str, list[tuple[float, float]]] = {}
+    book = code_book(n_motes)
+    k = frames_for(book.length)
+    pixel_angle = 1.0 / intr.fx
+    retry_views = 0.0
+    for c, pose in cams.items():
+        d = world_to_base(pose.rotation, pose.position, nodes)
+        bearings[c] = d / np.linalg.norm(d, axis=1, keepdims=True)
+        region = field_directions(pose)
+        searches[c] = SearchConfig(pan_min=float(region[:, 0].min()), pan_max=float(region[:, 0].max()),
+                                   tilt_min=float(region[:, 1].min()), tilt_max=float(region[:, 1].max()))
+        views[c] = plan_views(intr, region)
+        pt = np.column_stack(bearing_pan_tilt(bearings[c]))
+        cov = coverage(intr, pt, np.array(views[c]), 12.0)
+        per_view = cov.sum(axis=1)
+        retry_views += float(np.sum(1.0 - (1.0 - miss_rate) ** per_view)) / max(len(views[c]), 1) / n_cams
+        close = close_motes(pt, pixel_angle, 4.0)
+        refine[c] = plan_views(tele, pt[close], start=views[c][-1]) if close.any() else []
+    seq = sequential_survey_time(bearings, intr, searches, timing)
+    coded = coded_survey_time(views, n_motes, k, timing, retry_fraction=retry_views, refine_views=refine)
+    return {
+        "seq": seq.time.total, "seq_desc": seq.time.describe(), "coded": coded.time.total,  # type: ignore[dict-item]
+        "coded_desc": coded.time.describe(), "views": sum(coded.views.values()) / n_cams,  # type: ignore[dict-item]
+        "L": book.length, "K": k, "refine": coded.refinements, "retry": retry_views, "missing": seq.not_found,
+    }
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--head", default="EVI-D100", choices=sorted(HEAD_MODELS))
+    ap.add_argument("--miss-rate", type=float, default=0.0)
+    ap.add_argument("--fps", type=float, default=30000.0 / 1001.0)
+    args = ap.parse_args()
+    timing = RigTiming(head=HEAD_MODELS[args.head], camera=CameraTiming(frame_rate_hz=args.fps))
+    print(f"head {args.head}, {args.fps:.2f} frames/s, miss rate {args.miss_rate}")
+    print("| motes | cameras | sequential (s) | coded (s) | speed-up | L | frames/view | views/camera | "
+          "refinement views | retried views |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for n in (100, 1000):
+        for c in (2, 4):
+            r = run(n, c, timing, args.miss_rate)
+            print(f"| {n} | {c} | {r['seq']:.1f} | {r['coded']:.1f} | {r['seq'] / r['coded']:.1f}x | {r['L']} | "
+                  f"{r['K']} | {r['views']:.1f} | {r['refine']} | {r['retry']:.2f} |")
+            print(f"|   | sequential phases: {r['seq_desc']} (not found {r['missing']}) |||||||||")
+            print(f"|   | coded phases: {r['coded_desc']} |||||||||")
+
+
+if __name__ == "__main__":
+    main()

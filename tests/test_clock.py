@@ -1,0 +1,62 @@
+"""Survey clock arithmetic against hand-computed cases."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from fgloc.survey.clock import (
+    EVI_D100,
+    AxisModel,
+    CameraTiming,
+    FieldTime,
+    Frames,
+    PositionRead,
+    Radio,
+    RadioTiming,
+    RigTiming,
+    Settle,
+    Slew,
+    parallel,
+    price,
+)
+
+
+def test_trapezoid_long_move_reaches_top_speed() -> None:
+    ax = AxisModel(max_speed=2.0, accel=4.0)  # ramp 0.5 s covering 0.5 rad each way
+    assert ax.move_time(3.0) == pytest.approx(3.0 / 2.0 + 2.0 / 4.0)  # 1.5 cruise-equivalent + 0.5
+
+
+def test_triangle_short_move() -> None:
+    ax = AxisModel(max_speed=2.0, accel=4.0)
+    assert ax.move_time(0.25) == pytest.approx(2.0 * math.sqrt(0.25 / 4.0))  # 0.5 s
+    assert ax.move_time(-0.25) == ax.move_time(0.25)
+    assert ax.move_time(0.0) == 0.0
+    # continuous at the switch-over distance v^2/a = 1 rad: both formulas give 1.0 s
+    assert ax.move_time(1.0) == pytest.approx(1.0)
+
+
+def test_d100_full_pan_sweep() -> None:
+    # 200 deg at 300 deg/s with a 0.2 s ramp: 200/300 + 0.2 = 0.8667 s, plus 0.05 s command
+    t = EVI_D100.slew_time(math.radians(200.0), 0.0)
+    assert t == pytest.approx(200.0 / 300.0 + 0.2 + 0.05)
+    # tilt is the slower axis: 50 deg at 125 deg/s: 0.4 + 0.2 = 0.6 s > pan 10 deg (triangle)
+    assert EVI_D100.slew_time(math.radians(10.0), math.radians(50.0)) == pytest.approx(0.6 + 0.05)
+
+
+def test_price_phases_and_parallel() -> None:
+    timing = RigTiming(head=EVI_D100, camera=CameraTiming(frame_rate_hz=25.0, grab_latency_s=0.04),
+                       radio=RadioTiming(unicast_s=0.03, broadcast_s=0.01))
+    ops = [Slew(math.radians(200.0), 0.0), Settle(), PositionRead(), Frames(10), Radio(unicast=2, broadcast=1)]
+    ft = price(ops, timing)
+    assert ft.phases["slew"] == pytest.approx(200.0 / 300.0 + 0.2 + 0.05)
+    assert ft.phases["settle"] == pytest.approx(0.1)
+    assert ft.phases["position"] == pytest.approx(0.04)
+    assert ft.phases["frames"] == pytest.approx(0.02 + 10 * 0.04 + 0.04)  # half period + 10 + latency
+    assert ft.phases["radio"] == pytest.approx(0.07)
+    assert ft.total == pytest.approx(sum(ft.phases.values()))
+    a, b = FieldTime({"slew": 1.0}), FieldTime({"frames": 2.5})
+    assert parallel([a, b]) is b
+    assert (a + b).total == pytest.approx(3.5)
+    assert price([Frames(0)], timing).total == 0.0
