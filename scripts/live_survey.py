@@ -20,14 +20,8 @@ import sys
 
 from fgloc.core.errors import FglocError
 from fgloc.files.rig_config import load_rig
-from fgloc.survey.runner import (
-    BatchEstimator,
-    IncrementalEstimator,
-    LiveEstimate,
-    Progress,
-    format_estimate,
-    format_progress,
-)
+from fgloc.survey.live import BatchEstimator, IncrementalEstimator, LiveEstimate, format_estimate
+from fgloc.survey.runner import Progress, format_progress
 from fgloc.survey.session import run_survey
 
 

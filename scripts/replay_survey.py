@@ -19,7 +19,7 @@ from dataclasses import replace
 from fgloc.core.errors import FglocError
 from fgloc.files.journal import journal_to_survey, read_journal
 from fgloc.files.survey_result import write_result
-from fgloc.survey.runner import MIN_SHARED_NODES, BatchEstimator, LiveEstimate, format_estimate
+from fgloc.survey.live import MIN_SHARED_NODES, BatchEstimator, LiveEstimate, format_estimate
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -281,7 +281,7 @@ class FakeLocalizer:
 
 
 def test_incremental_estimator_feeds_each_reading_once(tmp_path):
-    from fgloc.survey.runner import IncrementalEstimator
+    from fgloc.survey.live import IncrementalEstimator
 
     FakeLocalizer.instances.clear()
     rig = small_rig(8, occlusion=0.0, dead_nodes=[])
@@ -299,7 +299,7 @@ def test_incremental_estimator_with_isam2_tracks_the_batch_solve(tmp_path):
     then iSAM2's. Truth: the batch solve of the same journal; the live estimate may differ
     only by linearization error, a fraction of each node's sigma."""
     from fgloc.solve.joint import SolverOptions, solve_survey
-    from fgloc.survey.runner import IncrementalEstimator
+    from fgloc.survey.live import IncrementalEstimator
 
     rig = small_rig(20, occlusion=0.0, dead_nodes=[])
     est = IncrementalEstimator()
@@ -345,7 +345,7 @@ def test_incremental_estimator_solves_3d_surveys_in_batch():
     from fgloc.core.model import NodeMode
     from fgloc.sim.scenes import RandomScene, random_scene
     from fgloc.solve.joint import solve_survey
-    from fgloc.survey.runner import IncrementalEstimator
+    from fgloc.survey.live import IncrementalEstimator
 
     survey = random_scene(RandomScene(n_cameras=3, n_nodes=40, mode=NodeMode.THREE_D, seed=3))
     est = IncrementalEstimator()
@@ -368,7 +368,7 @@ class FailingOnceLocalizer(FakeLocalizer):
 def test_a_failing_live_estimate_never_stops_the_survey(tmp_path, caplog):
     """A GTSAM failure inside the incremental estimator is one logged line; the survey goes
     on, and the next estimate starts a new localizer fed every reading once."""
-    from fgloc.survey.runner import IncrementalEstimator
+    from fgloc.survey.live import IncrementalEstimator
 
     FakeLocalizer.instances.clear()
     rig = small_rig(8, occlusion=0.0, dead_nodes=[])
@@ -397,7 +397,7 @@ class DegenerateStartLocalizer(FakeLocalizer):
 
 def test_any_exception_in_a_live_estimate_is_logged_and_the_survey_goes_on(tmp_path, caplog):
     """Only FglocError used to be caught: a ValueError from the start ended the survey (and every resume)."""
-    from fgloc.survey.runner import IncrementalEstimator
+    from fgloc.survey.live import IncrementalEstimator
 
     FakeLocalizer.instances.clear()
     rig = small_rig(8, occlusion=0.0, dead_nodes=[])

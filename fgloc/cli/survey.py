@@ -10,7 +10,8 @@ from fgloc.core.errors import FglocError
 if TYPE_CHECKING:
     from tqdm import tqdm
 
-    from fgloc.survey.runner import LiveEstimate, Progress
+    from fgloc.survey.live import LiveEstimate
+    from fgloc.survey.runner import Progress
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -59,11 +60,7 @@ def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from fgloc.files.rig_config import load_rig
-    from fgloc.survey.runner import (
-        BatchEstimator,
-        IncrementalEstimator,
-        format_estimate,
-    )
+    from fgloc.survey.live import BatchEstimator, IncrementalEstimator, format_estimate
     from fgloc.survey.session import run_survey
 
     if args.live_every < 1:

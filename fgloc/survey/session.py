@@ -31,10 +31,11 @@ from fgloc.files.journal import JournalHeader, JournalState, JournalWriter, jour
 from fgloc.files.json_io import remove_stale_temps
 from fgloc.files.rig_config import RigConfig, rig_meaning, rig_operational
 from fgloc.files.survey_result import write_result, write_survey
+from fgloc.survey.live import Estimator, LiveEstimate
 from fgloc.survey.lock import SurveyLock
 from fgloc.survey.preflight import PreflightError, check_devices, check_rig
 from fgloc.survey.resume import resume_change
-from fgloc.survey.runner import Estimator, LiveEstimate, Progress, SurveyRunner, SurveyStopped
+from fgloc.survey.runner import Progress, SurveyRunner, SurveyStopped
 
 logger = logging.getLogger(__name__)
 
