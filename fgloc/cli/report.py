@@ -21,7 +21,8 @@ def run(args: argparse.Namespace) -> int:
 
     from fgloc.cli._output import StepBar
     from fgloc.core.errors import FglocError
-    from fgloc.evaluate.report import ReportConfig, require_matplotlib, run_experiment, write_report
+    from fgloc.evaluate.report import ReportConfig, run_experiment, write_report
+    from fgloc.evaluate.report_figures import require_matplotlib
 
     require_matplotlib()
     config = ReportConfig.quick() if args.quick else ReportConfig()
