@@ -22,7 +22,7 @@ index  name                unit        meaning
 1      ``collimation``     rad         ``gamma``: line of sight turned toward +pan from the
                                        perpendicular to the tilt axis (pan reads ~ -gamma/cos t)
 2      ``trunnion``        rad         ``tau``: tilt axis rolled about the pointing direction
-                                       (pan reads ~ +-tau tan t)
+                                       (pan reads ~ +tau tan t)
 3      ``pan_scale``       1           ``k_p``: relative pan encoder scale error
 4      ``tilt_scale``      1           ``k_t``: relative tilt encoder scale error
 5      ``lever_y``         survey      ``l_y``: optical centre left of the axes (head frame)

@@ -34,7 +34,7 @@ import numpy as np
 from fgloc.core.errors import FglocError
 from fgloc.core.geometry import FloatArray
 from fgloc.core.head_model import DEFAULT_PRIOR_SIGMAS, HEAD_DIM, HEAD_GROUPS, HEAD_PARAMETERS
-from fgloc.core.model import Result, Survey
+from fgloc.core.model import FlaggedObservation, Result, Survey
 from fgloc.factors.pan_tilt_head_factor import HeadFactorSet, head_prior_factor
 from fgloc.init.start import InitialEstimate
 from fgloc.solve.joint import (
@@ -72,8 +72,12 @@ LR_ALPHA = 0.05
 
 
 def chi2_quantile(p: float, dof: int) -> float:
-    """Chi-square quantile by Wilson-Hilferty (within 1 % of exact for p in [0.9, 0.999], dof >= 1)."""
+    """Chi-square quantile: exact for 1 and 2 dof, Wilson-Hilferty above (within 1 % for p in [0.9, 0.999])."""
+    if dof == 1:
+        return 2.0 * _erfinv(p) ** 2
     z = math.sqrt(2.0) * _erfinv(2.0 * p - 1.0)
+    if dof == 2:
+        return -2.0 * math.log(1.0 - p)
     a = 2.0 / (9.0 * dof)
     return float(dof * (1.0 - a + z * math.sqrt(a)) ** 3)
 
@@ -323,6 +327,36 @@ def head_observability(
     return ranks, data_std
 
 
+#: Order in which AUTO admits parameters when the survey cannot determine them all.
+ADMIT_ORDER = (0, 3, 1, 2, 4, 5, 6)
+
+
+def determinable_subset(
+    survey: Survey, estimate: InitialEstimate, exclude: frozenset[int] = frozenset(),
+    prior_sigmas: FloatArray = DEFAULT_PRIOR_SIGMAS,
+) -> dict[str, tuple[int, ...]]:
+    """A largest set of head parameters with full-rank information, admitted greedily in
+    :data:`ADMIT_ORDER` (camera by camera for each parameter); the rest stay pinned."""
+    all_active = {cid: tuple(range(HEAD_DIM)) for cid in survey.camera_ids if cid in estimate.cameras}
+    problem = build_self_calibration_problem(survey, estimate, all_active, exclude=exclude, with_prior=False)
+    info, labels = head_information(problem, problem.initial)
+    scale = np.array([prior_sigmas[i] for _, i in labels])
+    info_n = info * np.outer(scale, scale)
+    tol = RANK_TOL * max(float(np.max(np.abs(info_n))), 1e-300)
+    chosen: list[int] = []
+    for i in ADMIT_ORDER:
+        for cid in problem.head_keys:
+            r = labels.index((cid, i))
+            trial = chosen + [r]
+            if np.linalg.eigvalsh(info_n[np.ix_(trial, trial)])[0] > tol:
+                chosen = trial
+    out: dict[str, tuple[int, ...]] = {}
+    for r in chosen:
+        cid, i = labels[r]
+        out[cid] = tuple(sorted(out.get(cid, ()) + (i,)))
+    return out
+
+
 @dataclass
 class SelfCalibratedSolve:
     """The extended problem at its optimum: result, head estimates and chi-square of the bearings."""
@@ -358,6 +392,29 @@ def solve_self_calibrated(
     return SelfCalibratedSolve(problem, outcome.values, result, heads, 2.0 * problem.data_error(outcome.values))
 
 
+def _fit_and_flag(
+    survey: Survey, start: InitialEstimate, active: dict[str, tuple[int, ...]], options: SolverOptions,
+    prior_sigmas: FloatArray,
+) -> tuple[SelfCalibratedSolve, frozenset[int], list[FlaggedObservation]]:
+    """Fit with every reading, flag those implausible under the head model (chi-square, 2 dof), refit without.
+
+    Readings the ideal model flags are often only the head errors showing; they are judged again here.
+    """
+    fit = solve_self_calibrated(survey, start, active, options, frozenset(), prior_sigmas)
+    heads = fit.problem.heads
+    assert heads is not None
+    m2 = np.sum((heads.errors(fit.values) * heads.inv_sigmas) ** 2, axis=1)
+    bad = np.flatnonzero(m2 > options.flag_chi2)
+    if len(bad) == 0:
+        return fit, frozenset(), []
+    index = fit.problem.observation_index
+    flagged = [FlaggedObservation(survey.observations[int(index[b])].camera, survey.observations[int(index[b])].node,
+                                  int(index[b]), float(math.sqrt(m2[b]))) for b in bad]
+    exclude = frozenset(int(index[b]) for b in bad)
+    start = estimate_from_values(fit.problem, fit.values)
+    return solve_self_calibrated(survey, start, active, options, exclude, prior_sigmas), exclude, flagged
+
+
 def _report(model: HeadModel, fit: SelfCalibratedSolve | None, survey: Survey, decision: str,
             data_std: dict[str, FloatArray], ranks: dict[str, dict[str, int]]) -> HeadCalibrationReport:
     cams = {}
@@ -380,8 +437,8 @@ def solve_with_head_model(
     """Solve ``survey`` with the ideal, the full or the data-selected head model.
 
     The ideal solve (:func:`fgloc.solve.joint.solve_survey`, outlier flagging
-    included) gives the start and the readings to use; the extended solves leave
-    its flagged readings out. Raises :class:`SelfCalibrationError` when ``FULL``
+    included) gives the start; the extended model judges every reading again
+    (readings the ideal head flags are often the head errors themselves). Raises :class:`SelfCalibrationError` when ``FULL``
     asks for a parameter the survey cannot determine (rank-deficient information).
     """
     ideal = solve_survey(survey, options)
@@ -399,16 +456,21 @@ def solve_with_head_model(
                     f"--head-model full: camera {cid}: the survey cannot determine {', '.join(bad)} "
                     "(Fisher information rank deficient); use --head-model auto")
         active = {cid: tuple(range(HEAD_DIM)) for cid in data_std}
-        fit = solve_self_calibrated(survey, start, active, options, exclude, prior_sigmas)
-        return _finish(fit, ideal, _report(model, fit, survey, "all parameters estimated", data_std, ranks))
-    # AUTO: candidates are the parameters the data determine at all (full-rank information).
-    active = {cid: tuple(i for i in range(HEAD_DIM) if np.isfinite(std[i])) for cid, std in data_std.items()}
-    active = {c: a for c, a in active.items() if a}
+        fit, exclude, flagged = _fit_and_flag(survey, start, active, options, prior_sigmas)
+        return _finish(fit, flagged, _report(model, fit, survey, "all parameters estimated", data_std, ranks))
+    # AUTO: candidates are the parameters the data determine at all (full-rank information);
+    # when the survey cannot determine them all, a largest determinable subset, the rest pinned.
+    if all(np.all(np.isfinite(std)) for std in data_std.values()):
+        active = {cid: tuple(range(HEAD_DIM)) for cid in data_std}
+    else:
+        active = determinable_subset(survey, start, exclude, prior_sigmas)
     k = sum(len(a) for a in active.values())
     if k == 0:
         return ideal, _report(model, None, survey, "ideal head: the survey determines no head parameter", data_std, ranks)
-    chi2_ideal = 2.0 * (ideal.stats.final_error if ideal.stats else float("nan"))
-    fit = solve_self_calibrated(survey, start, active, options, exclude, prior_sigmas)
+    fit, exclude, flagged = _fit_and_flag(survey, start, active, options, prior_sigmas)
+    # The ideal head on the same readings (those the head model judged plausible).
+    chi2_ideal = solve_self_calibrated(survey, start, {}, replace(options, compute_marginals=False), exclude,
+                                       prior_sigmas).chi2
     lr = chi2_ideal - fit.chi2
     threshold = chi2_quantile(1.0 - LR_ALPHA, k)
     if not lr > threshold:
@@ -436,13 +498,13 @@ def solve_with_head_model(
     report = _report(model, fit, survey, f"ideal head rejected (LR {lr:.1f} > {threshold:.1f}, {k} dof); "
                      f"{n_est} parameters on {len(keep)} cameras", data_std, ranks)
     report.lr_statistic, report.lr_threshold = lr, threshold
-    return _finish(fit, ideal, report)
+    return _finish(fit, flagged, report)
 
 
-def _finish(fit: SelfCalibratedSolve, ideal: Result, report: HeadCalibrationReport) -> tuple[Result, HeadCalibrationReport]:
+def _finish(fit: SelfCalibratedSolve, flagged: list[FlaggedObservation],
+            report: HeadCalibrationReport) -> tuple[Result, HeadCalibrationReport]:
     result = fit.result
-    result.flagged = ideal.flagged
-    result.unlocalized.update({k: v for k, v in ideal.unlocalized.items() if k not in result.nodes})
+    result.flagged = flagged
     if result.stats is not None:
         result.stats.method = f"joint, self-calibrating head ({report.model.value})"
     logger.info("%s", report.summary())
