@@ -26,7 +26,7 @@ import numpy as np  # noqa: E402
 from scipy.stats import chi2  # noqa: E402
 
 from fgloc.core.head_model import HEAD_DIM, HEAD_PARAMETERS, HeadCalibration, head_pan_tilt  # noqa: E402
-from fgloc.core.model import NodeMode, Survey  # noqa: E402
+from fgloc.core.model import Survey  # noqa: E402
 from fgloc.evaluate.crlb import cramer_rao_bound  # noqa: E402
 from fgloc.init.start import InitialEstimate  # noqa: E402
 from fgloc.sim.head_errors import inject_head_errors, typical_head_errors  # noqa: E402

@@ -98,8 +98,8 @@ class DriftMonitor:
 
     def check(self) -> DriftCheck:
         """The test on the readings so far."""
-        cov = np.linalg.inv(self._info) if self._n else np.full((2, 2), np.inf)
-        offset = cov @ self._vec if self._n else np.zeros(2)
+        cov: FloatArray = np.asarray(np.linalg.inv(self._info) if self._n else np.full((2, 2), np.inf), dtype=float)
+        offset: FloatArray = cov @ self._vec if self._n else np.zeros(2)
         total = cov + (self._cal_cov_sum / self._n if self._n else 0.0)
         chi2 = float(offset @ np.linalg.solve(total, offset)) if self._n else 0.0
         return DriftCheck(len(self._motes), self._n, offset, cov, chi2, self.threshold, chi2 > self.threshold)
