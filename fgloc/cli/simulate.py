@@ -28,6 +28,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="re-measure per subset: T random subsets of K nodes, each read afresh (--repeats times) "
         "and tagged with its subset index (for fgloc solve --method subset-newton)",
     )
+    p.add_argument(
+        "--head-errors", metavar="SPEC", default=None,
+        help="non-ideal heads: 'typical' (tilt index 0.3 deg, collimation/trunnion 0.2 deg, scales 0.5 %%, "
+        "lever arm 0.0005, random signs) or name=value,... (degrees, percent, baseline units); "
+        "see docs/head-calibration.md",
+    )
     p.set_defaults(run=run)
 
 
@@ -67,6 +73,13 @@ def run(args: argparse.Namespace) -> int:
     from fgloc.sim.scenes import paper_scenario
 
     survey = paper_scenario(scenario_from_args(args))
+    if args.head_errors is not None:
+        import numpy as np
+
+        from fgloc.sim.head_errors import inject_head_errors, parse_head_errors
+
+        heads = parse_head_errors(args.head_errors, survey.camera_ids, np.random.default_rng(args.seed + 1))
+        survey = inject_head_errors(survey, heads)
     write_survey(survey, args.output)
     print(f"wrote {args.output}: {len(survey.node_ids)} nodes, {len(survey.camera_ids)} cameras, "
           f"{len(survey.observations)} observations")

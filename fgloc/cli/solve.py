@@ -21,6 +21,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--subset-size", type=int, default=10, help="subset-newton: nodes per subset (untagged surveys)")
     p.add_argument("--subsets", type=int, default=50, help="subset-newton: number of subsets (untagged surveys)")
     p.add_argument("--seed", type=int, default=0, help="subset-newton: seed of the subset draw (untagged surveys)")
+    p.add_argument(
+        "--head-model", choices=("ideal", "auto", "full"), default="ideal",
+        help="joint: ideal pan-tilt head (default), estimate the head errors the data support (auto), "
+        "or all of them (full; refused when the survey cannot determine them); docs/head-calibration.md",
+    )
     p.add_argument("--rerun", metavar="FILE.rrd", help="also write a Rerun recording (open with `rerun FILE.rrd`)")
     p.set_defaults(run=run)
 
@@ -78,8 +83,15 @@ def run(args: argparse.Namespace) -> int:
 
             recorder = IterationRecorder(survey)
         result = solve_survey(survey, on_iteration=recorder)
-    write_result(result, args.output)
+    head_report = None
+    if args.method == "joint" and args.head_model != "ideal":
+        from fgloc.solve.self_calibration import HeadModel, solve_with_head_model
+
+        result, head_report = solve_with_head_model(survey, HeadModel(args.head_model))
+    write_result(result, args.output, {"head_calibration": head_report.to_json()} if head_report else None)
     print(describe(result))
+    if head_report is not None:
+        print(head_report.summary())
     print(f"wrote {args.output}")
     if args.rerun:
         from fgloc.viz import camera_covariances_or_none, write_rrd

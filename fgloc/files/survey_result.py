@@ -177,8 +177,11 @@ def survey_to_json(survey: Survey) -> dict:
     return data
 
 
-def result_to_json(result: Result) -> dict:
-    """The result as a JSON-ready dict per the spec, plus fgloc's extra fields."""
+def result_to_json(result: Result, extra: dict[str, Any] | None = None) -> dict:
+    """The result as a JSON-ready dict per the spec, plus fgloc's extra fields.
+
+    ``extra`` adds optional top-level blocks (e.g. ``head_calibration``); readers ignore them.
+    """
     data: dict[str, Any] = {
         "format": RESULT_FORMAT,
         "version": FORMAT_VERSION,
@@ -209,6 +212,8 @@ def result_to_json(result: Result) -> dict:
             "stage_seconds": s.stage_seconds,
             "error_history": s.error_history,
         }
+    if extra:
+        data.update(extra)
     return data
 
 
@@ -217,9 +222,9 @@ def write_survey(survey: Survey, path: str | os.PathLike[str]) -> None:
     write_json_atomic(survey_to_json(survey), path)
 
 
-def write_result(result: Result, path: str | os.PathLike[str]) -> None:
-    """Atomically write a result.json file."""
-    write_json_atomic(result_to_json(result), path)
+def write_result(result: Result, path: str | os.PathLike[str], extra: dict[str, Any] | None = None) -> None:
+    """Atomically write a result.json file (``extra``: optional top-level blocks, see result_to_json)."""
+    write_json_atomic(result_to_json(result, extra), path)
 
 
 def read_result(path: str | os.PathLike[str]) -> Result:

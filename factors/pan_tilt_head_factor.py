@@ -1,0 +1,165 @@
+"""The pan-tilt factor of a non-ideal head: a reading links a camera base, a node and a head calibration.
+
+Variables: the camera base ``Pose3`` ``T = (R, c)`` (as in
+:mod:`fgloc.factors.pan_tilt_factor`), the node (``Point2`` on z = 0 or
+``Point3``) and, optionally, the camera's head calibration: a ``gtsam`` Vector
+holding the *active* entries of the 7-vector of :mod:`fgloc.core.head_model`
+(``active`` lists their indices; the rest are held at fixed values, zero by default).
+
+Error (2-vector, radians, measured minus predicted, pan wrapped)::
+
+    q = R^T (x - c);  (pan, tilt)_pred = head_pan_tilt(q, params)
+
+Jacobians are analytic: ``de/dq = -D_q`` and ``de/dparams = -D_p`` from
+:func:`fgloc.core.head_model.head_pan_tilt`, chained with ``dq/dxi = [skew(q) | -I]``
+(GTSAM's right perturbation, rotation first) and ``dq/dx = R^T``.
+
+:class:`HeadFactorSet` evaluates every reading of a survey in one numpy pass per
+linearization point, like :class:`fgloc.factors.pan_tilt_batch.PanTiltFactorSet`.
+:func:`head_prior_factor` is the datasheet-tolerance prior on the calibration.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import gtsam
+import numpy as np
+
+from fgloc.core.geometry import FloatArray, pan_tilt_residual, skew
+from fgloc.core.head_model import DEFAULT_PRIOR_SIGMAS, HEAD_DIM, head_pan_tilt
+
+
+def head_pan_tilt_error(
+    rotation: FloatArray, position: FloatArray, point: FloatArray, params: FloatArray, pan: FloatArray, tilt: FloatArray
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """Errors and Jacobians of readings, batched over a leading axis M (or unbatched).
+
+    ``rotation`` (..., 3, 3), ``position`` / ``point`` (..., 3), ``params`` (..., 7).
+    Returns ``e`` (..., 2), ``H_pose`` (..., 2, 6), ``H_point`` (..., 2, 3) and
+    ``H_params`` (..., 2, 7) over the full 7-vector.
+    """
+    q = np.einsum("...ji,...j->...i", rotation, point - position)
+    pred_pan, pred_tilt, d_q, d_p = head_pan_tilt(q, params)
+    assert d_q is not None and d_p is not None
+    e = pan_tilt_residual(pan, tilt, pred_pan, pred_tilt)
+    d = -d_q
+    h_pose = np.concatenate([d @ skew(q), -d], axis=-1)
+    h_point = np.einsum("...ij,...kj->...ik", d, rotation)
+    return e, h_pose, h_point, -d_p
+
+
+def head_prior_factor(
+    key: int, active: Sequence[int], mean: FloatArray | None = None, sigmas: FloatArray = DEFAULT_PRIOR_SIGMAS
+) -> gtsam.NonlinearFactor:
+    """Gaussian prior on a head-calibration Vector of the ``active`` parameters.
+
+    ``mean`` and ``sigmas`` are full 7-vectors (default: zero mean, datasheet tolerances).
+    """
+    idx = list(active)
+    mu = np.zeros(HEAD_DIM) if mean is None else np.asarray(mean, dtype=float)
+    return gtsam.PriorFactorVector(key, mu[idx].copy(), gtsam.noiseModel.Diagonal.Sigmas(np.asarray(sigmas)[idx]))
+
+
+class HeadFactorSet:
+    """Head-model pan-tilt factors for many readings with a shared vectorized cache.
+
+    Args:
+        camera_keys, node_keys: (M,) keys of each reading's camera ``Pose3`` and node.
+        head_keys: (M,) key of the reading camera's head Vector, or -1 for a camera
+            whose calibration is held fixed (then the factor has two keys).
+        active: per head key, the indices (into the 7-vector) it holds.
+        fixed: (M, 7) parameter values used where not active (e.g. zeros).
+        pan, tilt: (M,) readings in radians; noise_models: (M,) 2-D noise models.
+    """
+
+    def __init__(
+        self,
+        camera_keys: np.ndarray,
+        node_keys: np.ndarray,
+        head_keys: np.ndarray,
+        active: dict[int, tuple[int, ...]],
+        fixed: FloatArray,
+        pan: FloatArray,
+        tilt: FloatArray,
+        noise_models: list[gtsam.noiseModel.Base],
+        planar: bool,
+    ) -> None:
+        self.camera_keys = np.asarray(camera_keys, dtype=np.int64)
+        self.node_keys = np.asarray(node_keys, dtype=np.int64)
+        self.head_keys = np.asarray(head_keys, dtype=np.int64)
+        self.active = {int(k): tuple(v) for k, v in active.items()}
+        self.fixed = np.asarray(fixed, dtype=float)
+        self.pan = np.asarray(pan, dtype=float)
+        self.tilt = np.asarray(tilt, dtype=float)
+        self.planar = planar
+        self.inv_sigmas = np.array([1.0 / np.asarray(nm.sigmas(), dtype=float) for nm in noise_models]).reshape(-1, 2)
+        self._values: gtsam.Values | None = None
+        self._errors = np.empty((0, 2))
+        self._h: list[FloatArray] = []
+        self.factors = [self._make_factor(i, noise_models[i]) for i in range(len(self.pan))]
+
+    def __len__(self) -> int:
+        return len(self.pan)
+
+    def _params(self, values: gtsam.Values) -> FloatArray:
+        params = self.fixed.copy()
+        for key, idx in self.active.items():
+            rows = self.head_keys == key
+            params[np.ix_(rows, idx)] = np.asarray(values.atVector(key), dtype=float)[None, :]
+        return params
+
+    def _evaluate(self, values: gtsam.Values, rows: np.ndarray) -> tuple[FloatArray, list[FloatArray]]:
+        m = np.array([values.atPose3(int(k)).matrix() for k in self.camera_keys[rows]]).reshape(-1, 4, 4)
+        if self.planar:
+            xy = np.array([values.atPoint2(int(k)) for k in self.node_keys[rows]]).reshape(-1, 2)
+            points = np.column_stack([xy, np.zeros(len(xy))])
+        else:
+            points = np.array([values.atPoint3(int(k)) for k in self.node_keys[rows]]).reshape(-1, 3)
+        params = self._params(values)[rows]
+        e, h_pose, h_point, h_par = head_pan_tilt_error(
+            m[:, :3, :3], m[:, :3, 3], points, params, self.pan[rows], self.tilt[rows]
+        )
+        if self.planar:
+            h_point = np.ascontiguousarray(h_point[:, :, :2])
+        return e, [h_pose, h_point, h_par]
+
+    def _make_factor(self, i: int, noise: gtsam.noiseModel.Base) -> gtsam.CustomFactor:
+        cache = self
+        head = int(self.head_keys[i])
+        idx = list(self.active.get(head, ())) if head >= 0 else []
+        keys = [int(self.camera_keys[i]), int(self.node_keys[i])] + ([head] if head >= 0 else [])
+
+        def error(this: gtsam.CustomFactor, values: gtsam.Values, H: list[np.ndarray] | None) -> np.ndarray:
+            if values is cache._values:
+                e, hs, row = cache._errors, cache._h, i
+            else:
+                e, hs = cache._evaluate(values, np.array([i]))
+                row = 0
+            if H is not None:
+                H[0] = hs[0][row]
+                H[1] = hs[1][row]
+                if idx:
+                    H[2] = np.ascontiguousarray(hs[2][row][:, idx])
+            return e[row]
+
+        return gtsam.CustomFactor(noise, keys, error)
+
+    def prepare(self, values: gtsam.Values) -> None:
+        """Evaluate every reading at ``values`` (do not modify ``values`` in place afterwards)."""
+        if values is self._values or len(self.pan) == 0:
+            return
+        self._errors, self._h = self._evaluate(values, np.arange(len(self.pan)))
+        self._values = values
+
+    def errors(self, values: gtsam.Values) -> FloatArray:
+        """Unwhitened errors (M, 2) at ``values``."""
+        self.prepare(values)
+        return self._errors
+
+    def error(self, values: gtsam.Values) -> float:
+        """Sum of the factors' errors (0.5 * squared whitened norm), Gaussian noise only."""
+        if len(self.pan) == 0:
+            return 0.0
+        self.prepare(values)
+        return float(0.5 * np.sum((self._errors * self.inv_sigmas) ** 2))

@@ -1,0 +1,181 @@
+"""A non-ideal pan-tilt head: the classic theodolite errors as a per-camera calibration vector.
+
+The ideal head (``fgloc.core.geometry``) has a pan axis (base z), a tilt axis
+perpendicular to it, a line of sight perpendicular to the tilt axis, all meeting
+in the optical centre, and encoders that read the true angles. A real head
+deviates; this module models the deviations a survey can estimate.
+
+Kinematics (base frame, radians, survey length units). With mechanical pan
+``phi`` about base z and mechanical tilt ``theta`` about the trunnion axis, the
+head frame is ``H = Rz(phi) Rx(tau) Ry(-theta)``; the line of sight is
+``H Rz(gamma) x`` and the optical centre sits at ``H l`` with
+``l = (0, l_y, l_z)``. A point ``q`` (base frame, relative to the axes'
+intersection) is seen when ``r = H^T q - l`` is parallel to ``Rz(gamma) x``.
+The encoders read ``pan = (1 + k_p) phi`` and ``tilt = (1 + k_t) theta + i_t``.
+
+The calibration vector (:data:`HEAD_PARAMETERS`, this order):
+
+=====  ==================  ==========  ==================================================
+index  name                unit        meaning
+=====  ==================  ==========  ==================================================
+0      ``tilt_index``      rad         vertical index error ``i_t``: tilt read at level sight
+1      ``collimation``     rad         ``gamma``: line of sight turned toward +pan from the
+                                       perpendicular to the tilt axis (pan reads ~ -gamma/cos t)
+2      ``trunnion``        rad         ``tau``: tilt axis rolled about the pointing direction
+                                       (pan reads ~ +tau tan t)
+3      ``pan_scale``       1           ``k_p``: relative pan encoder scale error
+4      ``tilt_scale``      1           ``k_t``: relative tilt encoder scale error
+5      ``lever_y``         survey      ``l_y``: optical centre left of the axes (head frame)
+6      ``lever_z``         survey      ``l_z``: optical centre above the axes (head frame)
+=====  ==================  ==========  ==================================================
+
+Left out because bearings cannot observe them at all: a **pan index offset**
+(the encoder zero's azimuth) is the base yaw; a **vertical-axis tilt** is the
+base roll and pitch; the lever arm **along the line of sight** (``l_x``) slides
+the centre along the ray it sees. Pan scale acts on the wrapped pan in
+(-pi, pi] (an encoder's range does not cross +-180 degrees). One vector per
+camera and zoom: a survey at several zooms needs one per zoom (fgloc surveys
+use one zoom).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from fgloc.core.geometry import FloatArray, wrap_angle
+
+HEAD_PARAMETERS: tuple[str, ...] = (
+    "tilt_index", "collimation", "trunnion", "pan_scale", "tilt_scale", "lever_y", "lever_z",
+)
+HEAD_DIM = len(HEAD_PARAMETERS)
+#: Unit of each parameter, for reports.
+HEAD_UNITS: tuple[str, ...] = ("rad", "rad", "rad", "1", "1", "survey", "survey")
+#: Parameter groups reported together (observability, model selection summaries).
+HEAD_GROUPS: dict[str, tuple[int, ...]] = {
+    "tilt_index": (0,), "collimation": (1,), "trunnion": (2,), "pan_scale": (3,), "tilt_scale": (4,),
+    "lever_arm": (5, 6),
+}
+
+#: Datasheet-scale tolerances used as zero-mean Gaussian priors (one sigma): index,
+#: collimation and trunnion 0.5 degree, encoder scales 1 %, lever arm 0.01 baseline.
+DEFAULT_PRIOR_SIGMAS: FloatArray = np.array(
+    [np.deg2rad(0.5), np.deg2rad(0.5), np.deg2rad(0.5), 0.01, 0.01, 0.01, 0.01]
+)
+
+_NEWTON_STEPS = 4
+_X, _Y, _Z = np.eye(3)
+
+
+@dataclass(frozen=True)
+class HeadCalibration:
+    """One camera's head calibration: ``values`` (7,) in :data:`HEAD_PARAMETERS` order.
+
+    ``covariance`` (7, 7) is the estimate's uncertainty (None: exact / unknown).
+    """
+
+    values: FloatArray
+    covariance: FloatArray | None = None
+
+    @staticmethod
+    def ideal() -> HeadCalibration:
+        """The ideal head: every error zero."""
+        return HeadCalibration(np.zeros(HEAD_DIM))
+
+    def as_dict(self) -> dict[str, float]:
+        """Parameter name to value."""
+        return {n: float(v) for n, v in zip(HEAD_PARAMETERS, self.values)}
+
+
+def _rot(axis: int, angle: FloatArray) -> FloatArray:
+    """Batched right-handed rotations (..., 3, 3) about base axis 0, 1 or 2."""
+    c, s = np.cos(angle), np.sin(angle)
+    out = np.zeros(np.shape(angle) + (3, 3))
+    i, j = [(1, 2), (2, 0), (0, 1)][axis]
+    out[..., axis, axis] = 1.0
+    out[..., i, i] = c
+    out[..., j, j] = c
+    out[..., i, j] = -s
+    out[..., j, i] = s
+    return out
+
+
+def _mv(m: FloatArray, v: FloatArray) -> FloatArray:
+    return np.einsum("...ij,...j->...i", m, v)
+
+
+def _mechanical_start(q: FloatArray, gamma: FloatArray, tau: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Closed-form (phi, theta) without lever arm: the sight line through q's direction."""
+    u = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    sin_t = (u[..., 2] - np.sin(gamma) * np.sin(tau)) / (np.cos(gamma) * np.cos(tau))
+    theta = np.arcsin(np.clip(sin_t, -1.0, 1.0))
+    wx = np.cos(gamma) * np.cos(theta)
+    wy = np.sin(gamma) * np.cos(tau) - np.cos(gamma) * np.sin(theta) * np.sin(tau)
+    phi = np.arctan2(u[..., 1], u[..., 0]) - np.arctan2(wy, wx)
+    return phi, theta
+
+
+def _constraint(q: FloatArray, phi: FloatArray, theta: FloatArray, p: FloatArray) -> dict[str, FloatArray]:
+    """F = A(gamma) r with r = H^T q - l, and its partials (batched)."""
+    gamma, tau = p[..., 1], p[..., 2]
+    rz, rx, ry = _rot(2, -phi), _rot(0, -tau), _rot(1, theta)
+    a = _mv(rz, q)
+    b = _mv(rx, a)
+    m = _mv(ry, b)
+    r = m.copy()
+    r[..., 1] -= p[..., 5]
+    r[..., 2] -= p[..., 6]
+    sg, cg = np.sin(gamma), np.cos(gamma)
+    A = np.zeros(np.shape(gamma) + (2, 3))
+    A[..., 0, 0], A[..., 0, 1], A[..., 1, 2] = -sg, cg, 1.0
+    ry_rx = ry @ rx
+    dm_dphi = _mv(ry_rx, -np.cross(_Z, a))
+    dm_dtau = _mv(ry, -np.cross(_X, b))
+    dm_dtheta = np.cross(_Y, m)
+    F = _mv(A, r)
+    J_a = np.stack([_mv(A, dm_dphi), _mv(A, dm_dtheta)], axis=-1)  # (..., 2, 2)
+    F_q = A @ ry_rx @ rz  # (..., 2, 3) = A H^T
+    F_p = np.zeros(np.shape(gamma) + (2, HEAD_DIM))
+    F_p[..., 0, 1] = -cg * r[..., 0] - sg * r[..., 1]
+    F_p[..., :, 2] = _mv(A, dm_dtau)
+    F_p[..., 0, 5] = -cg
+    F_p[..., 1, 6] = -1.0
+    return {"F": F, "J_a": J_a, "F_q": F_q, "F_p": F_p}
+
+
+def head_pan_tilt(
+    q: ArrayLike, params: ArrayLike, jacobians: bool = True
+) -> tuple[FloatArray, FloatArray, FloatArray | None, FloatArray | None]:
+    """Encoder readings (pan, tilt) at which a head with ``params`` sees base-frame point(s) ``q``.
+
+    ``q`` (..., 3) is relative to the axes' intersection (the camera's position),
+    ``params`` (..., 7) broadcasts against it. Returns ``pan`` (wrapped to
+    (-pi, pi]), ``tilt``, and when asked ``d(pan, tilt)/dq`` (..., 2, 3) and
+    ``d(pan, tilt)/dparams`` (..., 2, 7), analytic (implicit-function theorem on
+    the sight condition). All zero ``params`` give exactly the ideal model.
+    """
+    q = np.asarray(q, dtype=float)
+    p = np.broadcast_to(np.asarray(params, dtype=float), q.shape[:-1] + (HEAD_DIM,))
+    phi, theta = _mechanical_start(q, p[..., 1], p[..., 2])
+    for _ in range(_NEWTON_STEPS if np.any(p[..., 5:7]) else 1):  # exact start without lever arm
+        c = _constraint(q, phi, theta, p)
+        step = np.linalg.solve(c["J_a"], c["F"][..., None])[..., 0]
+        phi, theta = phi - step[..., 0], theta - step[..., 1]
+    phi = wrap_angle(phi)
+    pan = (1.0 + p[..., 3]) * phi
+    tilt = (1.0 + p[..., 4]) * theta + p[..., 0]
+    if not jacobians:
+        return pan, tilt, None, None
+    c = _constraint(q, phi, theta, p)
+    J_inv = np.linalg.inv(c["J_a"])
+    d_ang_q = -J_inv @ c["F_q"]
+    d_ang_p = -J_inv @ c["F_p"]
+    scale = np.stack([1.0 + p[..., 3], 1.0 + p[..., 4]], axis=-1)[..., None]
+    d_q = scale * d_ang_q
+    d_p = scale * d_ang_p
+    d_p[..., 0, 3] += phi
+    d_p[..., 1, 4] += theta
+    d_p[..., 1, 0] += 1.0
+    return pan, tilt, d_q, d_p

@@ -1,0 +1,512 @@
+"""Self-calibrating joint solve: head errors (:mod:`fgloc.core.head_model`) estimated with the survey.
+
+The extended problem is the reference graph of :func:`fgloc.solve.joint.build_problem`
+(same keys, gauge and start) with every pan-tilt factor replaced by a head-model
+factor (:mod:`fgloc.factors.pan_tilt_head_factor`), one head-calibration Vector
+per camera (key ``h<i>``) holding the parameters chosen for it, and a zero-mean
+datasheet prior on each. It is optimized by the same Levenberg-Marquardt and
+its node covariances come from the same marginal code.
+
+Observability. :func:`head_observability` linearizes the data factors (no head
+prior) and reports, per camera and parameter group, the numerical rank of the
+head parameters' Fisher information after the poses and nodes are eliminated
+(Schur complement), and the data-only standard deviation of each parameter.
+``HeadModel.FULL`` refuses (one-line :class:`SelfCalibrationError`) a parameter
+whose information is rank deficient; ``AUTO`` leaves it out (pins it at zero).
+Weakly determined parameters stay in and lean on their datasheet prior.
+
+Model selection (``AUTO``): a likelihood-ratio test of all determinable
+parameters against the ideal head (chi-square with k dof, 5 %); if the ideal
+head is rejected, each camera keeps its parameters unless holding its head ideal
+(the others estimated) passes the same test.
+"""
+
+from __future__ import annotations
+
+import enum
+import logging
+import math
+from dataclasses import dataclass, field, replace
+
+import gtsam
+import numpy as np
+
+from fgloc.core.errors import FglocError
+from fgloc.core.geometry import FloatArray
+from fgloc.core.head_model import DEFAULT_PRIOR_SIGMAS, HEAD_DIM, HEAD_GROUPS, HEAD_PARAMETERS
+from fgloc.core.model import FlaggedObservation, Result, Survey
+from fgloc.factors.pan_tilt_head_factor import HeadFactorSet, head_prior_factor
+from fgloc.init.start import InitialEstimate
+from fgloc.solve.joint import (
+    LocalizationProblem,
+    RobustKernel,
+    SolverOptions,
+    build_problem,
+    collect_result,
+    estimate_from_values,
+    optimize,
+    solve_survey,
+)
+
+logger = logging.getLogger(__name__)
+
+head_key = gtsam.symbol_shorthand.H
+
+
+class SelfCalibrationError(FglocError):
+    """The survey cannot determine the head parameters asked for."""
+
+
+class HeadModel(str, enum.Enum):
+    """Which head parameters to estimate: none, all determinable (or refuse), or as the data support."""
+
+    IDEAL = "ideal"
+    FULL = "full"
+    AUTO = "auto"
+
+
+#: Relative singular-value tolerance of the numerical rank.
+RANK_TOL = 1e-12
+#: LR test level of the ideal head against the extended one.
+LR_ALPHA = 0.05
+
+
+def chi2_quantile(p: float, dof: int) -> float:
+    """Chi-square quantile: exact for 1 and 2 dof, Wilson-Hilferty above (within 1 % for p in [0.9, 0.999])."""
+    if dof == 1:
+        return 2.0 * _erfinv(p) ** 2
+    z = math.sqrt(2.0) * _erfinv(2.0 * p - 1.0)
+    if dof == 2:
+        return -2.0 * math.log(1.0 - p)
+    a = 2.0 / (9.0 * dof)
+    return float(dof * (1.0 - a + z * math.sqrt(a)) ** 3)
+
+
+def _erfinv(y: float) -> float:
+    """Inverse error function (Giles' single-precision approximation refined by Newton)."""
+    w = -math.log((1.0 - y) * (1.0 + y))
+    if w < 5.0:
+        w -= 2.5
+        c = [2.81022636e-08, 3.43273939e-07, -3.5233877e-06, -4.39150654e-06, 0.00021858087,
+             -0.00125372503, -0.00417768164, 0.246640727, 1.50140941]
+    else:
+        w = math.sqrt(w) - 3.0
+        c = [-0.000200214257, 0.000100950558, 0.00134934322, -0.00367342844, 0.00573950773,
+             -0.0076224613, 0.00943887047, 1.00167406, 2.83297682]
+    x = c[0]
+    for ci in c[1:]:
+        x = x * w + ci
+    x *= y
+    for _ in range(2):
+        x -= (math.erf(x) - y) / (2.0 / math.sqrt(math.pi) * math.exp(-x * x))
+    return x
+
+
+@dataclass
+class CameraHeadEstimate:
+    """One camera's head calibration estimate.
+
+    ``values`` (7,) in :data:`HEAD_PARAMETERS` order (zero where not estimated);
+    ``std`` (7,) their marginal standard deviations (0 where not estimated);
+    ``estimated`` the parameter names in the model; ``data_std`` the data-only
+    standard deviation of each parameter (inf where rank deficient).
+    """
+
+    values: FloatArray
+    std: FloatArray
+    estimated: tuple[str, ...]
+    data_std: FloatArray
+    covariance: FloatArray | None = None
+
+
+@dataclass
+class HeadCalibrationReport:
+    """What the self-calibration decided and estimated, per camera."""
+
+    model: HeadModel
+    cameras: dict[str, CameraHeadEstimate]
+    decision: str
+    lr_statistic: float = float("nan")
+    lr_threshold: float = float("nan")
+    ranks: dict[str, dict[str, int]] = field(default_factory=dict)
+
+    def to_json(self) -> dict:
+        """The ``head_calibration`` block of result.json (radians, unit-less scales, survey units)."""
+        return {
+            "model": self.model.value,
+            "decision": self.decision,
+            "parameters": list(HEAD_PARAMETERS),
+            "lr_statistic": self.lr_statistic if math.isfinite(self.lr_statistic) else None,
+            "lr_threshold": self.lr_threshold if math.isfinite(self.lr_threshold) else None,
+            "cameras": {
+                cid: {"estimated": list(c.estimated), "values": [float(v) for v in c.values],
+                      "std": [float(v) for v in c.std], "fisher_rank": self.ranks.get(cid, {})}
+                for cid, c in self.cameras.items()
+            },
+        }
+
+    def summary(self) -> str:
+        """Lines for people: the decision and each estimated parameter with its 1-sigma."""
+        lines = [f"head model {self.model.value}: {self.decision}"]
+        for cid, c in self.cameras.items():
+            if not c.estimated:
+                lines.append(f"  {cid}: ideal head")
+                continue
+            parts = []
+            for name in c.estimated:
+                i = HEAD_PARAMETERS.index(name)
+                if i <= 2:
+                    parts.append(f"{name} {np.rad2deg(c.values[i]):+.4f}±{np.rad2deg(c.std[i]):.4f}°")
+                elif i <= 4:
+                    parts.append(f"{name} {100 * c.values[i]:+.3f}±{100 * c.std[i]:.3f}%")
+                else:
+                    parts.append(f"{name} {c.values[i]:+.5f}±{c.std[i]:.5f}")
+            lines.append(f"  {cid}: " + ", ".join(parts))
+        return "\n".join(lines)
+
+
+@dataclass
+class SelfCalibrationProblem(LocalizationProblem):
+    """A :class:`LocalizationProblem` whose bearings go through head-model factors."""
+
+    heads: HeadFactorSet | None = None
+    head_keys: dict[str, int] = field(default_factory=dict)
+    active: dict[str, tuple[int, ...]] = field(default_factory=dict)
+
+    def prepare(self, values: gtsam.Values) -> None:
+        assert self.heads is not None
+        self.heads.prepare(values)
+
+    def data_error(self, values: gtsam.Values) -> float:
+        """0.5 * chi-square of the bearings alone (no gauge, no head prior)."""
+        assert self.heads is not None
+        return self.heads.error(values)
+
+    def error(self, values: gtsam.Values) -> float:
+        assert self.heads is not None
+        rest = sum(self.graph.at(i).error(values) for i in range(len(self.heads), self.graph.size()))
+        return self.heads.error(values) + float(rest)
+
+    def elimination_ordering(self) -> gtsam.Ordering:
+        ordering = gtsam.Ordering()
+        late = set(self.camera_keys.values()) | set(self.head_keys.values())
+        for k in sorted(set(self.initial.keys()) - late):
+            ordering.push_back(k)
+        for k in list(self.camera_keys.values()) + list(self.head_keys.values()):
+            ordering.push_back(k)
+        return ordering
+
+
+def build_self_calibration_problem(
+    survey: Survey,
+    initial: InitialEstimate,
+    active: dict[str, tuple[int, ...]],
+    head_start: dict[str, FloatArray] | None = None,
+    options: SolverOptions = SolverOptions(),
+    exclude: frozenset[int] = frozenset(),
+    prior_sigmas: FloatArray = DEFAULT_PRIOR_SIGMAS,
+    with_prior: bool = True,
+) -> SelfCalibrationProblem:
+    """The reference problem with head factors; ``active[cid]`` lists the indices estimated for it."""
+    base = build_problem(survey, initial, replace(options, robust=RobustKernel.NONE), exclude)
+    values = gtsam.Values(base.initial)
+    head_keys: dict[str, int] = {}
+    for i, cid in enumerate(survey.camera_ids):
+        idx = tuple(sorted(active.get(cid, ())))
+        if cid in base.camera_keys and idx:
+            head_keys[cid] = head_key(i)
+            start = np.zeros(HEAD_DIM) if head_start is None else np.asarray(head_start.get(cid, np.zeros(HEAD_DIM)))
+            values.insert(head_keys[cid], np.asarray(start, dtype=float)[list(idx)].copy())
+    pt = base.pan_tilt
+    cam_of_key = {v: k for k, v in base.camera_keys.items()}
+    obs_head = np.array([head_keys.get(cam_of_key[int(k)], -1) for k in pt.camera_keys], dtype=np.int64)
+    fixed = np.zeros((len(pt), HEAD_DIM))
+    if head_start is not None:
+        for j, k in enumerate(pt.camera_keys):
+            fixed[j] = head_start.get(cam_of_key[int(k)], np.zeros(HEAD_DIM))
+    sigma = survey.observation_table.sigma[base.observation_index]
+    noise = {float(s): gtsam.noiseModel.Isotropic.Sigma(2, float(s)) for s in np.unique(sigma)}
+    heads = HeadFactorSet(
+        pt.camera_keys, pt.node_keys, obs_head,
+        {head_keys[c]: tuple(sorted(active[c])) for c in head_keys}, fixed, pt.pan, pt.tilt,
+        [noise[float(s)] for s in sigma], planar=pt.planar,
+    )
+    graph = gtsam.NonlinearFactorGraph()
+    for f in heads.factors:
+        graph.add(f)
+    for i in range(len(pt), base.graph.size()):
+        graph.add(base.graph.at(i))
+    if with_prior:
+        for cid, key in head_keys.items():
+            graph.add(head_prior_factor(key, tuple(sorted(active[cid])), None, prior_sigmas))
+    return SelfCalibrationProblem(
+        survey=survey, graph=graph, initial=values, camera_keys=base.camera_keys, node_keys=base.node_keys,
+        pan_tilt=pt, observation_index=base.observation_index, unlocalized=dict(base.unlocalized),
+        heads=heads, head_keys=head_keys, active={c: tuple(sorted(active[c])) for c in head_keys},
+    )
+
+
+def _dense_jacobian(problem: SelfCalibrationProblem, values: gtsam.Values, n_factors: int) -> tuple[
+        FloatArray, dict[int, slice]]:
+    """Whitened Jacobian of the first ``n_factors`` factors, columns per key (sorted keys)."""
+    problem.prepare(values)
+    sub = gtsam.NonlinearFactorGraph()
+    for i in range(n_factors):
+        sub.add(problem.graph.at(i))
+    linear = sub.linearize(values)
+    ordering = gtsam.Ordering()
+    keys = sorted(values.keys())
+    for k in keys:
+        ordering.push_back(k)
+    A, _ = linear.jacobian(ordering)
+    cols: dict[int, slice] = {}
+    offset = 0
+    dims = values.dims()
+    for k in keys:
+        cols[k] = slice(offset, offset + int(dims[k]))
+        offset += int(dims[k])
+    return np.asarray(A), cols
+
+
+def head_information(problem: SelfCalibrationProblem, values: gtsam.Values) -> tuple[FloatArray, list[tuple[str, int]]]:
+    """Data-only Fisher information of the head parameters with poses and nodes eliminated.
+
+    Returns the matrix (in the whitened units of the parameters themselves) and
+    its rows as (camera id, parameter index). Uses the bearings and the gauge, no head prior.
+    """
+    assert problem.heads is not None
+    n_data = problem.graph.size() - len(problem.head_keys)
+    A, cols = _dense_jacobian(problem, values, n_data)
+    head_cols: list[int] = []
+    labels: list[tuple[str, int]] = []
+    for cid, key in problem.head_keys.items():
+        s = cols[key]
+        head_cols += list(range(s.start, s.stop))
+        labels += [(cid, i) for i in problem.active[cid]]
+    other = np.setdiff1d(np.arange(A.shape[1]), head_cols)
+    J_h, J_x = A[:, head_cols], A[:, other]
+    coef, *_ = np.linalg.lstsq(J_x, J_h, rcond=None)
+    R = J_h - J_x @ coef
+    return R.T @ R, labels
+
+
+def head_observability(
+    survey: Survey, estimate: InitialEstimate, prior_sigmas: FloatArray = DEFAULT_PRIOR_SIGMAS,
+    exclude: frozenset[int] = frozenset(),
+) -> tuple[dict[str, dict[str, int]], dict[str, FloatArray]]:
+    """Fisher rank per camera and parameter group, and each parameter's data-only std.
+
+    Linearized at ``estimate`` with ideal heads. ``ranks[cid][group]`` is the
+    numerical rank of that group's (Schur-complemented) information, its size
+    when fully determined; ``data_std[cid]`` (7,) is inf where the data say nothing.
+    """
+    all_active = {cid: tuple(range(HEAD_DIM)) for cid in survey.camera_ids if cid in estimate.cameras}
+    problem = build_self_calibration_problem(survey, estimate, all_active, options=SolverOptions(gauge_sigma=None),
+                                             exclude=exclude, with_prior=False)
+    info, labels = head_information(problem, problem.initial)
+    scale = np.array([prior_sigmas[i] for _, i in labels])
+    info_n = info * np.outer(scale, scale)
+    ranks: dict[str, dict[str, int]] = {}
+    data_std: dict[str, FloatArray] = {}
+    for cid in problem.head_keys:
+        rows = [r for r, (c, _) in enumerate(labels) if c == cid]
+        ranks[cid] = {}
+        for group, idx in HEAD_GROUPS.items():
+            sel = [r for r in rows if labels[r][1] in idx]
+            sv = np.linalg.svd(info_n[np.ix_(sel, sel)], compute_uv=False)
+            ranks[cid][group] = int(np.sum(sv > RANK_TOL * max(np.max(np.abs(info_n)), 1e-300)))
+        std = np.full(HEAD_DIM, np.inf)
+        # Data-only std of each parameter with all others of every camera free (pseudo-inverse).
+        w, v = np.linalg.eigh(0.5 * (info_n + info_n.T))
+        good = w > RANK_TOL * max(w.max(), 1e-300)
+        cov_n = (v[:, good] / w[good]) @ v[:, good].T
+        for r in rows:
+            null_part = np.sum(v[r, ~good] ** 2)
+            std[labels[r][1]] = np.inf if null_part > 1e-6 else math.sqrt(max(cov_n[r, r], 0.0)) * scale[r]
+        data_std[cid] = std
+    return ranks, data_std
+
+
+#: Order in which AUTO admits parameters when the survey cannot determine them all.
+ADMIT_ORDER = (0, 3, 1, 2, 4, 5, 6)
+
+
+def determinable_subset(
+    survey: Survey, estimate: InitialEstimate, exclude: frozenset[int] = frozenset(),
+    prior_sigmas: FloatArray = DEFAULT_PRIOR_SIGMAS,
+) -> dict[str, tuple[int, ...]]:
+    """A largest set of head parameters with full-rank information, admitted greedily in
+    :data:`ADMIT_ORDER` (camera by camera for each parameter); the rest stay pinned."""
+    all_active = {cid: tuple(range(HEAD_DIM)) for cid in survey.camera_ids if cid in estimate.cameras}
+    problem = build_self_calibration_problem(survey, estimate, all_active, exclude=exclude, with_prior=False)
+    info, labels = head_information(problem, problem.initial)
+    scale = np.array([prior_sigmas[i] for _, i in labels])
+    info_n = info * np.outer(scale, scale)
+    tol = RANK_TOL * max(float(np.max(np.abs(info_n))), 1e-300)
+    chosen: list[int] = []
+    for i in ADMIT_ORDER:
+        for cid in problem.head_keys:
+            r = labels.index((cid, i))
+            trial = chosen + [r]
+            if np.linalg.eigvalsh(info_n[np.ix_(trial, trial)])[0] > tol:
+                chosen = trial
+    out: dict[str, tuple[int, ...]] = {}
+    for r in chosen:
+        cid, i = labels[r]
+        out[cid] = tuple(sorted(out.get(cid, ()) + (i,)))
+    return out
+
+
+@dataclass
+class SelfCalibratedSolve:
+    """The extended problem at its optimum: result, head estimates and chi-square of the bearings."""
+
+    problem: SelfCalibrationProblem
+    values: gtsam.Values
+    result: Result
+    heads: dict[str, tuple[FloatArray, FloatArray]]  # cid -> (values (7,), covariance (7, 7))
+    chi2: float
+
+
+def solve_self_calibrated(
+    survey: Survey, start: InitialEstimate, active: dict[str, tuple[int, ...]],
+    options: SolverOptions = SolverOptions(), exclude: frozenset[int] = frozenset(),
+    prior_sigmas: FloatArray = DEFAULT_PRIOR_SIGMAS,
+) -> SelfCalibratedSolve:
+    """Optimize the extended problem from ``start`` (ideal heads) and collect marginals."""
+    problem = build_self_calibration_problem(survey, start, active, None, options, exclude, prior_sigmas)
+    outcome = optimize(problem, options)
+    result = collect_result(problem, outcome, options)
+    heads: dict[str, tuple[FloatArray, FloatArray]] = {}
+    if problem.head_keys and options.compute_marginals:
+        problem.prepare(outcome.values)
+        marginals = gtsam.Marginals(problem.graph.linearize(outcome.values), outcome.values)
+    for cid in survey.camera_ids:
+        vals, cov = np.zeros(HEAD_DIM), np.zeros((HEAD_DIM, HEAD_DIM))
+        if cid in problem.head_keys:
+            idx = list(problem.active[cid])
+            vals[idx] = np.asarray(outcome.values.atVector(problem.head_keys[cid]))
+            if options.compute_marginals:
+                cov[np.ix_(idx, idx)] = marginals.marginalCovariance(problem.head_keys[cid])
+        heads[cid] = (vals, cov)
+    return SelfCalibratedSolve(problem, outcome.values, result, heads, 2.0 * problem.data_error(outcome.values))
+
+
+def _fit_and_flag(
+    survey: Survey, start: InitialEstimate, active: dict[str, tuple[int, ...]], options: SolverOptions,
+    prior_sigmas: FloatArray,
+) -> tuple[SelfCalibratedSolve, frozenset[int], list[FlaggedObservation]]:
+    """Fit with every reading, flag those implausible under the head model (chi-square, 2 dof), refit without.
+
+    Readings the ideal model flags are often only the head errors showing; they are judged again here.
+    """
+    fit = solve_self_calibrated(survey, start, active, options, frozenset(), prior_sigmas)
+    heads = fit.problem.heads
+    assert heads is not None
+    m2 = np.sum((heads.errors(fit.values) * heads.inv_sigmas) ** 2, axis=1)
+    bad = np.flatnonzero(m2 > options.flag_chi2)
+    if len(bad) == 0:
+        return fit, frozenset(), []
+    index = fit.problem.observation_index
+    flagged = [FlaggedObservation(survey.observations[int(index[b])].camera, survey.observations[int(index[b])].node,
+                                  int(index[b]), float(math.sqrt(m2[b]))) for b in bad]
+    exclude = frozenset(int(index[b]) for b in bad)
+    start = estimate_from_values(fit.problem, fit.values)
+    return solve_self_calibrated(survey, start, active, options, exclude, prior_sigmas), exclude, flagged
+
+
+def _report(model: HeadModel, fit: SelfCalibratedSolve | None, survey: Survey, decision: str,
+            data_std: dict[str, FloatArray], ranks: dict[str, dict[str, int]]) -> HeadCalibrationReport:
+    cams = {}
+    for cid in survey.camera_ids:
+        if fit is None or cid not in fit.problem.head_keys:
+            cams[cid] = CameraHeadEstimate(np.zeros(HEAD_DIM), np.zeros(HEAD_DIM), (),
+                                           data_std.get(cid, np.full(HEAD_DIM, np.inf)))
+            continue
+        vals, cov = fit.heads[cid]
+        est = tuple(HEAD_PARAMETERS[i] for i in fit.problem.active[cid])
+        cams[cid] = CameraHeadEstimate(vals, np.sqrt(np.clip(np.diag(cov), 0, None)), est,
+                                       data_std.get(cid, np.full(HEAD_DIM, np.inf)), cov)
+    return HeadCalibrationReport(model, cams, decision, ranks=ranks)
+
+
+def solve_with_head_model(
+    survey: Survey, model: HeadModel = HeadModel.AUTO, options: SolverOptions = SolverOptions(),
+    prior_sigmas: FloatArray = DEFAULT_PRIOR_SIGMAS,
+) -> tuple[Result, HeadCalibrationReport]:
+    """Solve ``survey`` with the ideal, the full or the data-selected head model.
+
+    The ideal solve (:func:`fgloc.solve.joint.solve_survey`, outlier flagging
+    included) gives the start; the extended model judges every reading again
+    (readings the ideal head flags are often the head errors themselves). Raises :class:`SelfCalibrationError` when ``FULL``
+    asks for a parameter the survey cannot determine (rank-deficient information).
+    """
+    ideal = solve_survey(survey, options)
+    exclude = frozenset(f.index for f in ideal.flagged)
+    start = InitialEstimate(cameras=dict(ideal.cameras),
+                            nodes={n: e.position for n, e in ideal.nodes.items()}, unlocalized=dict(ideal.unlocalized))
+    if model is HeadModel.IDEAL:
+        return ideal, _report(model, None, survey, "ideal head (not estimated)", {}, {})
+    ranks, data_std = head_observability(survey, start, prior_sigmas, exclude)
+    if model is HeadModel.FULL:
+        for cid, std in data_std.items():
+            bad = [HEAD_PARAMETERS[i] for i in range(HEAD_DIM) if not np.isfinite(std[i])]
+            if bad:
+                raise SelfCalibrationError(
+                    f"--head-model full: camera {cid}: the survey cannot determine {', '.join(bad)} "
+                    "(Fisher information rank deficient); use --head-model auto")
+        active = {cid: tuple(range(HEAD_DIM)) for cid in data_std}
+        fit, exclude, flagged = _fit_and_flag(survey, start, active, options, prior_sigmas)
+        return _finish(fit, flagged, _report(model, fit, survey, "all parameters estimated", data_std, ranks))
+    # AUTO: candidates are the parameters the data determine at all (full-rank information);
+    # when the survey cannot determine them all, a largest determinable subset, the rest pinned.
+    if all(np.all(np.isfinite(std)) for std in data_std.values()):
+        active = {cid: tuple(range(HEAD_DIM)) for cid in data_std}
+    else:
+        active = determinable_subset(survey, start, exclude, prior_sigmas)
+    k = sum(len(a) for a in active.values())
+    if k == 0:
+        return ideal, _report(model, None, survey, "ideal head: the survey determines no head parameter", data_std, ranks)
+    fit, exclude, flagged = _fit_and_flag(survey, start, active, options, prior_sigmas)
+    # The ideal head on the same readings (those the head model judged plausible).
+    chi2_ideal = solve_self_calibrated(survey, start, {}, replace(options, compute_marginals=False), exclude,
+                                       prior_sigmas).chi2
+    lr = chi2_ideal - fit.chi2
+    threshold = chi2_quantile(1.0 - LR_ALPHA, k)
+    if not lr > threshold:
+        report = _report(model, None, survey, f"ideal head kept (LR {lr:.1f} < {threshold:.1f}, {k} dof)",
+                         data_std, ranks)
+        report.lr_statistic, report.lr_threshold = lr, threshold
+        return ideal, report
+    # Per camera: does holding this camera's head ideal (the others full) explain the data
+    # as well (LR, 5 %)? Parameters are not dropped one by one: weakly determined ones
+    # trade off against the geometry, and a model without them fits the readings almost
+    # as well while its node ellipses are confidently wrong (docs/head-calibration.md).
+    full = fit
+    keep = dict(active)
+    for cid, idx in active.items():
+        reduced = {c: a for c, a in active.items() if c != cid}
+        if not reduced:
+            continue
+        trial = solve_self_calibrated(survey, start, reduced, replace(options, compute_marginals=False), exclude,
+                                      prior_sigmas)
+        if trial.chi2 - full.chi2 <= chi2_quantile(1.0 - LR_ALPHA, len(idx)):
+            del keep[cid]
+    if keep != active:
+        fit = solve_self_calibrated(survey, start, keep, options, exclude, prior_sigmas)
+    n_est = sum(len(a) for a in fit.problem.active.values())
+    report = _report(model, fit, survey, f"ideal head rejected (LR {lr:.1f} > {threshold:.1f}, {k} dof); "
+                     f"{n_est} parameters on {len(keep)} cameras", data_std, ranks)
+    report.lr_statistic, report.lr_threshold = lr, threshold
+    return _finish(fit, flagged, report)
+
+
+def _finish(fit: SelfCalibratedSolve, flagged: list[FlaggedObservation],
+            report: HeadCalibrationReport) -> tuple[Result, HeadCalibrationReport]:
+    result = fit.result
+    result.flagged = flagged
+    if result.stats is not None:
+        result.stats.method = f"joint, self-calibrating head ({report.model.value})"
+    logger.info("%s", report.summary())
+    return result, report
+

@@ -1,0 +1,176 @@
+"""Self-calibrating solve, observability, model selection, drift check, CLI (seeded, fast).
+
+The NEES test is the covariance check: over seeded surveys with injected head
+errors, the self-calibrated node errors' mean NEES must sit inside the chi-square
+interval; a covariance wrong by a factor 2 (either way) would leave it.
+"""
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.stats import chi2
+
+from fgloc.cli import main
+from fgloc.core.head_model import DEFAULT_PRIOR_SIGMAS, HEAD_PARAMETERS, HeadCalibration, head_pan_tilt
+from fgloc.core.model import NodeMode
+from fgloc.init.start import InitialEstimate
+from fgloc.sim.head_errors import inject_head_errors, typical_head_errors
+from fgloc.sim.scenes import PaperScenario, RandomScene, paper_scenario, random_scene
+from fgloc.solve.head_drift import DriftMonitor
+from fgloc.solve.self_calibration import (
+    HeadModel,
+    SelfCalibrationError,
+    chi2_quantile,
+    head_observability,
+    solve_self_calibrated,
+    solve_with_head_model,
+)
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+
+def strong_survey(seed: int, errors: bool = True):
+    """A planar 3-camera survey whose geometry determines every head parameter well."""
+    s = random_scene(RandomScene(n_cameras=3, n_nodes=80, visibility=1.0, ceiling_share=0.0,
+                                 height_range=(0.3, 0.6), repeats=2, seed=seed))
+    heads = typical_head_errors(s.camera_ids, np.random.default_rng(seed + 100))
+    return (inject_head_errors(s, heads) if errors else s), heads
+
+
+def nees(result, survey) -> list[float]:
+    out = []
+    for nid, est in result.nodes.items():
+        d = est.position[:2] - survey.truth.nodes[nid][:2]
+        out.append(float(d @ np.linalg.solve(est.covariance, d)))
+    return out
+
+
+def test_chi2_quantile_matches_scipy() -> None:
+    for dof in (1, 2, 5, 14, 40):
+        for p in (0.95, 0.99):
+            assert chi2_quantile(p, dof) == pytest.approx(chi2.ppf(p, dof), rel=0.01)
+
+
+def joint_nees(fit, survey) -> tuple[float, int]:
+    """NEES of all node positions together under their joint marginal covariance (chi-square, 2N dof)."""
+    import gtsam
+
+    problem = fit.problem
+    problem.prepare(fit.values)
+    marginals = gtsam.Marginals(problem.graph.linearize(fit.values), fit.values)
+    keys = gtsam.KeyVector(list(problem.node_keys.values()))
+    cov = marginals.jointMarginalCovariance(keys).fullMatrix()
+    err = np.concatenate([np.asarray(fit.values.atPoint2(k)) - survey.truth.nodes[n][:2]
+                          for n, k in problem.node_keys.items()])
+    return float(err @ np.linalg.solve(cov, err)), len(err)
+
+
+def test_nees_of_self_calibrated_nodes_is_consistent_and_ideal_is_not() -> None:
+    """Seeded Monte Carlo, 12 surveys with typical head errors: joint NEES over all nodes."""
+    full_nees, ideal_nees, dof = 0.0, 0.0, 0
+    for seed in range(12):
+        s = random_scene(RandomScene(n_cameras=3, n_nodes=40, visibility=1.0, ceiling_share=0.0,
+                                     height_range=(0.3, 0.6), seed=seed))
+        survey = inject_head_errors(s, typical_head_errors(s.camera_ids, np.random.default_rng(seed + 50)))
+        start = InitialEstimate(cameras=dict(s.truth.cameras), nodes=dict(s.truth.nodes))
+        full = solve_self_calibrated(survey, start, {c: tuple(range(7)) for c in s.camera_ids})
+        ideal = solve_self_calibrated(survey, start, {})
+        value, d = joint_nees(full, survey)
+        full_nees += value
+        ideal_nees += joint_nees(ideal, survey)[0]
+        dof += d
+    lo, hi = chi2.ppf([0.005, 0.995], dof) / dof
+    anees = full_nees / dof
+    assert lo < anees < hi, (anees, lo, hi)
+    # Covariances 1.5x too large or too small would fail this test.
+    assert not lo < anees * 1.5 < hi and not lo < anees / 1.5 < hi
+    assert ideal_nees / dof > 3 * hi
+
+
+def test_recovers_injected_head_errors_within_their_intervals() -> None:
+    survey, heads = strong_survey(1)
+    _, report = solve_with_head_model(survey, HeadModel.FULL)
+    z = []
+    for cid, est in report.cameras.items():
+        assert est.estimated == HEAD_PARAMETERS
+        z += list((est.values - heads[cid]) / est.std)
+        # The data inform tilt index and pan scale beyond the datasheet prior.
+        assert np.all(est.std[[0, 3]] < DEFAULT_PRIOR_SIGMAS[[0, 3]])
+    assert np.max(np.abs(z)) < 4.0, z
+
+
+def test_auto_keeps_the_ideal_head_on_clean_data_and_rejects_it_with_errors() -> None:
+    clean, _ = strong_survey(2, errors=False)
+    result, report = solve_with_head_model(clean, HeadModel.AUTO)
+    assert all(not c.estimated for c in report.cameras.values()), report.decision
+    assert report.lr_statistic < report.lr_threshold
+    dirty, _ = strong_survey(2)
+    _, report = solve_with_head_model(dirty, HeadModel.AUTO)
+    assert report.lr_statistic > report.lr_threshold
+    assert any(c.estimated for c in report.cameras.values())
+
+
+@pytest.mark.parametrize("mode, n_cameras", [(NodeMode.PLANAR, 2), (NodeMode.PLANAR, 3), (NodeMode.THREE_D, 3)])
+def test_fisher_rank_per_parameter_group(mode: NodeMode, n_cameras: int) -> None:
+    s = random_scene(RandomScene(n_cameras=n_cameras, n_nodes=60, mode=mode, visibility=1.0, ceiling_share=0.0,
+                                 height_range=(0.3, 0.6), seed=4))
+    est = InitialEstimate(cameras=dict(s.truth.cameras), nodes=dict(s.truth.nodes))
+    ranks, data_std = head_observability(s, est)
+    for cid in s.camera_ids:
+        assert ranks[cid] == {"tilt_index": 1, "collimation": 1, "trunnion": 1, "pan_scale": 1, "tilt_scale": 1,
+                              "lever_arm": 2}
+        assert np.all(np.isfinite(data_std[cid]))
+
+
+def test_full_refuses_what_the_survey_cannot_determine_and_auto_pins_it() -> None:
+    """Nine nodes, two cameras: 36 readings cannot fix 26 geometry and 14 head unknowns."""
+    s = paper_scenario(PaperScenario(n_nodes=9, heights=(0.3, 0.3), seed=2))
+    with pytest.raises(SelfCalibrationError, match="cannot determine"):
+        solve_with_head_model(s, HeadModel.FULL)
+    result, report = solve_with_head_model(s, HeadModel.AUTO)
+    assert len(result.nodes) == 9
+    assert sum(len(c.estimated) for c in report.cameras.values()) < 14
+
+
+def test_drift_of_a_tenth_degree_tilt_index_is_flagged_and_none_is_not() -> None:
+    rng = np.random.default_rng(5)
+    survey = paper_scenario(PaperScenario(n_nodes=30, heights=(0.3, 0.3), seed=5))
+    cam = survey.truth.cameras["cam0"]
+    calib = HeadCalibration(np.array([0.003, 0.002, -0.001, 0.004, 0.0, 0.0, 0.0]))
+    sigma = survey.sigma
+    flagged_at = {}
+    for drift in (0.0, np.deg2rad(0.1)):
+        monitor = DriftMonitor(cam, calib, sigma)
+        drifted = calib.values.copy()
+        drifted[0] += drift
+        for k, nid in enumerate(survey.node_ids[:10]):
+            q = cam.rotation.T @ (survey.truth.nodes[nid] - cam.position)
+            for _ in range(3):
+                pan, tilt, _, _ = head_pan_tilt(q, drifted, jacobians=False)
+                check = monitor.add(nid, survey.truth.nodes[nid], float(pan + rng.normal(0, sigma)),
+                                    float(tilt + rng.normal(0, sigma)))
+            if check.drifted and drift not in flagged_at:
+                flagged_at[drift] = k + 1
+        if drift:
+            _, updated = monitor.updated()
+            assert abs(updated.values[0] - drifted[0]) < 4 * np.sqrt(check.covariance[1, 1])
+    assert 0.0 not in flagged_at
+    assert flagged_at[np.deg2rad(0.1)] <= 10
+
+
+def test_cli_simulate_with_head_errors_and_solve_auto(tmp_path: Path, capsys) -> None:
+    s, r = tmp_path / "s.json", tmp_path / "r.json"
+    assert main(["simulate", "-o", str(s), "--nodes", "60", "--heights", "0.3", "0.3", "--seed", "3",
+                 "--head-errors", "tilt_index=0.5,pan_scale=1"]) == 0
+    assert main(["solve", str(s), "-o", str(r), "--head-model", "auto"]) == 0
+    out = capsys.readouterr().out
+    assert "head model auto" in out
+    block = json.loads(r.read_text())["head_calibration"]
+    assert block["model"] == "auto" and set(block["cameras"]) == {"cam0", "cam1"}
+    assert main(["score", str(s), str(r)]) == 0  # readers ignore the extra block
+    assert main(["simulate", "-o", str(s), "--head-errors", "tilt_index=abc"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--head-errors" in err[0] and "abc" in err[0]
