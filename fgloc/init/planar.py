@@ -70,18 +70,30 @@ def ground_hits(
     return pts, tol, ok
 
 
+#: Above this many hits, :func:`consensus_ground_point` tries only this many of them as
+#: the consensus centre (evenly spaced in input order), so memory and time stay linear
+#: in the number of hits: a node read 20000 times by each camera must not build a
+#: 40000 x 40000 distance table.
+MAX_CONSENSUS_CANDIDATES = 256
+
+
 def consensus_ground_point(pts: FloatArray, tol: FloatArray) -> tuple[FloatArray, np.ndarray]:
     """The ground point most hits agree on, and which hits agree (a 1-point RANSAC).
 
     Two hits agree when they are closer than the sum of their tolerances; the
-    hit with the most agreeing hits wins (ties: the sharpest), and the result is
-    the inverse-variance mean of its agreeing set. One gross ray among three or
-    more cannot drag the point away.
+    candidate hit with the most agreeing hits wins (ties: the sharpest), and the
+    result is the inverse-variance mean of its agreeing set. One gross ray among
+    three or more cannot drag the point away. Every hit is a candidate up to
+    :data:`MAX_CONSENSUS_CANDIDATES` hits; beyond, that many evenly spaced ones are
+    (memory O(candidates x hits), i.e. linear in the hits).
     """
-    dist = np.linalg.norm(pts[:, None, :] - pts[None, :, :], axis=-1)
-    agree = dist < tol[:, None] + tol[None, :]
+    n = len(pts)
+    cand = (np.arange(n) if n <= MAX_CONSENSUS_CANDIDATES
+            else np.unique(np.linspace(0, n - 1, MAX_CONSENSUS_CANDIDATES).round().astype(np.int64)))
+    dist = np.linalg.norm(pts[cand, None, :] - pts[None, :, :], axis=-1)
+    agree = dist < tol[cand, None] + tol[None, :]
     counts = agree.sum(axis=1)
-    best = int(np.lexsort((tol, -counts))[0])
+    best = int(np.lexsort((tol[cand], -counts))[0])
     inliers = agree[best]
     w = 1.0 / tol[inliers] ** 2
     return (w[:, None] * pts[inliers]).sum(0) / w.sum(), inliers
