@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from fgloc.core.errors import FileFormatError
+from fgloc.core.errors import FglocError, FileFormatError
 from fgloc.core.geometry import is_rotation
 from fgloc.core.model import (
     CameraPose,
@@ -134,20 +134,28 @@ def _camera_pose(value: dict, name: str, path: str) -> CameraPose:
 PLANE_TOLERANCE = 1e-6
 
 
-def _truth(t: dict, mode: str, cameras: set[str], nodes: set[str], path: str) -> Truth:
-    """A schema-checked truth block: ids from the survey, proper rotations, planar nodes on z = 0."""
+def truth_from_json(t: dict, mode: str, cameras: set[str], nodes: set[str], path: str,
+                    error: type[FglocError] = FileFormatError) -> Truth:
+    """A schema-checked truth block (survey.json or journal): ids from the survey, proper
+    rotations, planar nodes on z = 0; ``error("PATH: FIELD: problem")`` otherwise."""
+    def fail(field: str, problem: str) -> FglocError:
+        return error(f"{path}: {field}: {problem}")
+
     for k in t.get("cameras", {}):
         if k not in cameras:
-            raise _fail(path, f"truth.cameras.{k}", f"camera {show_value(k)} is not in cameras")
+            raise fail(f"truth.cameras.{k}", f"camera {show_value(k)} is not in cameras")
     for k, v in t.get("nodes", {}).items():
         if k not in nodes:
-            raise _fail(path, f"truth.nodes.{k}", f"node {show_value(k)} is not in node_ids")
+            raise fail(f"truth.nodes.{k}", f"node {show_value(k)} is not in node_ids")
         if mode == "planar" and abs(v[2]) > PLANE_TOLERANCE:
-            raise _fail(path, f"truth.nodes.{k}", f"a planar survey's nodes lie on z = 0, got {show_value(v)}")
-    return Truth(
-        cameras={k: _camera_pose(v, f"truth.cameras.{k}", path) for k, v in t.get("cameras", {}).items()},
-        nodes={k: np.array(v, dtype=float) for k, v in t.get("nodes", {}).items()},
-    )
+            raise fail(f"truth.nodes.{k}", f"a planar survey's nodes lie on z = 0, got {show_value(v)}")
+    poses = {}
+    for k, v in t.get("cameras", {}).items():
+        rotation = np.array(v["rotation"], dtype=float)
+        if not is_rotation(rotation, tol=1e-5):
+            raise fail(f"truth.cameras.{k}.rotation", "not a proper rotation matrix (R^T R = I, det = +1)")
+        poses[k] = CameraPose(position=np.array(v["position"], dtype=float), rotation=rotation)
+    return Truth(cameras=poses, nodes={k: np.array(v, dtype=float) for k, v in t.get("nodes", {}).items()})
 
 
 def read_survey(path: str | os.PathLike[str]) -> Survey:
@@ -181,7 +189,7 @@ def read_survey(path: str | os.PathLike[str]) -> Survey:
 
     truth = None
     if "truth" in data:
-        truth = _truth(data["truth"], data["nodes"], known_cameras, known_nodes, where)
+        truth = truth_from_json(data["truth"], data["nodes"], known_cameras, known_nodes, where)
     return Survey(
         mode=NodeMode(data["nodes"]),
         gauge=Gauge(origin=origin, baseline=baseline),
