@@ -71,7 +71,7 @@ RESULT_CASES = [
     ("huge_integer_position", lambda d, n: d["nodes"][n].update(position=[10**400, 0, 0]),
      ("position[0]", "finite number")),
     ("both_localized_and_not", lambda d, n: d.update(unlocalized={n: "lost"}),
-     (f"unlocalized.", "also in nodes")),
+     ("unlocalized.", "also in nodes")),
     ("planar_node_off_plane", lambda d, n: d["nodes"][n].update(position=[0.1, 0.2, 0.5]),
      ("position", "z = 0")),
 ]

@@ -20,6 +20,7 @@ from fgloc.core.errors import FglocError, FileFormatError
 from fgloc.core.geometry import is_rotation
 from fgloc.core.model import (
     CameraPose,
+    FitReport,
     FlaggedObservation,
     Gauge,
     NodeEstimate,
@@ -266,6 +267,11 @@ def result_to_json(result: Result) -> dict:
             for f in result.flagged
         ],
     }
+    if result.fit is not None:
+        f = result.fit
+        data["fit"] = {"chi2": f.chi2, "dof": f.dof, "readings": f.readings,
+                       "p_value": f.p_value if math.isfinite(f.p_value) else None,
+                       "plausible": f.plausible, "problems": list(f.problems), "notes": list(f.notes)}
     if result.stats is not None:
         s = result.stats
         data["solver"] = {
@@ -349,7 +355,21 @@ def read_result(path: str | os.PathLike[str]) -> Result:
         except (KeyError, TypeError, ValueError):
             stats = None  # informational only; never reject a result for it
     return Result(mode=mode, nodes=nodes, cameras=cameras, unlocalized=dict(data.get("unlocalized", {})),
-                  flagged=flagged, stats=stats)
+                  flagged=flagged, stats=stats, fit=_fit(data.get("fit")))
+
+
+def _fit(fit: Any) -> FitReport | None:
+    """The informational ``fit`` block, or None when absent or not as fgloc writes it (never rejected)."""
+    if not isinstance(fit, dict):
+        return None
+    try:
+        p = fit.get("p_value")
+        report = FitReport(chi2=float(fit["chi2"]), dof=int(fit["dof"]), readings=int(fit["readings"]),
+                           p_value=math.nan if p is None else float(p), problems=[str(x) for x in fit["problems"]],
+                           notes=[str(x) for x in fit.get("notes", [])])
+    except (KeyError, TypeError, ValueError, OverflowError):
+        return None
+    return report if math.isfinite(report.chi2) else None
 
 
 def check_against_survey(result: Result, survey: Survey, result_path: str, survey_path: str) -> None:
