@@ -132,7 +132,12 @@ def _place_nodes(cameras: dict[int, CameraPose], bs: BearingSet, nodes: dict[int
         nodes[int(j)] = np.array([xy[0], xy[1], 0.0])
 
 
-def _pair_frames(bs: BearingSet, a: int, b: int, rng: np.random.Generator) -> tuple[list[dict[int, CameraPose]], int]:
+def _name(ids: list[str] | None, i: int) -> str:
+    return ids[i] if ids is not None else f"#{i}"
+
+
+def _pair_frames(bs: BearingSet, a: int, b: int, rng: np.random.Generator, ids: list[str] | None = None
+) -> tuple[list[dict[int, CameraPose]], int]:
     """Cameras a and b in a frame with the plane at z = 0 and camera a above the origin.
 
     Returns every decomposition of the pair's homography that puts (nearly) all
@@ -149,6 +154,7 @@ def _pair_frames(bs: BearingSet, a: int, b: int, rng: np.random.Generator) -> tu
         # noise by the ratio of the node's ranges, the other shrinks it.
         lambda H: np.minimum(angle_between(b1 @ H.T, b2), angle_between(b2 @ np.linalg.inv(H).T, b1)),
         threshold=ransac_threshold(PAIR_THRESHOLD_SIGMAS, bs), rng=rng,
+        what=f"ground-plane homography of the {len(b1)} nodes cameras {_name(ids, a)} and {_name(ids, b)} both see",
     )
     b1, b2 = b1[inliers], b2[inliers]
     check_spans_plane(b1, b2, bs.sigma)
@@ -205,6 +211,7 @@ def _grow(
             lambda idx: plane_to_bearing_homography(xy[idx], bk[idx]),
             lambda G: angle_between(p @ G.T, bk),
             threshold=ransac_threshold(RESECTION_THRESHOLD_SIGMAS, bs), rng=rng,
+            what=f"placing camera {ids[k]} from the {len(xy)} placed nodes it sees",
         )
         return camera_from_plane_homography(G)
 
@@ -242,7 +249,7 @@ def initialize_planar(survey: Survey) -> InitialEstimate:
     s = start_up(survey, NodeMode.PLANAR, MIN_SHARED_PLANAR, "initialize_planar")
     bs = s.bs
     best: tuple[float, float, dict[int, CameraPose], dict[int, FloatArray]] | None = None
-    frames, outliers = _pair_frames(bs, *s.pair, s.rng)
+    frames, outliers = _pair_frames(bs, *s.pair, s.rng, s.ids)
     for cameras in frames:
         nodes = _grow(bs, cameras, s.ids, s.rng)
         cost = angular_cost(bs, cameras, nodes)
