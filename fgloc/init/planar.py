@@ -90,7 +90,7 @@ def consensus_ground_point(pts: FloatArray, tol: FloatArray) -> tuple[FloatArray
     n = len(pts)
     cand = (np.arange(n) if n <= MAX_CONSENSUS_CANDIDATES
             else np.unique(np.linspace(0, n - 1, MAX_CONSENSUS_CANDIDATES).round().astype(np.int64)))
-    dist = np.linalg.norm(pts[cand, None, :] - pts[None, :, :], axis=-1)
+    dist = np.hypot(pts[cand, 0, None] - pts[None, :, 0], pts[cand, 1, None] - pts[None, :, 1])
     agree = dist < tol[cand, None] + tol[None, :]
     counts = agree.sum(axis=1)
     best = int(np.lexsort((tol[cand], -counts))[0])
