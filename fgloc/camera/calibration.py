@@ -132,7 +132,8 @@ def _same_pose(a: np.ndarray, b: np.ndarray, tol: float) -> bool:
 
 def _fit(obj: list[np.ndarray], img: list[np.ndarray], size: tuple[int, int], flags: int):
     try:
-        rms, K, dist, rvecs, tvecs, std, _, _ = cv2.calibrateCameraExtended(obj, img, size, None, None, flags=flags)
+        rms, K, dist, rvecs, tvecs, std, _, _ = cv2.calibrateCameraExtended(  # type: ignore[call-overload]
+            obj, img, size, None, None, flags=flags)
     except cv2.error as exc:
         raise CalibrationError(f"OpenCV could not calibrate from these views: {str(exc).strip().splitlines()[-1]}"
                                ) from None
