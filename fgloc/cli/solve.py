@@ -94,7 +94,7 @@ def run(args: argparse.Namespace) -> int:
 
             recorder = IterationRecorder(survey)
         result = solve_survey(survey, on_iteration=recorder)
-    result.fit = assess(survey, result)
+    result.fit = assess(survey, result, least_squares=args.method == "joint")
     write_result(result, args.output)
     print(describe(result))
     print(f"wrote {args.output}")

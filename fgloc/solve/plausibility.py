@@ -78,8 +78,13 @@ def fit_statistics(survey: Survey, result: Result) -> tuple[float, int, int]:
     return chi2, 2 * used - params, used
 
 
-def assess(survey: Survey, result: Result) -> FitReport:
-    """Goodness of fit and physical plausibility of ``result`` (a solution of ``survey``)."""
+def assess(survey: Survey, result: Result, least_squares: bool = True) -> FitReport:
+    """Goodness of fit and physical plausibility of ``result`` (a solution of ``survey``).
+
+    The chi-square judgement holds for the least-squares solution (the joint solve) only;
+    with ``least_squares=False`` (e.g. the subset-averaging baseline, whose estimate is not
+    the minimum of the cost) chi2 is reported but a large one is not a problem.
+    """
     chi2, dof, used = fit_statistics(survey, result)
     p = chi2_upper_tail(chi2, dof)
     problems: list[str] = []
@@ -96,7 +101,7 @@ def assess(survey: Survey, result: Result) -> FitReport:
         if upside_down:
             notes.append(f"camera(s) {', '.join(upside_down)} hang upside down (base z axis pointing down): "
                          "right for a ceiling mount; for heads standing upright the tilt sign is flipped")
-    if dof > 0 and p < POOR_FIT_P:
+    if least_squares and dof > 0 and p < POOR_FIT_P:
         problems.append(f"the readings do not fit: chi2 {chi2:.4g} for {dof} degrees of freedom "
                         f"(they scatter {math.sqrt(chi2 / dof):.3g} x the stated sigma; p = {p:.2g})")
     return FitReport(chi2=chi2, dof=dof, readings=used, p_value=p, problems=problems, notes=notes)
