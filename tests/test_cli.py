@@ -32,11 +32,15 @@ def test_simulate_rejects_bad_options(tmp_path: Path, capsys) -> None:
 @pytest.mark.parametrize(
     "option, expected",
     [
-        (["--nodes", "-5"], "--nodes must be >= 1, got -5"),
-        (["--nodes", "0"], "--nodes must be >= 1, got 0"),
-        (["--sigma-deg", "nan"], "--sigma-deg must be a finite number, got nan"),
-        (["--heights", "inf", "0.1"], "--heights must be a finite number, got inf"),
-        (["--roll-pitch-deg", "nan"], "--roll-pitch-deg must be a finite number, got nan"),
+        (["--nodes", "-5"], "--nodes: expected an integer >= 1, got -5"),
+        (["--nodes", "0"], "--nodes: expected an integer >= 1, got 0"),
+        (["--sigma-deg", "nan"], "--sigma-deg: expected a finite number > 0 and <= 90, got nan"),
+        (["--sigma-deg", "0"], "--sigma-deg: expected a finite number > 0 and <= 90, got 0.0"),
+        (["--heights", "inf", "0.1"], "--heights: expected a finite number > 0, got inf"),
+        (["--roll-pitch-deg", "nan"], "--roll-pitch-deg: expected a finite number >= 0 and <= 90, got nan"),
+        (["--roll-pitch-deg", "-1"], "--roll-pitch-deg: expected a finite number >= 0 and <= 90, got -1.0"),
+        (["--seed", "-1"], "--seed: expected an integer >= 0, got -1"),
+        (["--repeats", "0"], "--repeats: expected an integer >= 1, got 0"),
     ],
 )
 def test_simulate_bad_numbers_are_one_line_errors(tmp_path: Path, capsys, option, expected) -> None:

@@ -127,3 +127,43 @@ def test_bad_input_json_for_degenerate_gauge(tmp_path: Path, capsys) -> None:
     assert rc == 2 and err.count("\n") == 1
     assert "vertical" in err
     assert json.loads(path.read_text())["format"] == "fgloc-survey"
+
+
+# ---- degenerate readings end in an FglocError naming what is degenerate (issue 15) --------
+
+
+@pytest.mark.parametrize("mode", ["planar", "3d"])
+@pytest.mark.parametrize("kind", ["all_equal", "random", "one_node_repeated"])
+def test_degenerate_readings_are_fglocerrors(mode, kind) -> None:
+    """Whatever the readings, a solve ends in a result or an FglocError, never a bare ValueError."""
+    from dataclasses import replace as _replace
+
+    from fgloc.core.errors import FglocError
+    from fgloc.core.model import NodeMode
+    from fgloc.sim.scenes import RandomScene, random_scene
+    from fgloc.solve.joint import solve_survey
+
+    survey = random_scene(RandomScene(n_cameras=3, n_nodes=12, mode=NodeMode(mode), seed=7))
+    rng = np.random.default_rng(1)
+    if kind == "all_equal":
+        obs = [_replace(o, pan=0.3, tilt=-0.4) for o in survey.observations]
+    elif kind == "random":
+        obs = [_replace(o, pan=float(rng.uniform(-3, 3)), tilt=float(rng.uniform(-1.5, 1.5)))
+               for o in survey.observations]
+    else:
+        obs = [_replace(o, node=survey.node_ids[0]) for o in survey.observations]
+    try:
+        solve_survey(_replace(survey, observations=obs))
+    except FglocError as exc:
+        assert str(exc) and "\n" not in str(exc)
+
+
+def test_ransac_without_consensus_names_what_it_fitted() -> None:
+    from fgloc.init.homography import DegenerateGeometryError
+    from fgloc.init.ransac import ransac
+
+    with pytest.raises(DegenerateGeometryError, match="homography of cam0 and cam1: no 4 of the 10 agree"):
+        ransac(10, 4, lambda idx: 0, lambda m: np.ones(10), threshold=0.1, rng=np.random.default_rng(0),
+               what="homography of cam0 and cam1")
+    with pytest.raises(DegenerateGeometryError, match="at least 4 needed"):
+        ransac(3, 4, lambda idx: 0, lambda m: np.zeros(3), threshold=0.1, rng=np.random.default_rng(0))

@@ -149,7 +149,7 @@ def test_result_write_is_atomic(tmp_path, small_survey, monkeypatch) -> None:
     path = tmp_path / "result.json"
     write_result(result, path)
     before = path.read_bytes()
-    bad = next(iter(result.nodes.values()))
+    bad = next(iter(result.cameras.values()))
     object.__setattr__(bad, "position", np.array([math.nan, 0.0, 0.0]))  # JSON cannot hold NaN
     with pytest.raises(ValueError):
         write_result(result, path)

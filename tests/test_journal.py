@@ -117,7 +117,7 @@ def test_every_prefix_of_a_journal_reads(tmp_path):
         (['{"type":"node_started","node":"n1"}'], "line 1: first record must be the header"),
         (["HEADER", "not json"], "line 2: not valid JSON"),
         (["HEADER", '{"type":"observation","node":"zz","camera":"a","index":0,"pan":0,"tilt":0}'],
-         "line 2: observation.node: unknown node 'zz'"),
+         'line 2: observation.node: unknown node "zz"'),
         (["HEADER", '{"type":"observation","node":"n1","camera":"a","index":0,"pan":"x","tilt":0}'],
          "line 2: observation.pan: expected a finite number"),
         (["HEADER", '{"type":"observation","node":"n1","camera":"a","index":-1,"pan":0,"tilt":0}'],

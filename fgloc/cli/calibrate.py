@@ -25,30 +25,37 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import cv2
-
     from fgloc.camera.calibration import BoardSpec, CalibrationError, calibrate
     from fgloc.camera.led_measurement import ZOOM_TOLERANCE
+    from fgloc.cli._args import finite
     from fgloc.cli._output import StepBar
     from fgloc.files.camera_file import write_intrinsics
 
+    log = logging.getLogger(__name__)
     board = BoardSpec.parse(args.board, args.square)
     if not 0.0 <= args.zoom <= 1.0:
         raise CalibrationError(f"--zoom: must lie in [0, 1], got {args.zoom!r}")
-    images = []
+    from fgloc.camera.image_files import read_gray
+
+    finite("--max-image-rms", args.max_image_rms, above=0.0)
+    images, unreadable = [], []
     for name in args.images:
-        image = cv2.imread(name, cv2.IMREAD_GRAYSCALE)
-        if image is None:
-            raise CalibrationError(f"{name}: cannot read as an image")
-        images.append((name, image))
+        image, problem = read_gray(name)
+        if image is None:  # named in the table below, or in the refusal
+            unreadable.append((name, problem))
+        else:
+            images.append((name, image))
+    if not images:
+        raise CalibrationError(f"{unreadable[0][0]}: {unreadable[0][1]}" + (
+            f" (and the {len(unreadable) - 1} other images are unreadable too)" if len(unreadable) > 1 else ""))
     if args.zoom > ZOOM_TOLERANCE:
-        logging.getLogger(__name__).warning(
+        log.warning(
             f"calibrating at zoom {args.zoom:.3f}: only the widest zoom (0) keeps the optical "
             "centre on the pan/tilt axes; bearings measured at this zoom carry a parallax error"
         )
     with StepBar(args.progress, "calibrate", unit="image") as bar:
         result = calibrate(images, board, zoom=args.zoom, max_image_rms=args.max_image_rms, fit_k3=args.fit_k3,
-                           progress=bar)
+                           progress=bar, unreadable=unreadable)
     width = max(len(r.name) for r in result.reports)
     print(f"{'image':<{width}}  {'rms px':>8}  status")
     for r in result.reports:

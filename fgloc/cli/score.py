@@ -18,13 +18,16 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from fgloc.cli._args import finite
     from fgloc.evaluate.score import format_score_table, score
-    from fgloc.files.survey_result import read_result, read_survey
+    from fgloc.files.survey_result import check_against_survey, read_result, read_survey
 
+    finite("--baseline-m", args.baseline_m, above=0.0)
     survey = read_survey(args.survey)
     if survey.truth is None:
         raise FglocError(f"{args.survey}: truth: missing (only simulated surveys can be scored)")
     result = read_result(args.result)
+    check_against_survey(result, survey, args.result, args.survey)
     s = score(survey, result, args.baseline_m)
     print(json.dumps(s.as_dict(), indent=1) if args.json else format_score_table(s, args.baseline_m))
     return 0

@@ -40,14 +40,16 @@ def register(sub: argparse._SubParsersAction) -> None:
 def scenario_from_args(args: argparse.Namespace) -> PaperScenario:
     import numpy as np
 
+    from fgloc.cli._args import finite, integer
     from fgloc.sim.scenes import PaperScenario, paper_scenario
 
-    for flag, value in (("--sigma-deg", args.sigma_deg), ("--heights", args.heights[0]),
-                        ("--heights", args.heights[1]), ("--roll-pitch-deg", args.roll_pitch_deg)):
-        if not np.isfinite(value):
-            raise FglocError(f"simulate: {flag} must be a finite number, got {value}")
-    if args.nodes < 1:
-        raise FglocError(f"simulate: --nodes must be >= 1, got {args.nodes}")
+    finite("--sigma-deg", args.sigma_deg, above=0.0, at_most=90.0)
+    for h in args.heights:
+        finite("--heights", h, above=0.0)
+    finite("--roll-pitch-deg", args.roll_pitch_deg, at_least=0.0, at_most=90.0)
+    integer("--nodes", args.nodes, at_least=1)
+    integer("--repeats", args.repeats, at_least=1)
+    integer("--seed", args.seed, at_least=0)
     try:
         config = PaperScenario(
             n_nodes=args.nodes,

@@ -3,11 +3,17 @@
 from __future__ import annotations
 
 import argparse
+import logging
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from fgloc.baselines.subset_newton import SubsetNewtonResult
     from fgloc.core.model import Result, Survey
+
+
+#: Exit status of ``fgloc solve`` when the result was written but is implausible
+#: (a camera below the node plane, or readings that do not fit the noise model).
+IMPLAUSIBLE_EXIT = 3
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -45,6 +51,15 @@ def describe(result: Result) -> str:
         lines.append(f"time {1000 * total:.1f} ms ({stages})")
     if result.flagged:
         lines.append(f"{len(result.flagged)} observations flagged as implausible (see result file)")
+    f = result.fit
+    if f is not None:
+        if f.dof > 0:
+            lines.append(f"fit: chi2 {f.chi2:.6g} for {f.dof} degrees of freedom ({f.readings} readings; "
+                         f"ratio {f.chi2 / f.dof:.3g}, expect about 1; p = {f.p_value:.3g})")
+        else:
+            lines.append(f"fit: {f.readings} readings leave no degrees of freedom to judge the fit")
+        lines.extend(f"IMPLAUSIBLE: {problem}" for problem in f.problems)
+        lines.extend(f"note: {note}" for note in f.notes)
     return "\n".join(lines)
 
 
@@ -63,6 +78,7 @@ def subset_cloud(survey: Survey, outcome: SubsetNewtonResult) -> tuple:
 def run(args: argparse.Namespace) -> int:
     from fgloc.files.survey_result import read_survey, write_result
     from fgloc.solve.joint import solve_survey
+    from fgloc.solve.plausibility import assess
 
     survey = read_survey(args.survey)
     recorder = None
@@ -88,15 +104,20 @@ def run(args: argparse.Namespace) -> int:
         from fgloc.solve.self_calibration import HeadModel, solve_with_head_model
 
         result, head_report = solve_with_head_model(survey, HeadModel(args.head_model))
+    # The fit is judged against the ideal head model's residuals: only for the plain joint solve.
+    result.fit = assess(survey, result, least_squares=args.method == "joint" and head_report is None)
     write_result(result, args.output, {"head_calibration": head_report.to_json()} if head_report else None)
     print(describe(result))
     if head_report is not None:
         print(head_report.summary())
     print(f"wrote {args.output}")
+    status = 0 if result.fit.plausible else IMPLAUSIBLE_EXIT
     if args.rerun:
         from fgloc.viz import camera_covariances_or_none, write_rrd
 
         write_rrd(args.rerun, result, survey, recorder=recorder, subsets=subsets,
                   camera_covariances=camera_covariances_or_none(survey, result) if subsets is None else None)
         print(f"wrote {args.rerun} (open it with `rerun {args.rerun}`)")
-    return 0
+    if status:
+        logging.getLogger(__name__).warning(f"{args.output}: the solution is implausible (see IMPLAUSIBLE above)")
+    return status

@@ -25,15 +25,12 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     import fgloc.viz as viz  # rerun is imported only by this command
-    from fgloc.files.survey_result import read_result, read_survey
+    from fgloc.files.survey_result import check_against_survey, read_result, read_survey
 
     result = read_result(args.result)
     survey = read_survey(args.survey) if args.survey else None
     if survey is not None:
-        unknown = sorted(set(result.nodes) - set(survey.node_ids))
-        if unknown:
-            raise FglocError(f"{args.survey}: node_ids: result {args.result} has nodes not in the survey: "
-                             f"{', '.join(unknown[:5])}")
+        check_against_survey(result, survey, args.result, args.survey)
     if not (args.save or args.screenshot) and not viz.has_display():
         raise FglocError(f"{args.result}: no display to show the viewer on (DISPLAY is unset); "
                          "use --save FILE.rrd and open that file where there is a screen (`rerun FILE.rrd`)")

@@ -158,6 +158,28 @@ class SolveStats:
 
 
 @dataclass
+class FitReport:
+    """Goodness of fit and plausibility of a solution (:mod:`fgloc.solve.plausibility`).
+
+    ``chi2`` is the sum of the used readings' squared whitened residuals, chi-square
+    with ``dof`` degrees of freedom under the noise model; ``p_value`` the chance of a
+    chi2 at least as large (NaN when ``dof`` <= 0). ``problems`` lists, one sentence
+    each, why the solution is implausible (empty when it is plausible).
+    """
+
+    chi2: float
+    dof: int
+    readings: int
+    p_value: float
+    problems: list[str] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)  # worth a look, not implausible (e.g. upside-down heads)
+
+    @property
+    def plausible(self) -> bool:
+        return not self.problems
+
+
+@dataclass
 class Result:
     """A solved survey in the gauge frame."""
 
@@ -167,3 +189,4 @@ class Result:
     unlocalized: dict[str, str] = field(default_factory=dict)
     flagged: list[FlaggedObservation] = field(default_factory=list)
     stats: SolveStats | None = None
+    fit: FitReport | None = None

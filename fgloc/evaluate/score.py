@@ -61,7 +61,11 @@ def nees(errors: np.ndarray, covariances: np.ndarray) -> np.ndarray:
 
 
 def score(survey: Survey, result: Result, baseline_m: float = PAPER_BASELINE_METRES) -> Score:
-    """Per-node error statistics and covariance consistency."""
+    """Per-node error statistics and covariance consistency (``baseline_m`` > 0, finite)."""
+    if not (np.isfinite(baseline_m) and baseline_m > 0):
+        raise FglocError(f"baseline length must be a finite number of metres > 0, got {baseline_m!r}")
+    if result.mode is not survey.mode:
+        raise FglocError(f"a {result.mode.value} result cannot be scored against a {survey.mode.value} survey")
     ids, err = node_errors(survey, result)
     dof = 2 if result.mode is NodeMode.PLANAR else 3
     dist = np.linalg.norm(err, axis=1)

@@ -46,8 +46,9 @@ from typing import Any
 import numpy as np
 
 from fgloc.core.errors import FglocError
-from fgloc.core.model import CameraPose, Gauge, NodeMode, Observation, Survey, Truth
-from fgloc.files.json_io import Bulk, check, is_number, is_vector3, parse_json
+from fgloc.core.model import Gauge, NodeMode, Observation, Survey, Truth
+from fgloc.files.json_io import Bulk, check, field_name, find_nonfinite, is_number, is_vector3, parse_json, show_value
+from fgloc.files.survey_result import truth_from_json
 
 JOURNAL_FORMAT = "fgloc-journal"
 JOURNAL_VERSION = 1
@@ -183,10 +184,15 @@ def rig_hash(config: Any) -> str:
     return hashlib.sha256(text.encode("utf-8")).hexdigest()
 
 
+_TILT_LIMIT = 1.5707963277948966  # pi/2 + 1e-9, as survey.schema.json's observation tilt
+
+
 def _plain_observation(rec: dict) -> bool:
     """Pre-accepts the common observation record; never laxer than ``$defs/observation``."""
-    index = rec.get("index")
-    return (type(index) is int and index >= 0 and is_number(rec.get("pan")) and is_number(rec.get("tilt"))
+    index, tilt, node, camera = rec.get("index"), rec.get("tilt"), rec.get("node"), rec.get("camera")
+    return (type(index) is int and index >= 0 and is_number(rec.get("pan")) and is_number(tilt)
+            and -_TILT_LIMIT <= tilt <= _TILT_LIMIT  # type: ignore[operator]
+            and type(node) is str and node != "" and type(camera) is str and camera != ""
             and "sigma" not in rec)
 
 
@@ -215,10 +221,11 @@ class _Replay:
         if kind in _CHECKED and not (kind == "observation" and _plain_observation(rec)):
             check(rec, "journal", f"{self.path}: line {line}", JournalError, definition=str(kind), root=str(kind),
                   bulk=_TRUTH_BULK if kind == "truth" else None)
-        if kind in _NODE_RECORDS and node not in self.nodes:
-            raise self.fail(line, f"{kind}.node: unknown node {node!r}")
-        if kind in ("observation", "not_found") and rec.get("camera") not in self.cams:
-            raise self.fail(line, f"{kind}.camera: unknown camera {rec.get('camera')!r}")
+        if kind in _NODE_RECORDS and (type(node) is not str or node not in self.nodes):
+            raise self.fail(line, f"{kind}.node: unknown node {show_value(node)}")
+        camera: Any = rec.get("camera")
+        if kind in ("observation", "not_found") and (type(camera) is not str or camera not in self.cams):
+            raise self.fail(line, f"{kind}.camera: unknown camera {show_value(camera)}")
         if kind == "node_started":
             if node not in self.started:
                 self.started.add(node)
@@ -236,11 +243,8 @@ class _Replay:
         elif kind == "rig_changed":
             state.rig_changes.append(rec)
         elif kind == "truth":
-            state.truth = Truth(
-                cameras={k: CameraPose(np.array(v["position"], float), np.array(v["rotation"], float))
-                         for k, v in rec["cameras"].items()},
-                nodes={k: np.array(v, float) for k, v in rec["nodes"].items()},
-            )
+            state.truth = truth_from_json(rec, state.header.mode.value, self.cams, self.nodes,
+                                          f"{self.path}: line {line}", JournalError)
         # Unknown record types are ignored (forward compatibility), like unknown fields.
 
 
@@ -254,6 +258,23 @@ def _header(rec: dict, path: str, line: int) -> JournalHeader:
     if isinstance(rec.get("version"), bool) or rec.get("version") != JOURNAL_VERSION:
         raise JournalError(f"{where}: version: unsupported {rec.get('version')!r}")
     check(rec, "journal", where, JournalError, definition="header", root="header")
+    # What survey.json's reader checks after its schema, so that the survey recorded here reads back.
+    for name in ("camera_ids", "node_ids"):
+        seen: set[str] = set()
+        for i, v in enumerate(rec[name]):
+            if v in seen:
+                raise JournalError(f"{where}: header.{name}[{i}]: duplicate id {show_value(v)}")
+            seen.add(v)
+    gauge = rec["gauge"]
+    for role in ("origin", "baseline"):
+        if gauge[role] not in rec["camera_ids"]:
+            raise JournalError(f"{where}: header.gauge.{role}: camera {show_value(gauge[role])} is not in camera_ids")
+    if gauge["origin"] == gauge["baseline"]:
+        raise JournalError(f"{where}: header.gauge.baseline: must differ from gauge.origin, "
+                           f"both are {show_value(gauge['origin'])}")
+    bad = find_nonfinite(rec.get("meta"))
+    if bad is not None:
+        raise JournalError(f"{where}: {field_name(bad, 'header.meta')}: expected a finite number")
     return JournalHeader(NodeMode(rec["nodes"]), Gauge(origin=rec["gauge"]["origin"], baseline=rec["gauge"]["baseline"]),
                          float(rec["sigma"]), list(rec["camera_ids"]), list(rec["node_ids"]),
                          str(rec.get("rig_hash", "")), dict(rec.get("meta") or {}), rec.get("rig_meaning"),

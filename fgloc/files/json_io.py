@@ -67,8 +67,21 @@ def _parse_int(text: str) -> int | NonFinite:
 
 
 def parse_json(text: str | bytes) -> Any:
-    """The document in ``text``; non-finite numbers become :class:`NonFinite`. Raises ``json.JSONDecodeError``."""
-    return json.loads(text, parse_float=_parse_float, parse_int=_parse_int, parse_constant=NonFinite)
+    """The document in ``text``; non-finite numbers become :class:`NonFinite`.
+
+    Raises ``json.JSONDecodeError``, also for a document nested too deeply for the
+    parser (thousands of ``[``), which no fgloc format needs.
+    """
+    try:
+        return json.loads(text, parse_float=_parse_float, parse_int=_parse_int, parse_constant=NonFinite)
+    except RecursionError:
+        raise json.JSONDecodeError("nested too deeply", text if isinstance(text, str) else "", 0) from None
+
+
+#: Largest coordinate magnitude a position may have (gauge units, baseline = 1):
+#: no bearing survey places anything a billion baselines away, and beyond it
+#: squares and float32 viewers overflow. Also ``survey.schema.json#/$defs/coordinate``.
+POSITION_LIMIT = 1e9
 
 
 def is_number(x: object) -> bool:
@@ -76,14 +89,36 @@ def is_number(x: object) -> bool:
     return type(x) is float or type(x) is int
 
 
+def is_coordinate(x: object) -> bool:
+    """A finite number within +-:data:`POSITION_LIMIT`, as ``survey.schema.json#/$defs/coordinate``."""
+    return (type(x) is float or type(x) is int) and -POSITION_LIMIT <= x <= POSITION_LIMIT  # type: ignore[operator]
+
+
 def is_vector3(v: object) -> bool:
-    """Three finite numbers: accepts only what ``survey.schema.json#/$defs/vector3`` accepts."""
-    return type(v) is list and len(v) == 3 and all(map(is_number, v))
+    """Three coordinates: accepts only what ``survey.schema.json#/$defs/vector3`` accepts."""
+    return type(v) is list and len(v) == 3 and all(map(is_coordinate, v))
+
+
+def find_nonfinite(value: Any, path: tuple[str | int, ...] = ()) -> tuple[str | int, ...] | None:
+    """The path of the first :class:`NonFinite` inside ``value`` (free-form fields), or None."""
+    stack: list[tuple[Any, tuple[str | int, ...]]] = [(value, path)]
+    while stack:
+        v, where = stack.pop()
+        if isinstance(v, NonFinite):
+            return where
+        if isinstance(v, dict):
+            stack.extend((item, (*where, str(k))) for k, item in v.items())
+        elif isinstance(v, list):
+            stack.extend((item, (*where, i)) for i, item in enumerate(v))
+    return None
 
 
 def show_value(value: Any) -> str:
     """``value`` as the JSON a user wrote (non-finite numbers as written), cut to 60 characters."""
-    text = value.text if isinstance(value, NonFinite) else json.dumps(value, default=repr)
+    try:
+        text = value.text if isinstance(value, NonFinite) else json.dumps(value, default=repr)
+    except (RecursionError, ValueError):
+        text = f"<{type(value).__name__} nested too deeply>"
     return text if len(text) <= 60 else text[:57] + "..."
 
 

@@ -16,10 +16,11 @@ from typing import Any
 
 import numpy as np
 
-from fgloc.core.errors import FileFormatError
+from fgloc.core.errors import FglocError, FileFormatError
 from fgloc.core.geometry import is_rotation
 from fgloc.core.model import (
     CameraPose,
+    FitReport,
     FlaggedObservation,
     Gauge,
     NodeEstimate,
@@ -30,7 +31,16 @@ from fgloc.core.model import (
     Survey,
     Truth,
 )
-from fgloc.files.json_io import Bulk, check, is_number, is_vector3, load_json, show_value, write_json_atomic
+from fgloc.files.json_io import (
+    POSITION_LIMIT,
+    Bulk,
+    check,
+    is_number,
+    is_vector3,
+    load_json,
+    show_value,
+    write_json_atomic,
+)
 
 SURVEY_FORMAT = "fgloc-survey"
 RESULT_FORMAT = "fgloc-result"
@@ -81,6 +91,26 @@ _SURVEY_BULK: Bulk = {("observations",): _plain_observation, ("node_ids",): _is_
 _RESULT_BULK: Bulk = {("nodes",): _plain_node}
 
 
+#: Relative tolerance of the covariance checks: asymmetry and the smallest eigenvalue
+#: are measured against the largest eigenvalue's magnitude.
+COVARIANCE_RTOL = 1e-12
+
+
+def covariance_problem(cov: np.ndarray) -> str | None:
+    """Why ``cov`` (square, finite) is not a covariance: not symmetric, or not positive
+    definite (a zero, negative or relatively tiny eigenvalue, within :data:`COVARIANCE_RTOL`
+    of the largest), or None when it is one."""
+    scale = float(np.max(np.abs(cov))) if cov.size else 0.0
+    if not scale > 0 or not math.isfinite(scale):
+        return "not positive definite (all zero)" if scale == 0 else "not finite"
+    if float(np.max(np.abs(cov - cov.T))) > 1e-6 * scale:
+        return "not symmetric"
+    eig = np.linalg.eigvalsh(0.5 * (cov + cov.T) / scale)
+    if eig[0] <= COVARIANCE_RTOL * eig[-1]:
+        return "not positive definite (an eigenvalue <= 0, or singular)"
+    return None
+
+
 def _fail(path: str, field: str, problem: str) -> FileFormatError:
     return FileFormatError(f"{path}: {field}: {problem}")
 
@@ -99,6 +129,34 @@ def _camera_pose(value: dict, name: str, path: str) -> CameraPose:
     if not is_rotation(rotation, tol=1e-5):
         raise _fail(path, f"{name}.rotation", "not a proper rotation matrix (R^T R = I, det = +1)")
     return CameraPose(position=np.array(value["position"], dtype=float), rotation=rotation)
+
+
+#: How far a planar survey's true node may lie off z = 0 (gauge units) and still be "on the plane".
+PLANE_TOLERANCE = 1e-6
+
+
+def truth_from_json(t: dict, mode: str, cameras: set[str], nodes: set[str], path: str,
+                    error: type[FglocError] = FileFormatError) -> Truth:
+    """A schema-checked truth block (survey.json or journal): ids from the survey, proper
+    rotations, planar nodes on z = 0; ``error("PATH: FIELD: problem")`` otherwise."""
+    def fail(field: str, problem: str) -> FglocError:
+        return error(f"{path}: {field}: {problem}")
+
+    for k in t.get("cameras", {}):
+        if k not in cameras:
+            raise fail(f"truth.cameras.{k}", f"camera {show_value(k)} is not in cameras")
+    for k, v in t.get("nodes", {}).items():
+        if k not in nodes:
+            raise fail(f"truth.nodes.{k}", f"node {show_value(k)} is not in node_ids")
+        if mode == "planar" and abs(v[2]) > PLANE_TOLERANCE:
+            raise fail(f"truth.nodes.{k}", f"a planar survey's nodes lie on z = 0, got {show_value(v)}")
+    poses = {}
+    for k, v in t.get("cameras", {}).items():
+        rotation = np.array(v["rotation"], dtype=float)
+        if not is_rotation(rotation, tol=1e-5):
+            raise fail(f"truth.cameras.{k}.rotation", "not a proper rotation matrix (R^T R = I, det = +1)")
+        poses[k] = CameraPose(position=np.array(v["position"], dtype=float), rotation=rotation)
+    return Truth(cameras=poses, nodes={k: np.array(v, dtype=float) for k, v in t.get("nodes", {}).items()})
 
 
 def read_survey(path: str | os.PathLike[str]) -> Survey:
@@ -132,11 +190,7 @@ def read_survey(path: str | os.PathLike[str]) -> Survey:
 
     truth = None
     if "truth" in data:
-        t = data["truth"]
-        truth = Truth(
-            cameras={k: _camera_pose(v, f"truth.cameras.{k}", where) for k, v in t.get("cameras", {}).items()},
-            nodes={k: np.array(v, dtype=float) for k, v in t.get("nodes", {}).items()},
-        )
+        truth = truth_from_json(data["truth"], data["nodes"], known_cameras, known_nodes, where)
     return Survey(
         mode=NodeMode(data["nodes"]),
         gauge=Gauge(origin=origin, baseline=baseline),
@@ -177,20 +231,36 @@ def survey_to_json(survey: Survey) -> dict:
     return data
 
 
+def _unwritable(node: NodeEstimate) -> str | None:
+    """Why an estimate is no estimate (diverged, or its covariance undefined), or None."""
+    position = np.asarray(node.position, float)
+    if not np.all(np.isfinite(position)) or np.max(np.abs(position)) > POSITION_LIMIT:
+        return f"its estimate diverged (beyond {POSITION_LIMIT:g} baselines)"
+    cov = np.asarray(node.covariance, float)
+    if cov.ndim != 2 or cov.shape[0] != cov.shape[1] or not np.all(np.isfinite(cov)) or covariance_problem(cov):
+        return "its covariance is undefined or singular: the readings do not determine it"
+    return None
+
+
 def result_to_json(result: Result, extra: dict[str, Any] | None = None) -> dict:
     """The result as a JSON-ready dict per the spec, plus fgloc's extra fields.
 
     ``extra`` adds optional top-level blocks (e.g. ``head_calibration``); readers ignore them.
     """
+    nodes, unlocalized = {}, dict(result.unlocalized)
+    for k, v in result.nodes.items():
+        why = _unwritable(v)
+        if why is None:
+            nodes[k] = {"position": [float(x) for x in v.position],
+                        "covariance": np.asarray(v.covariance, float).tolist()}
+        else:  # what read_result would refuse is reported, not written as if it were an estimate
+            unlocalized[k] = why
     data: dict[str, Any] = {
         "format": RESULT_FORMAT,
         "version": FORMAT_VERSION,
-        "nodes": {
-            k: {"position": [float(x) for x in v.position], "covariance": np.asarray(v.covariance, float).tolist()}
-            for k, v in result.nodes.items()
-        },
+        "nodes": nodes,
         "cameras": {k: _pose_json(v) for k, v in result.cameras.items()},
-        "unlocalized": dict(result.unlocalized),
+        "unlocalized": unlocalized,
         # Extra fields (allowed by the spec: readers ignore unknown fields).
         "mode": result.mode.value,
         "flagged_observations": [
@@ -200,6 +270,11 @@ def result_to_json(result: Result, extra: dict[str, Any] | None = None) -> dict:
             for f in result.flagged
         ],
     }
+    if result.fit is not None:
+        f = result.fit
+        data["fit"] = {"chi2": f.chi2, "dof": f.dof, "readings": f.readings,
+                       "p_value": f.p_value if math.isfinite(f.p_value) else None,
+                       "plausible": f.plausible, "problems": list(f.problems), "notes": list(f.notes)}
     if result.stats is not None:
         s = result.stats
         data["solver"] = {
@@ -234,22 +309,33 @@ def read_result(path: str | os.PathLike[str]) -> Result:
     _check_header(data, RESULT_FORMAT, where)
     check(data, "result", where, FileFormatError, bulk=_RESULT_BULK)
 
+    mode_value = data.get("mode")  # fgloc's extra field: when it names a mode, the covariances must fit it
+    stated = NodeMode(mode_value) if mode_value in ("planar", "3d") else None
     nodes: dict[str, NodeEstimate] = {}
     dims: set[int] = set()
     for k, v in data["nodes"].items():
         cov = v["covariance"]
         n = len(cov)
+        field = f"nodes.{k}.covariance"
         if any(len(row) != n for row in cov):
-            raise _fail(where, f"nodes.{k}.covariance", f"expected a 2x2 or 3x3 matrix, got {show_value(cov)}")
+            raise _fail(where, field, f"expected a 2x2 or 3x3 matrix, got {show_value(cov)}")
+        if stated is not None and n != stated.position_dim:
+            d = stated.position_dim
+            raise _fail(where, field, f"a {stated.value} result needs a {d}x{d} covariance, got {n}x{n}")
+        if dims and n not in dims:
+            raise _fail(where, field, f"covariances mix 2x2 and 3x3 matrices, got {n}x{n} after {min(dims)}x{min(dims)}")
         dims.add(n)
-        nodes[k] = NodeEstimate(position=np.array(v["position"], dtype=float), covariance=np.array(cov, dtype=float))
-    if len(dims) > 1:
-        raise _fail(where, "nodes", "covariances mix 2x2 and 3x3 matrices")
-    mode_value = data.get("mode")  # informational extra field; never rejected
-    if mode_value in ("planar", "3d"):
-        mode = NodeMode(mode_value)
-    else:
-        mode = NodeMode.THREE_D if dims == {3} else NodeMode.PLANAR
+        matrix = np.array(cov, dtype=float)
+        problem = covariance_problem(matrix)
+        if problem is not None:
+            raise _fail(where, field, f"{problem}, got {show_value(cov)}")
+        if n == 2 and abs(v["position"][2]) > PLANE_TOLERANCE:
+            raise _fail(where, f"nodes.{k}.position", f"a planar result's nodes lie on z = 0, got {show_value(v['position'])}")
+        nodes[k] = NodeEstimate(position=np.array(v["position"], dtype=float), covariance=matrix)
+    mode = stated or (NodeMode.THREE_D if dims == {3} else NodeMode.PLANAR)
+    both = sorted(set(nodes) & set(data.get("unlocalized", {})))
+    if both:
+        raise _fail(where, f"unlocalized.{both[0]}", f"node {show_value(both[0])} is also in nodes (a node is in exactly one)")
     cameras = {k: _camera_pose(v, f"cameras.{k}", where) for k, v in data["cameras"].items()}
     flagged = [
         FlaggedObservation(camera=f["camera"], node=f["node"], index=int(f["index"]),
@@ -274,4 +360,41 @@ def read_result(path: str | os.PathLike[str]) -> Result:
         except (KeyError, TypeError, ValueError):
             stats = None  # informational only; never reject a result for it
     return Result(mode=mode, nodes=nodes, cameras=cameras, unlocalized=dict(data.get("unlocalized", {})),
-                  flagged=flagged, stats=stats)
+                  flagged=flagged, stats=stats, fit=_fit(data.get("fit")))
+
+
+def _fit(fit: Any) -> FitReport | None:
+    """The informational ``fit`` block, or None when absent or not as fgloc writes it (never rejected)."""
+    if not isinstance(fit, dict):
+        return None
+    try:
+        p = fit.get("p_value")
+        report = FitReport(chi2=float(fit["chi2"]), dof=int(fit["dof"]), readings=int(fit["readings"]),
+                           p_value=math.nan if p is None else float(p), problems=[str(x) for x in fit["problems"]],
+                           notes=[str(x) for x in fit.get("notes", [])])
+    except (KeyError, TypeError, ValueError, OverflowError):
+        return None
+    return report if math.isfinite(report.chi2) else None
+
+
+def check_against_survey(result: Result, survey: Survey, result_path: str, survey_path: str) -> None:
+    """Refuse a result that does not belong to ``survey``: a different mode, ids the
+    survey does not have, flagged readings that are not the survey's."""
+    if result.mode is not survey.mode:
+        d = survey.mode.position_dim
+        raise FileFormatError(f"{result_path}: nodes: a {result.mode.value} result (covariances "
+                              f"{result.mode.position_dim}x{result.mode.position_dim}) for the {survey.mode.value} "
+                              f"survey {survey_path}, which needs {d}x{d}")
+    node_ids, camera_ids = set(survey.node_ids), set(survey.camera_ids)
+    for name, ids in (("nodes", result.nodes), ("unlocalized", result.unlocalized)):
+        for k in ids:
+            if k not in node_ids:
+                raise FileFormatError(f"{result_path}: {name}.{k}: node {show_value(k)} is not in {survey_path}")
+    for k in result.cameras:
+        if k not in camera_ids:
+            raise FileFormatError(f"{result_path}: cameras.{k}: camera {show_value(k)} is not in {survey_path}")
+    for i, f in enumerate(result.flagged):
+        obs = survey.observations[f.index] if f.index < len(survey.observations) else None
+        if obs is None or (obs.camera, obs.node) != (f.camera, f.node):
+            raise FileFormatError(f"{result_path}: flagged_observations[{i}].index: {f.index} is not a reading of "
+                                  f"{f.node} by {f.camera} in {survey_path}")

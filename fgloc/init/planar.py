@@ -70,18 +70,30 @@ def ground_hits(
     return pts, tol, ok
 
 
+#: Above this many hits, :func:`consensus_ground_point` tries only this many of them as
+#: the consensus centre (evenly spaced in input order), so memory and time stay linear
+#: in the number of hits: a node read 20000 times by each camera must not build a
+#: 40000 x 40000 distance table.
+MAX_CONSENSUS_CANDIDATES = 256
+
+
 def consensus_ground_point(pts: FloatArray, tol: FloatArray) -> tuple[FloatArray, np.ndarray]:
     """The ground point most hits agree on, and which hits agree (a 1-point RANSAC).
 
     Two hits agree when they are closer than the sum of their tolerances; the
-    hit with the most agreeing hits wins (ties: the sharpest), and the result is
-    the inverse-variance mean of its agreeing set. One gross ray among three or
-    more cannot drag the point away.
+    candidate hit with the most agreeing hits wins (ties: the sharpest), and the
+    result is the inverse-variance mean of its agreeing set. One gross ray among
+    three or more cannot drag the point away. Every hit is a candidate up to
+    :data:`MAX_CONSENSUS_CANDIDATES` hits; beyond, that many evenly spaced ones are
+    (memory O(candidates x hits), i.e. linear in the hits).
     """
-    dist = np.linalg.norm(pts[:, None, :] - pts[None, :, :], axis=-1)
-    agree = dist < tol[:, None] + tol[None, :]
+    n = len(pts)
+    cand = (np.arange(n) if n <= MAX_CONSENSUS_CANDIDATES
+            else np.unique(np.linspace(0, n - 1, MAX_CONSENSUS_CANDIDATES).round().astype(np.int64)))
+    dist = np.hypot(pts[cand, 0, None] - pts[None, :, 0], pts[cand, 1, None] - pts[None, :, 1])
+    agree = dist < tol[cand, None] + tol[None, :]
     counts = agree.sum(axis=1)
-    best = int(np.lexsort((tol, -counts))[0])
+    best = int(np.lexsort((tol[cand], -counts))[0])
     inliers = agree[best]
     w = 1.0 / tol[inliers] ** 2
     return (w[:, None] * pts[inliers]).sum(0) / w.sum(), inliers
@@ -120,7 +132,12 @@ def _place_nodes(cameras: dict[int, CameraPose], bs: BearingSet, nodes: dict[int
         nodes[int(j)] = np.array([xy[0], xy[1], 0.0])
 
 
-def _pair_frames(bs: BearingSet, a: int, b: int, rng: np.random.Generator) -> tuple[list[dict[int, CameraPose]], int]:
+def _name(ids: list[str] | None, i: int) -> str:
+    return ids[i] if ids is not None else f"#{i}"
+
+
+def _pair_frames(bs: BearingSet, a: int, b: int, rng: np.random.Generator, ids: list[str] | None = None
+) -> tuple[list[dict[int, CameraPose]], int]:
     """Cameras a and b in a frame with the plane at z = 0 and camera a above the origin.
 
     Returns every decomposition of the pair's homography that puts (nearly) all
@@ -137,6 +154,7 @@ def _pair_frames(bs: BearingSet, a: int, b: int, rng: np.random.Generator) -> tu
         # noise by the ratio of the node's ranges, the other shrinks it.
         lambda H: np.minimum(angle_between(b1 @ H.T, b2), angle_between(b2 @ np.linalg.inv(H).T, b1)),
         threshold=ransac_threshold(PAIR_THRESHOLD_SIGMAS, bs), rng=rng,
+        what=f"ground-plane homography of the {len(b1)} nodes cameras {_name(ids, a)} and {_name(ids, b)} both see",
     )
     b1, b2 = b1[inliers], b2[inliers]
     check_spans_plane(b1, b2, bs.sigma)
@@ -193,6 +211,7 @@ def _grow(
             lambda idx: plane_to_bearing_homography(xy[idx], bk[idx]),
             lambda G: angle_between(p @ G.T, bk),
             threshold=ransac_threshold(RESECTION_THRESHOLD_SIGMAS, bs), rng=rng,
+            what=f"placing camera {ids[k]} from the {len(xy)} placed nodes it sees",
         )
         return camera_from_plane_homography(G)
 
@@ -230,7 +249,7 @@ def initialize_planar(survey: Survey) -> InitialEstimate:
     s = start_up(survey, NodeMode.PLANAR, MIN_SHARED_PLANAR, "initialize_planar")
     bs = s.bs
     best: tuple[float, float, dict[int, CameraPose], dict[int, FloatArray]] | None = None
-    frames, outliers = _pair_frames(bs, *s.pair, s.rng)
+    frames, outliers = _pair_frames(bs, *s.pair, s.rng, s.ids)
     for cameras in frames:
         nodes = _grow(bs, cameras, s.ids, s.rng)
         cost = angular_cost(bs, cameras, nodes)

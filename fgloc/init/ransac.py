@@ -8,6 +8,7 @@ from typing import TypeVar
 import numpy as np
 
 from fgloc.core.errors import FglocError
+from fgloc.init.homography import DegenerateGeometryError
 
 Model = TypeVar("Model")
 
@@ -21,16 +22,19 @@ def ransac(
     rng: np.random.Generator,
     confidence: float = 0.999,
     max_iterations: int = 1000,
+    what: str = "the readings",
 ) -> tuple[Model, np.ndarray]:
     """Best model by inlier count, refitted on its inliers, and the inlier mask (n,).
 
     ``fit(indices)`` fits a model to the given items (may raise ``ValueError``
     or ``np.linalg.LinAlgError`` or ``FglocError`` for a degenerate sample);
     ``residual(model)`` gives one non-negative residual per item; items with
-    residual below ``threshold`` are inliers.
+    residual below ``threshold`` are inliers. When no sample gives a model that
+    ``sample_size`` items agree with, raises :class:`DegenerateGeometryError` naming
+    ``what`` was being fitted ("the bearings cam0 and cam1 share").
     """
     if n < sample_size:
-        raise ValueError(f"RANSAC needs at least {sample_size} items, got {n}")
+        raise DegenerateGeometryError(f"{what}: {n} items, at least {sample_size} needed")
     best_mask: np.ndarray | None = None
     best_count = -1
     needed = max_iterations
@@ -53,7 +57,9 @@ def ransac(
             if 1e-12 < miss < 1.0:
                 needed = int(np.ceil(np.log(1 - confidence) / np.log(miss)))
     if best_mask is None or best_count < sample_size:
-        raise ValueError("RANSAC found no consistent model")
+        raise DegenerateGeometryError(
+            f"{what}: no {sample_size} of the {n} agree on a model within {threshold:.3g} rad (degenerate: "
+            "readings all alike, collinear or random; or intrinsics/angles far from what they should be)")
     # Refit on all inliers; keep the refit only if it explains at least as many items.
     try:
         model = fit(np.flatnonzero(best_mask))

@@ -61,13 +61,19 @@ def _triangulate_all(cameras: dict[int, CameraPose], bs: BearingSet, nodes: dict
             nodes[j] = x
 
 
-def _pair(bs: BearingSet, a: int, b: int, rng: np.random.Generator) -> tuple[dict[int, CameraPose], int]:
+def _name(ids: list[str] | None, i: int) -> str:
+    return ids[i] if ids is not None else f"#{i}"
+
+
+def _pair(bs: BearingSet, a: int, b: int, rng: np.random.Generator, ids: list[str] | None = None
+) -> tuple[dict[int, CameraPose], int]:
     b1, b2 = shared_bearings(bs, a, b)
     E, inliers = ransac(
         len(b1), MIN_SHARED_3D,
         lambda idx: estimate_essential(b1[idx], b2[idx]),
         lambda E: epipolar_angles(E, b1, b2),
         threshold=ransac_threshold(PAIR_THRESHOLD_SIGMAS, bs), rng=rng,
+        what=f"essential matrix of the {len(b1)} nodes cameras {_name(ids, a)} and {_name(ids, b)} both see",
     )
     check_not_coplanar(b1[inliers], b2[inliers], bs.sigma)
     pose, _ = decompose_essential(E, b1[inliers], b2[inliers])
@@ -92,7 +98,7 @@ def initialize_3d(survey: Survey) -> InitialEstimate:
     """Closed-form start for a 3d survey (see the module docstring)."""
     st = start_up(survey, NodeMode.THREE_D, MIN_SHARED_3D, "initialize_3d")
     bs, rng = st.bs, st.rng
-    cameras, outliers = _pair(bs, *st.pair, rng)
+    cameras, outliers = _pair(bs, *st.pair, rng, st.ids)
 
     def resect(k: int, mask: np.ndarray, nodes: dict[int, FloatArray]) -> CameraPose:
         vis = np.flatnonzero(mask)
@@ -103,6 +109,7 @@ def initialize_3d(survey: Survey) -> InitialEstimate:
             lambda idx: resect_camera(pts[idx], bk[idx]),
             lambda c: angle_between((pts - c.position) @ c.rotation, bk),
             threshold=ransac_threshold(RESECTION_THRESHOLD_SIGMAS, bs), rng=rng,
+            what=f"placing camera {st.ids[k]} from the {len(vis)} placed nodes it sees",
         )
         return cam
 

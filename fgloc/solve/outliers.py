@@ -82,14 +82,19 @@ def replace_by_consensus(survey: Survey, estimate: InitialEstimate) -> None:
     least two of them agree; ``estimate.nodes`` is updated in place."""
     t = survey.observation_table
     cam_ids = survey.camera_ids
-    for j in np.flatnonzero(np.bincount(t.node_index, minlength=len(survey.node_ids)) >= 3):
-        rows = np.flatnonzero(t.node_index == j)
-        rows = rows[[cam_ids[c] in estimate.cameras for c in t.camera_index[rows]]]
+    placed = np.array([c in estimate.cameras for c in cam_ids], dtype=bool)
+    rotations = np.array([estimate.cameras[c].rotation if p else np.eye(3) for c, p in zip(cam_ids, placed)])
+    positions = np.array([estimate.cameras[c].position if p else np.zeros(3) for c, p in zip(cam_ids, placed)])
+    order = np.argsort(t.node_index, kind="stable")  # readings grouped by node: O(M log M), not O(N M)
+    starts = np.searchsorted(t.node_index[order], np.arange(len(survey.node_ids) + 1))
+    for j in np.flatnonzero(np.diff(starts) >= 3):
+        rows = order[starts[j]:starts[j + 1]]
+        rows = rows[placed[t.camera_index[rows]]]
         if len(rows) < 3:
             continue
-        cams = [estimate.cameras[cam_ids[c]] for c in t.camera_index[rows]]
-        dirs = np.array([c.rotation @ b for c, b in zip(cams, pan_tilt_bearing(t.pan[rows], t.tilt[rows]))])
-        pts, tol, ok = ground_hits(np.array([c.position for c in cams]), dirs, float(np.median(t.sigma[rows])))
+        ci = t.camera_index[rows]
+        dirs = np.einsum("mij,mj->mi", rotations[ci], pan_tilt_bearing(t.pan[rows], t.tilt[rows]))
+        pts, tol, ok = ground_hits(positions[ci], dirs, float(np.median(t.sigma[rows])))
         if ok.sum() >= 3:
             xy, inliers = consensus_ground_point(pts[ok], tol[ok])
             if inliers.sum() >= 2:
