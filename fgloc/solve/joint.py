@@ -65,6 +65,10 @@ class SolverOptions:
     #: Sigma of the gauge priors in baseline units; None scales it to the problem
     #: (see :func:`auto_gauge_sigma`).
     gauge_sigma: float | None = None
+    #: :func:`solve_survey` eliminates the nodes in closed form and lets GTSAM optimize
+    #: only the cameras (:mod:`fgloc.solve.eliminated`); False: the reference graph,
+    #: one pan-tilt factor per reading. Same optimum and marginals.
+    eliminate_nodes: bool = True
 
 
 def auto_gauge_sigma(survey: Survey, initial: InitialEstimate) -> float:
