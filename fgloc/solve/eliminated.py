@@ -196,7 +196,7 @@ def collect_eliminated(
     nodes = {nid: NodeEstimate(position=estimate.nodes[nid], covariance=covs[row])
              for row, nid in enumerate(problem.node_ids)}
     stats = SolveStats(
-        method="joint (nodes eliminated)",
+        method="joint",  # the same joint solve as the reference graph
         iterations=outcome.iterations,
         initial_error=outcome.error_history[0],
         final_error=outcome.error_history[-1],
@@ -268,7 +268,7 @@ def solve_survey_eliminated(
     result = solve_eliminated(final_problem, options, None, stages)
     result.flagged = flagged
     if result.stats is not None:
-        result.stats.method = f"joint, nodes eliminated ({kernel.value} kernel, then Gaussian without flagged readings)"
+        result.stats.method = f"joint ({kernel.value} kernel, then Gaussian without flagged readings)"
         result.stats.initial_error = first.error_history[0]
         result.stats.error_history = first.error_history + result.stats.error_history[1:]
         result.stats.iterations += first.iterations
