@@ -196,7 +196,7 @@ class EliminatedReadings:
         jn = np.empty((m, 2, d))
         for i, sl in enumerate(self._slices):
             jn[sl] = dq[sl] @ rot[i].T[:, :d]  # de/dx = de/dq R^T
-        node_cost = np.bincount(self.node, weights=loss, minlength=len(nodes))
+        node_cost = np.asarray(np.bincount(self.node, weights=loss, minlength=len(nodes)), dtype=float)
         coef = None
         if self.kernel is Kernel.CAUCHY:
             coef = np.full(m, -2.0 / self.scale**2)
