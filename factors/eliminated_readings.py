@@ -205,6 +205,19 @@ class EliminatedReadings:
             coef = np.where(sn > self.scale, -1.0 / (self.scale * np.maximum(sn, 1e-300)), 0.0)
         return _Pass(nodes, e, jn, dq, q, loss, node_cost, coef)
 
+    def _node_costs(self, rot: FloatArray, pos: FloatArray, nodes: FloatArray, rows: np.ndarray) -> FloatArray:
+        """(n,) cost of each node from the readings ``rows`` only (zero for other nodes)."""
+        x = nodes[self.node[rows]]
+        if self.dim == 2:
+            x = np.column_stack([x, np.zeros(len(rows))])
+        cam = self.camera[rows]
+        q = np.einsum("mji,mj->mi", rot[cam], x - pos[cam])
+        e0 = wrap_angle(self.pan[rows] - np.arctan2(q[:, 1], q[:, 0]))
+        e1 = self.tilt[rows] - np.arctan2(q[:, 2], np.hypot(q[:, 0], q[:, 1]))
+        s2 = (e0 * e0 + e1 * e1) * self.inv_sigma[rows] ** 2
+        loss, _ = loss_and_weight(s2, self.kernel, self.scale)
+        return np.asarray(np.bincount(self.node[rows], weights=loss, minlength=len(nodes)), dtype=float)
+
     def _node_blocks(self, p: _Pass) -> tuple[FloatArray, FloatArray]:
         """A_j (n, d, d) and g_j (n, d) from a pass."""
         d, n = self.dim, len(p.nodes)
@@ -254,14 +267,15 @@ class EliminatedReadings:
             slack = 1e-13 * np.maximum(p.node_cost, 1.0)  # rounding of a node's cost
             trial = self._evaluate(rot, pos, p.nodes + step)
             worse = active & (trial.node_cost > p.node_cost + slack)
-            for _ in range(20):
-                if not worse.any():
-                    break
-                step[worse] *= 0.5
-                trial = self._evaluate(rot, pos, p.nodes + step)
-                worse = active & (trial.node_cost > p.node_cost + slack)
-            if worse.any():  # no decrease along the step: those nodes stay (and are done)
-                step[worse] = 0.0
+            if worse.any():
+                # Halve the steps of those few nodes, evaluating only their readings.
+                for _ in range(30):
+                    step[worse] *= 0.5
+                    costs = self._node_costs(rot, pos, p.nodes + step, np.flatnonzero(worse[self.node]))
+                    worse &= costs > p.node_cost + slack
+                    if not worse.any():
+                        break
+                step[worse] = 0.0  # no decrease along the step: those nodes stay (and are done)
                 active &= ~worse
                 trial = self._evaluate(rot, pos, p.nodes + step)
             p = trial

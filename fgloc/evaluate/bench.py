@@ -38,7 +38,7 @@ FULL_CASES = [(100, 2), (100, 8), (1000, 2), (1000, 8), (10000, 2), (10000, 8), 
 #: The plain C++ pipeline every other row is compared with (solve time excluding the shared start).
 BASELINE = "gtsam_cpp"
 #: Largest scene per method (more nodes: skipped, minutes per run or no point).
-MAX_NODES = {"fgloc_reference": 10000, "scipy": 1000}
+MAX_NODES = {"fgloc_reference": 10000, "gtsam_cpp": 10000, "scipy": 1000}
 QUICK_CASES = [(40, 2), (80, 2), (60, 4)]
 
 

@@ -82,8 +82,10 @@ def replace_by_consensus(survey: Survey, estimate: InitialEstimate) -> None:
     least two of them agree; ``estimate.nodes`` is updated in place."""
     t = survey.observation_table
     cam_ids = survey.camera_ids
+    order = np.argsort(t.node_index, kind="stable")  # rows of each node, found once (not O(n m))
+    bounds = np.searchsorted(t.node_index[order], np.arange(len(survey.node_ids) + 1))
     for j in np.flatnonzero(np.bincount(t.node_index, minlength=len(survey.node_ids)) >= 3):
-        rows = np.flatnonzero(t.node_index == j)
+        rows = order[bounds[j] : bounds[j + 1]]
         rows = rows[[cam_ids[c] in estimate.cameras for c in t.camera_index[rows]]]
         if len(rows) < 3:
             continue
