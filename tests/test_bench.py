@@ -72,10 +72,16 @@ def test_quick_bench_output_is_consistent(tmp_path) -> None:
         f = by[(n, c, "fgloc")]
         assert set(f["stage_median_s"]) == {"build", "initialize", "optimize", "marginals", "other"}
         assert f["iterations"] >= 1 and f["peak_rss_mb"] > 0
-        cpp = by[(n, c, "cpp_bearing")]
+        cpp = by[(n, c, "gtsam_cpp")]
         # First-order equivalent model: same optimum to a small fraction of a node sigma (~1e-3 here).
         assert cpp["max_position_diff_vs_fgloc"] < 2e-4
         assert abs(cpp["final_cost"] - f["final_cost"]) < 1e-3 * f["final_cost"]
+        assert 1 <= cpp["iterations"] <= 10  # the plain pipeline: a handful of iterations from the start
+        # The speed-limit row minimizes the same pan-tilt cost: the same optimum.
+        npy, ref = by[(n, c, "numpy_schur")], by[(n, c, "fgloc_reference")]
+        assert abs(npy["final_cost"] - f["final_cost"]) <= 1e-9 * f["final_cost"]
+        assert abs(ref["final_cost"] - f["final_cost"]) <= 1e-9 * f["final_cost"]
+        assert npy["max_position_diff_vs_fgloc"] < 1e-7 and f["solve_median_s"] < f["total_median_s"]
     for n in (40, 80):  # scipy runs up to 80 nodes in --quick
         s, f = by[(n, 2, "scipy")], by[(n, 2, "fgloc")]
         assert abs(s["final_cost"] - f["final_cost"]) <= 1e-6 * f["final_cost"]

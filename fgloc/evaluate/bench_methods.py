@@ -1,15 +1,24 @@
 """The solvers the benchmark compares, each timed per stage on the same survey.
 
 * ``fgloc``: the production pipeline (:func:`fgloc.solve.joint.solve_survey`):
-  closed-form start, pan-tilt ``CustomFactor`` set, Python-driven LM, marginals.
-* ``cpp_bearing``: the same graph built from GTSAM's C++ ``BearingFactor3D``
-  (nodes as ``Point3`` held on z = 0 by a C++ prior on z), same start, same LM
-  loop and ordering, same marginals. Noise equivalence (first order): a pan
-  error dp moves the unit bearing by ``cos(tilt) dp`` along the pan direction
-  ``e_p = (-sin p, cos p, 0)``, a tilt error dt by ``dt`` along ``e_t``. So with
-  Unit3 tangent basis B (3x2) of the measured bearing, the tangent-plane noise
-  is ``Cov = sigma^2 B^T (cos^2 t e_p e_p^T + e_t e_t^T) B``, a per-reading
+  closed-form start, Levenberg-Marquardt, outlier flagging, every node marginal.
+* ``fgloc_reference``: the same through the reference graph (one pan-tilt
+  ``CustomFactor`` per reading; ``SolverOptions(eliminate_nodes=False)``).
+* ``gtsam_cpp``: the plain C++ pipeline a GTSAM user writes with defaults, from
+  the same closed-form start: GTSAM's ``BearingFactor3D`` per reading, nodes as
+  ``Point3`` held on z = 0 by a ``PriorFactorPoint3`` (sigmas 1e6, 1e6, gauge
+  sigma), the spec's gauge, ``gtsam.LevenbergMarquardtOptimizer`` with default
+  parameters (damping, ordering, Cholesky) and relative error tolerance 1e-9,
+  ``gtsam.Marginals`` with one ``marginalCovariance`` per node. Noise
+  equivalence (first order): a pan error dp moves the unit bearing by
+  ``cos(tilt) dp`` along the pan direction ``e_p = (-sin p, cos p, 0)``, a tilt
+  error dt by ``dt`` along ``e_t``. So with Unit3 tangent basis B (3x2) of the
+  measured bearing, the tangent-plane noise is
+  ``Cov = sigma^2 B^T (cos^2 t e_p e_p^T + e_t e_t^T) B``, a per-reading
   ``noiseModel.Gaussian``. The two costs agree to first order in the residual.
+* ``numpy_schur``: the "speed limit", a plain vectorized numpy LM with the nodes
+  eliminated in closed form (:mod:`fgloc.evaluate.bench_numpy_lm`), same start,
+  every node marginal.
 * ``scipy``: ``scipy.optimize.least_squares(method="trf")`` on the same
   whitened residuals (pan-tilt readings and the gauge), finite-difference
   Jacobian with ``jac_sparsity``, same start. No marginals.
@@ -33,10 +42,9 @@ from fgloc.core.geometry import FloatArray, bearing_pan_tilt, pan_tilt_bearing, 
 from fgloc.core.model import Survey
 from fgloc.factors.baseline_prior import BaselinePrior
 from fgloc.init.start import InitialEstimate
-from fgloc.solve.joint import auto_gauge_sigma, initialize, solve_survey
-from fgloc.solve.levenberg_marquardt import levenberg_marquardt
+from fgloc.solve.joint import SolverOptions, auto_gauge_sigma, initialize, solve_survey
 
-METHODS = ("fgloc", "cpp_bearing", "scipy", "subset_newton")
+METHODS = ("fgloc", "fgloc_reference", "gtsam_cpp", "numpy_schur", "scipy", "subset_newton")
 
 
 @dataclass
@@ -75,14 +83,9 @@ def _initial(survey: Survey) -> tuple[InitialEstimate, float]:
     return init, time.perf_counter() - t0
 
 
-def run_fgloc(survey: Survey) -> MethodRun:
-    """The production pipeline (:func:`fgloc.solve.joint.solve_survey`), with every node marginal.
-
-    Stages come from the solver's own ``stage_seconds``; ``other`` is the rest of
-    the wall time (outlier flagging, result assembly).
-    """
+def _run_solve_survey(survey: Survey, method: str, eliminate_nodes: bool) -> MethodRun:
     t0 = time.perf_counter()
-    result = solve_survey(survey)
+    result = solve_survey(survey, SolverOptions(eliminate_nodes=eliminate_nodes))
     wall = time.perf_counter() - t0
     assert result.stats is not None
     stages = {k: float(result.stats.stage_seconds.get(k, 0.0)) for k in ("build", "initialize", "optimize", "marginals")}
@@ -90,9 +93,21 @@ def run_fgloc(survey: Survey) -> MethodRun:
     positions = np.array([result.nodes[n].position if n in result.nodes else [np.nan] * 3 for n in survey.node_ids])
     traces = np.array([np.trace(result.nodes[n].covariance) if n in result.nodes else np.nan for n in survey.node_ids])
     cams = {c: (p.rotation, p.position) for c, p in result.cameras.items()}
-    return MethodRun(
-        "fgloc", stages, result.stats.iterations, pan_tilt_cost(survey, positions, cams), positions, traces
-    )
+    return MethodRun(method, stages, result.stats.iterations, pan_tilt_cost(survey, positions, cams), positions, traces)
+
+
+def run_fgloc(survey: Survey) -> MethodRun:
+    """The production pipeline (:func:`fgloc.solve.joint.solve_survey`), with every node marginal.
+
+    Stages come from the solver's own ``stage_seconds``; ``other`` is the rest of
+    the wall time (outlier flagging, result assembly).
+    """
+    return _run_solve_survey(survey, "fgloc", eliminate_nodes=True)
+
+
+def run_fgloc_reference(survey: Survey) -> MethodRun:
+    """``solve_survey`` through the reference graph (one pan-tilt ``CustomFactor`` per reading)."""
+    return _run_solve_survey(survey, "fgloc_reference", eliminate_nodes=False)
 
 
 def bearing_noise(pan: float, tilt: float, sigma: float, measured: gtsam.Unit3) -> gtsam.noiseModel.Base:
@@ -104,8 +119,15 @@ def bearing_noise(pan: float, tilt: float, sigma: float, measured: gtsam.Unit3) 
     return gtsam.noiseModel.Gaussian.Covariance(cov)
 
 
-def run_cpp_bearing(survey: Survey) -> MethodRun:
-    """Same graph from GTSAM's C++ ``BearingFactor3D`` (see module docstring)."""
+def run_gtsam_cpp(survey: Survey) -> MethodRun:
+    """The plain GTSAM C++ pipeline a GTSAM user writes with the defaults (see module docstring).
+
+    ``BearingFactor3D`` per reading, ``Point3`` nodes held on z = 0 by a prior,
+    the spec's gauge (:class:`~fgloc.factors.baseline_prior.BaselinePrior`, sigma as
+    fgloc's), ``gtsam.LevenbergMarquardtOptimizer`` with default parameters except
+    relative error tolerance 1e-9, ``gtsam.Marginals`` and one ``marginalCovariance``
+    per node. Starts from fgloc's closed-form start (timed apart, as ``initialize``).
+    """
     init, t_init = _initial(survey)
     stages = {"initialize": t_init}
     t0 = time.perf_counter()
@@ -135,32 +157,74 @@ def run_cpp_bearing(survey: Survey) -> MethodRun:
         graph.add(gtsam.BearingFactor3D(cam_keys[c], node_keys[n], u, noise))
     for f in BaselinePrior(survey.mode, cam_keys[survey.gauge.origin], cam_keys[survey.gauge.baseline], gauge_sigma).factors():
         graph.add(f)
-    ordering = gtsam.Ordering()
-    for k in node_keys.values():
-        ordering.push_back(k)
-    for k in cam_keys.values():
-        ordering.push_back(k)
     stages["build"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    outcome = levenberg_marquardt(graph, values, ordering)
+    params = gtsam.LevenbergMarquardtParams()
+    params.setRelativeErrorTol(1e-9)
+    optimizer = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
+    res = optimizer.optimize()
     stages["optimize"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    marginals = gtsam.Marginals(graph.linearize(outcome.values), outcome.values)
+    marginals = gtsam.Marginals(graph, res)
     traces = {n: float(np.trace(marginals.marginalCovariance(k)[:2, :2])) for n, k in node_keys.items()}
     stages["marginals"] = time.perf_counter() - t0
-    res = outcome.values
     positions = np.array([res.atPoint3(node_keys[n]) if n in node_keys else [np.nan] * 3 for n in survey.node_ids])
     cams = {}
     for c, k in cam_keys.items():
         pose = res.atPose3(k)
         cams[c] = (pose.rotation().matrix(), np.asarray(pose.translation(), float))
     return MethodRun(
-        "cpp_bearing",
+        "gtsam_cpp",
         stages,
-        outcome.iterations,
+        int(optimizer.iterations()),
         pan_tilt_cost(survey, positions, cams),
         positions,
         np.array([traces.get(n, np.nan) for n in survey.node_ids]),
+    )
+
+
+def run_numpy_schur(survey: Survey) -> MethodRun:
+    """The "speed limit": :func:`fgloc.evaluate.bench_numpy_lm.numpy_schur_lm` from the same start, every node marginal.
+
+    Planar surveys only (the benchmark's scenes)."""
+    from fgloc.evaluate.bench_numpy_lm import numpy_schur_lm
+
+    init, t_init = _initial(survey)
+    stages = {"initialize": t_init}
+    t0 = time.perf_counter()
+    cams = [c for c in survey.camera_ids if c in init.cameras]
+    nodes = [n for n in survey.node_ids if n in init.nodes]
+    ci = {c: i for i, c in enumerate(cams)}
+    ni = {n: j for j, n in enumerate(nodes)}
+    t = survey.observation_table
+    cam_of = np.array([ci.get(c, -1) for c in survey.camera_ids])[t.camera_index]
+    node_of = np.array([ni.get(n, -1) for n in survey.node_ids])[t.node_index]
+    use = (cam_of >= 0) & (node_of >= 0)
+    stages["build"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    out = numpy_schur_lm(
+        np.array([init.cameras[c].rotation for c in cams]),
+        np.array([init.cameras[c].position for c in cams], dtype=float),
+        np.array([init.nodes[n][:2] for n in nodes], dtype=float),
+        cam_of[use],
+        node_of[use],
+        t.pan[use],
+        t.tilt[use],
+        t.sigma[use],
+        (ci[survey.gauge.origin], ci[survey.gauge.baseline]),
+        auto_gauge_sigma(survey, init),
+    )
+    stages["optimize"] = time.perf_counter() - t0  # node marginals included (same pieces)
+    positions = np.full((len(survey.node_ids), 3), np.nan)
+    traces = np.full(len(survey.node_ids), np.nan)
+    assert out.covariances is not None
+    for n, j in ni.items():
+        positions[survey.node_ids.index(n)] = [out.nodes[j, 0], out.nodes[j, 1], 0.0]
+        traces[survey.node_ids.index(n)] = np.trace(out.covariances[j])
+    cameras = {c: (out.rotations[i], out.positions[i]) for c, i in ci.items()}
+    return MethodRun(
+        "numpy_schur", stages, out.iterations, pan_tilt_cost(survey, positions, cameras), positions, traces,
+        note="optimize includes every node marginal",
     )
 
 
@@ -282,4 +346,11 @@ def run_subset_newton(survey: Survey) -> MethodRun:
     )
 
 
-RUNNERS = {"fgloc": run_fgloc, "cpp_bearing": run_cpp_bearing, "scipy": run_scipy, "subset_newton": run_subset_newton}
+RUNNERS = {
+    "fgloc": run_fgloc,
+    "fgloc_reference": run_fgloc_reference,
+    "gtsam_cpp": run_gtsam_cpp,
+    "numpy_schur": run_numpy_schur,
+    "scipy": run_scipy,
+    "subset_newton": run_subset_newton,
+}

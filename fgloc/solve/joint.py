@@ -16,6 +16,7 @@ by :mod:`fgloc.solve.outliers`; :func:`solve_survey` re-solves without them.
 from __future__ import annotations
 
 import enum
+import logging
 import re
 import time
 from dataclasses import dataclass, field, replace
@@ -33,6 +34,8 @@ from fgloc.init.three_d import initialize_3d
 from fgloc.solve.levenberg_marquardt import IterationCallback, LMOutcome, LMParams, levenberg_marquardt
 from fgloc.solve.outliers import FLAG_CHI2, MAX_FLAG_ROUNDS, flag_readings, reflag
 from fgloc.solve.schur_marginals import node_marginals
+
+logger = logging.getLogger(__name__)
 
 camera_key = gtsam.symbol_shorthand.C
 node_key = gtsam.symbol_shorthand.L
@@ -65,6 +68,10 @@ class SolverOptions:
     #: Sigma of the gauge priors in baseline units; None scales it to the problem
     #: (see :func:`auto_gauge_sigma`).
     gauge_sigma: float | None = None
+    #: :func:`solve_survey` eliminates the nodes in closed form and lets GTSAM optimize
+    #: only the cameras (:mod:`fgloc.solve.eliminated`); False: the reference graph,
+    #: one pan-tilt factor per reading. Same optimum and marginals.
+    eliminate_nodes: bool = True
 
 
 def auto_gauge_sigma(survey: Survey, initial: InitialEstimate) -> float:
@@ -375,7 +382,19 @@ def solve_survey(
     anything was flagged or a kernel was used, a final Gaussian solve without
     the flagged readings gives the estimates and honest marginal covariances.
     Flagged readings are listed in ``Result.flagged``, never silently dropped.
+
+    With ``options.eliminate_nodes`` (default) the same steps run on the camera graph
+    of :mod:`fgloc.solve.eliminated` (nodes eliminated in closed form; same optimum
+    and marginals); if that meets a numerically singular system, this reference
+    graph runs instead (it names the undetermined variable).
     """
+    if options.eliminate_nodes:
+        from fgloc.solve.eliminated import EliminationFailed, solve_survey_eliminated
+
+        try:
+            return solve_survey_eliminated(survey, options, on_iteration)
+        except EliminationFailed as exc:
+            logger.info(f"nodes-eliminated solve failed ({exc}); solving the reference graph")
     stages: dict[str, float] = {}
     t0 = time.perf_counter()
     init = initialize(survey)

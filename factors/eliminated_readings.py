@@ -1,0 +1,392 @@
+"""Every pan-tilt reading of a survey as ONE factor on the camera keys, the nodes eliminated in closed form.
+
+The survey's structure: every reading links one camera to one node. For given
+cameras ``c`` each node's best position is a tiny independent problem (d = 2
+unknowns on z = 0, d = 3 in 3d), so the readings' cost can be written as a
+function of the cameras alone (variable projection; GTSAM's smart factors do
+the same with landmarks):
+
+    f(c) = min_x  sum_r loss(|e_r(c, x_node(r))| / sigma_r)
+
+with ``e_r`` the pan-tilt error of :func:`fgloc.factors.pan_tilt_factor.pan_tilt_error`
+and ``loss`` GTSAM's (Gaussian 0.5 s^2, or the Huber / Cauchy M-estimator as
+``gtsam.noiseModel.Robust``). :class:`EliminatedReadings` solves the node
+problems (vectorized Gauss-Newton with per-node step halving, robust kernels as
+IRLS weights per reading) and its :meth:`~EliminatedReadings.factor` is a
+``gtsam.CustomFactor`` on the camera keys whose linearization is the
+node-eliminated (Schur complement) system
+
+    S = H_cc - sum_j B_j^T A_j^-1 B_j,   g = g_c - sum_j B_j^T A_j^-1 g_j
+
+(``A_j`` node block, ``B_j`` node-camera coupling, ``g`` gradients, all with the
+IRLS weights, exactly what GTSAM's linearization of the per-reading robust
+factors would give). It is handed to GTSAM as a Jacobian factor of 6k + 1 rows:
+``S = R^T R`` (eigen-decomposition, gauge directions of zero weight kept as
+zero rows), ``e' = R^-T g`` and a constant row ``sqrt(2 f - |e'|^2)``, so that
+the linear error at zero equals ``f`` and its gradient and Hessian are ``g``
+and ``S``. Evaluated without Jacobians (``graph.error``) the factor returns a
+vector of norm ``sqrt(2 f)``. GTSAM never sees one linear factor per reading.
+
+Cameras: ``Pose3``, tangent ``[omega, v]`` with right perturbation (GTSAM's
+convention); angles in radians; positions in gauge units. Evaluations are
+cached by camera values, so ``graph.error`` / ``graph.linearize`` at the same
+cameras share one node solve.
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass
+
+import gtsam
+import numpy as np
+
+from fgloc.core.geometry import PAN_SINGULARITY_EPS, FloatArray, wrap_angle
+
+
+class Kernel(str, enum.Enum):
+    """Loss on the whitened residual norm s (GTSAM's M-estimators)."""
+
+    GAUSSIAN = "gaussian"
+    HUBER = "huber"
+    CAUCHY = "cauchy"
+
+
+def loss_and_weight(s2: FloatArray, kernel: Kernel, scale: float) -> tuple[FloatArray, FloatArray]:
+    """GTSAM's ``loss(s)`` and IRLS ``weight(s)`` of squared whitened norms ``s2``.
+
+    Gaussian: 0.5 s^2, 1. Huber (k): s^2/2 inside k, k s - k^2/2 beyond; weight
+    min(1, k/s). Cauchy (k): k^2/2 log(1 + s^2/k^2); weight 1 / (1 + s^2/k^2).
+    """
+    if kernel is Kernel.HUBER:
+        s = np.sqrt(s2)
+        inside = s <= scale
+        return np.where(inside, 0.5 * s2, scale * s - 0.5 * scale**2), np.where(inside, 1.0, scale / np.maximum(s, 1e-300))
+    if kernel is Kernel.CAUCHY:
+        u = s2 / scale**2
+        return 0.5 * scale**2 * np.log1p(u), 1.0 / (1.0 + u)
+    return 0.5 * s2, np.ones_like(s2)
+
+
+def _sum_by(index: np.ndarray, columns: list[FloatArray], size: int) -> FloatArray:
+    """(size, len(columns)): per-group sums of each column (groups given by ``index``)."""
+    out = np.empty((size, len(columns)))
+    for i, col in enumerate(columns):
+        out[:, i] = np.bincount(index, weights=col, minlength=size)
+    return out
+
+
+@dataclass
+class _Pass:
+    """The readings evaluated at one set of cameras and nodes (whitened, IRLS-weighted)."""
+
+    nodes: FloatArray  # (n, d)
+    e: FloatArray  # (m, 2) sqrt(w) * error / sigma
+    jn: FloatArray  # (m, 2, d) sqrt(w) * de/dx / sigma
+    dq: FloatArray  # (m, 2, 3) sqrt(w) * de/dq / sigma (q: node in the camera base frame)
+    q: FloatArray  # (m, 3)
+    loss: FloatArray  # (m,)
+    node_cost: FloatArray  # (n,)
+    #: Kernel curvature term of the exact Hessian per reading: d^2 loss/de^2 = w I + c e e^T
+    #: (whitened e); this is c / w^2, so that the term is coef * (jn^T e)(jn^T e)^T in weighted units.
+    newton_coef: FloatArray | None = None
+
+
+@dataclass
+class ReducedSystem:
+    """The node-eliminated Gauss-Newton system at some cameras (6k unknowns, camera slot order)."""
+
+    cost: float  # f: the readings' cost with every node at its optimum
+    gradient: FloatArray  # (6k,)
+    hessian: FloatArray  # (6k, 6k) S
+    node_information: FloatArray  # (n, d, d) A_j
+    node_gain: FloatArray  # (n, d, 6k) A_j^-1 B_j: dx_j/dc = -node_gain
+    node_gradient: FloatArray  # (n, d) g_j (~0 at the node optimum)
+
+
+class EliminatedReadings:
+    """The pan-tilt readings of a survey, nodes eliminated (see module docstring).
+
+    Args:
+        camera_keys: GTSAM keys of the cameras (slot order of the reduced system).
+        camera: (m,) each reading's camera slot; node: (m,) its node row (0..n-1).
+        pan, tilt, sigma: (m,) radians.
+        nodes: (n, d) starting node positions (d = 2: planar, (x, y) on z = 0; d = 3).
+        kernel, scale: loss on the whitened residual norm (scale in sigmas).
+    """
+
+    #: Node Gauss-Newton stops when every node's predicted decrease is below this
+    #: (GTSAM error units; the readings' cost is ~ one per reading).
+    NODE_TOL = 1e-13
+    MAX_NODE_STEPS = 30
+
+    def __init__(
+        self,
+        camera_keys: list[int],
+        camera: np.ndarray,
+        node: np.ndarray,
+        pan: FloatArray,
+        tilt: FloatArray,
+        sigma: FloatArray,
+        nodes: FloatArray,
+        kernel: Kernel = Kernel.GAUSSIAN,
+        scale: float = 3.0,
+    ) -> None:
+        self.camera_keys = [int(k) for k in camera_keys]
+        order = np.argsort(camera, kind="stable")  # readings grouped by camera: one GEMM per camera
+        self.order = order
+        self.camera = np.asarray(camera, dtype=np.int64)[order]
+        self.node = np.asarray(node, dtype=np.int64)[order]
+        self.pan = np.asarray(pan, dtype=float)[order]
+        self.tilt = np.asarray(tilt, dtype=float)[order]
+        self.inv_sigma = 1.0 / np.asarray(sigma, dtype=float)[order]
+        self.nodes = np.array(nodes, dtype=float)
+        self.dim = self.nodes.shape[1]
+        self.kernel, self.scale = kernel, float(scale)
+        k = len(self.camera_keys)
+        bounds = np.searchsorted(self.camera, np.arange(k + 1))
+        self._slices = [slice(int(bounds[i]), int(bounds[i + 1])) for i in range(k)]
+        self._pair = self.node * k + self.camera
+        self._cache_key: bytes | None = None
+        self._pass: _Pass | None = None
+        self._system: ReducedSystem | None = None
+        self._lin_cameras: list[gtsam.Pose3] | None = None  # where _lin_gain was computed
+        self._lin_nodes: FloatArray | None = None
+        self._lin_gain: FloatArray | None = None
+
+    def __len__(self) -> int:
+        return len(self.pan)
+
+    @property
+    def n_nodes(self) -> int:
+        return len(self.nodes)
+
+    # -- evaluation -----------------------------------------------------------------
+    def _evaluate(self, rot: FloatArray, pos: FloatArray, nodes: FloatArray) -> _Pass:
+        """Whitened, weighted errors and node Jacobians of every reading (one vectorized pass)."""
+        m, d = len(self.pan), self.dim
+        x = nodes[self.node]
+        q = np.empty((m, 3))
+        for i, sl in enumerate(self._slices):
+            pts = x[sl] - pos[i, :d] if d == 3 else np.column_stack([x[sl] - pos[i, :2], np.full(sl.stop - sl.start, -pos[i, 2])])
+            q[sl] = pts @ rot[i]  # R^T (x - c), rows
+        qx, qy, qz = q[:, 0], q[:, 1], q[:, 2]
+        r2xy = qx * qx + qy * qy
+        n2 = r2xy + qz * qz
+        r = np.maximum(np.sqrt(r2xy), np.maximum(PAN_SINGULARITY_EPS * np.sqrt(n2), 1e-100))
+        rr = r * r
+        n2 = np.maximum(n2, rr)
+        e = np.empty((m, 2))
+        e[:, 0] = wrap_angle(self.pan - np.arctan2(qy, qx))
+        e[:, 1] = self.tilt - np.arctan2(qz, np.sqrt(r2xy))
+        e *= self.inv_sigma[:, None]
+        s2 = e[:, 0] ** 2 + e[:, 1] ** 2
+        loss, weight = loss_and_weight(s2, self.kernel, self.scale)
+        f = self.inv_sigma * np.sqrt(weight) if self.kernel is not Kernel.GAUSSIAN else self.inv_sigma
+        if self.kernel is not Kernel.GAUSSIAN:
+            e *= np.sqrt(weight)[:, None]
+        # de/dq = -d(pan, tilt)/dq (geometry.pan_tilt_jacobian), whitened and weighted.
+        dq = np.zeros((m, 2, 3))
+        dq[:, 0, 0] = qy / rr * f
+        dq[:, 0, 1] = -qx / rr * f
+        rn = r * n2
+        dq[:, 1, 0] = qx * qz / rn * f
+        dq[:, 1, 1] = qy * qz / rn * f
+        dq[:, 1, 2] = -r / n2 * f
+        jn = np.empty((m, 2, d))
+        for i, sl in enumerate(self._slices):
+            jn[sl] = dq[sl] @ rot[i].T[:, :d]  # de/dx = de/dq R^T
+        node_cost = np.asarray(np.bincount(self.node, weights=loss, minlength=len(nodes)), dtype=float)
+        coef = None
+        if self.kernel is Kernel.CAUCHY:
+            coef = np.full(m, -2.0 / self.scale**2)
+        elif self.kernel is Kernel.HUBER:
+            sn = np.sqrt(s2)
+            coef = np.where(sn > self.scale, -1.0 / (self.scale * np.maximum(sn, 1e-300)), 0.0)
+        return _Pass(nodes, e, jn, dq, q, loss, node_cost, coef)
+
+    def _node_costs(self, rot: FloatArray, pos: FloatArray, nodes: FloatArray, rows: np.ndarray) -> FloatArray:
+        """(n,) cost of each node from the readings ``rows`` only (zero for other nodes)."""
+        x = nodes[self.node[rows]]
+        if self.dim == 2:
+            x = np.column_stack([x, np.zeros(len(rows))])
+        cam = self.camera[rows]
+        q = np.einsum("mji,mj->mi", rot[cam], x - pos[cam])
+        e0 = wrap_angle(self.pan[rows] - np.arctan2(q[:, 1], q[:, 0]))
+        e1 = self.tilt[rows] - np.arctan2(q[:, 2], np.hypot(q[:, 0], q[:, 1]))
+        s2 = (e0 * e0 + e1 * e1) * self.inv_sigma[rows] ** 2
+        loss, _ = loss_and_weight(s2, self.kernel, self.scale)
+        return np.asarray(np.bincount(self.node[rows], weights=loss, minlength=len(nodes)), dtype=float)
+
+    def _node_blocks(self, p: _Pass) -> tuple[FloatArray, FloatArray]:
+        """A_j (n, d, d) and g_j (n, d) from a pass."""
+        d, n = self.dim, len(p.nodes)
+        jn, e = p.jn, p.e
+        cols = []
+        pairs = [(a, b) for a in range(d) for b in range(a, d)]
+        for a, b in pairs:
+            cols.append(jn[:, 0, a] * jn[:, 0, b] + jn[:, 1, a] * jn[:, 1, b])
+        for a in range(d):
+            cols.append(jn[:, 0, a] * e[:, 0] + jn[:, 1, a] * e[:, 1])
+        sums = _sum_by(self.node, cols, n)
+        A = np.empty((n, d, d))
+        for i, (a, b) in enumerate(pairs):
+            A[:, a, b] = A[:, b, a] = sums[:, i]
+        return A, sums[:, len(pairs) :]
+
+    def _newton_blocks(self, p: _Pass, A: FloatArray) -> FloatArray:
+        """Robust kernels: the exact node Hessian (IRLS block plus the kernel's curvature term)
+        where it is positive definite, else the IRLS block. Newton converges quadratically,
+        IRLS only linearly; the reduced system keeps GTSAM's IRLS form either way."""
+        if p.newton_coef is None:
+            return A
+        d = self.dim
+        v = np.einsum("mki,mk->mi", p.jn, p.e)  # (m, d)
+        cols = [p.newton_coef * v[:, a] * v[:, b] for a in range(d) for b in range(d)]
+        extra = _sum_by(self.node, cols, len(A)).reshape(len(A), d, d)
+        full = A + extra
+        ok = np.linalg.eigvalsh(full)[:, 0] > 1e-9 * np.linalg.eigvalsh(A)[:, -1]
+        return np.where(ok[:, None, None], full, A)
+
+    def _solve_nodes(self, rot: FloatArray, pos: FloatArray, start: FloatArray) -> _Pass:
+        """Every node at its optimum for the given cameras: Gauss-Newton per node, halving
+        the step of any node whose cost would rise. A node is done when its predicted
+        decrease is below ``NODE_TOL`` (relative to its cost, at least 1) or no step
+        along its Gauss-Newton direction lowers its cost beyond rounding."""
+        p = self._evaluate(rot, pos, start)
+        active = np.ones(len(start), dtype=bool)
+        for _ in range(self.MAX_NODE_STEPS):
+            A, g = self._node_blocks(p)
+            A = self._newton_blocks(p, A)
+            step = -np.linalg.solve(A, g[..., None])[..., 0]
+            predicted = -0.5 * np.einsum("nd,nd->n", g, step)
+            active &= predicted > self.NODE_TOL * np.maximum(p.node_cost, 1.0)
+            if not active.any():
+                break
+            step[~active] = 0.0
+            slack = 1e-13 * np.maximum(p.node_cost, 1.0)  # rounding of a node's cost
+            trial = self._evaluate(rot, pos, p.nodes + step)
+            worse = active & (trial.node_cost > p.node_cost + slack)
+            if worse.any():
+                # Halve the steps of those few nodes, evaluating only their readings.
+                for _ in range(30):
+                    step[worse] *= 0.5
+                    costs = self._node_costs(rot, pos, p.nodes + step, np.flatnonzero(worse[self.node]))
+                    worse &= costs > p.node_cost + slack
+                    if not worse.any():
+                        break
+                step[worse] = 0.0  # no decrease along the step: those nodes stay (and are done)
+                active &= ~worse
+                trial = self._evaluate(rot, pos, p.nodes + step)
+            p = trial
+        return p
+
+    @staticmethod
+    def _poses(values: gtsam.Values, keys: list[int]) -> tuple[list[gtsam.Pose3], FloatArray, FloatArray]:
+        poses = [values.atPose3(k) for k in keys]
+        mats = np.array([pose.matrix() for pose in poses])
+        return poses, mats[:, :3, :3], mats[:, :3, 3]
+
+    def at(self, values: gtsam.Values) -> _Pass:
+        """The readings with every node at its optimum for the cameras in ``values`` (cached)."""
+        poses, rot, pos = self._poses(values, self.camera_keys)
+        key = rot.tobytes() + pos.tobytes()
+        if key == self._cache_key and self._pass is not None:
+            return self._pass
+        start = self.nodes
+        if self._lin_cameras is not None and self._lin_gain is not None and self._lin_nodes is not None:
+            # First-order prediction of the node optima: dx_j = -A_j^-1 B_j dc.
+            dc = np.concatenate([p0.localCoordinates(p1) for p0, p1 in zip(self._lin_cameras, poses)])
+            start = self._lin_nodes - self._lin_gain @ dc
+        self._pass = self._solve_nodes(rot, pos, start)
+        self._system = None
+        self._cache_key = key
+        self.nodes = self._pass.nodes
+        return self._pass
+
+    def cost(self, values: gtsam.Values) -> float:
+        """f(c): the readings' cost (GTSAM error units) with every node at its optimum."""
+        return float(np.sum(self.at(values).loss))
+
+    def reduced(self, values: gtsam.Values) -> ReducedSystem:
+        """The node-eliminated Gauss-Newton system at the cameras in ``values`` (cached)."""
+        p = self.at(values)
+        if self._system is not None:
+            return self._system
+        poses, rot, _ = self._poses(values, self.camera_keys)
+        k, d, n, m = len(self.camera_keys), self.dim, len(p.nodes), len(self.pan)
+        # Camera Jacobians: de/dxi = [de/dq skew(q) | -de/dq]; row . skew(q) = row x q.
+        jc = np.empty((m, 2, 6))
+        dq, q = p.dq, p.q
+        jc[:, :, 0:3] = np.cross(dq, q[:, None, :])
+        jc[:, :, 3:6] = -dq
+        A, g = self._node_blocks(p)
+        cols = [p.jn[:, 0, a] * jc[:, 0, b] + p.jn[:, 1, a] * jc[:, 1, b] for a in range(d) for b in range(6)]
+        pair_sums = _sum_by(self._pair, cols, n * k)  # (n*k, d*6)
+        B = pair_sums.reshape(n, k, d, 6).transpose(0, 2, 1, 3).reshape(n, d, 6 * k)
+        H = np.zeros((6 * k, 6 * k))
+        gc = np.zeros(6 * k)
+        for i, sl in enumerate(self._slices):
+            block = jc[sl].reshape(-1, 6)
+            H[6 * i : 6 * i + 6, 6 * i : 6 * i + 6] = block.T @ block
+            gc[6 * i : 6 * i + 6] = block.T @ p.e[sl].reshape(-1)
+        A_inv = np.linalg.inv(A)
+        gain = A_inv @ B  # (n, d, 6k)
+        flat_b = B.reshape(n * d, 6 * k)
+        S = H - flat_b.T @ gain.reshape(n * d, 6 * k)
+        S = 0.5 * (S + S.T)
+        grad = gc - flat_b.T @ np.einsum("nij,nj->ni", A_inv, g).reshape(-1)
+        self._system = ReducedSystem(float(np.sum(p.loss)), grad, S, A, gain, g)
+        self._lin_cameras, self._lin_nodes, self._lin_gain = poses, p.nodes.copy(), gain
+        return self._system
+
+    # -- the GTSAM factor ---------------------------------------------------------
+    def factor(self) -> gtsam.CustomFactor:
+        """A ``CustomFactor`` on :attr:`camera_keys` (6k + 1 rows, unit noise): see module docstring."""
+        k = len(self.camera_keys)
+        rows = 6 * k + 1
+        cache = self
+
+        def error(this: gtsam.CustomFactor, values: gtsam.Values, H: list[np.ndarray] | None) -> np.ndarray:
+            if H is None:
+                out = np.zeros(rows)
+                out[-1] = np.sqrt(2.0 * cache.cost(values))
+                return out
+            system = cache.reduced(values)
+            root, e_red = factor_rows(system.hessian, system.gradient)
+            out = np.zeros(rows)
+            out[:-1] = e_red
+            out[-1] = np.sqrt(max(2.0 * system.cost - float(e_red @ e_red), 0.0))
+            jac = np.vstack([root, np.zeros((1, 6 * k))])
+            for i in range(k):
+                H[i] = np.ascontiguousarray(jac[:, 6 * i : 6 * i + 6])
+            return out
+
+        return gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(rows), self.camera_keys, error)
+
+    # -- back-substitution --------------------------------------------------------
+    def node_covariances(self, camera_covariance: FloatArray, values: gtsam.Values) -> FloatArray:
+        """(n, d, d) node marginals ``A_j^-1 + G_j Sigma_cc G_j^T`` (G = A^-1 B) given the
+        cameras' joint covariance (6k x 6k, slot order) at ``values``."""
+        system = self.reduced(values)
+        a_inv = np.linalg.inv(system.node_information)
+        spread = system.node_gain @ camera_covariance
+        cov = a_inv + np.einsum("nik,njk->nij", spread, system.node_gain)
+        return 0.5 * (cov + np.transpose(cov, (0, 2, 1)))
+
+
+def factor_rows(hessian: FloatArray, gradient: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """``R`` (p x p) and ``e`` (p) with ``R^T R = hessian`` and ``R^T e = gradient``.
+
+    Symmetric eigen-decomposition after Jacobi scaling; directions of (numerically)
+    zero curvature, the gauge freedoms the priors fix, get a zero row and no gradient.
+    """
+    diag = np.diagonal(hessian)
+    d = np.sqrt(np.maximum(diag, 1e-30 * max(float(np.max(diag)), 1e-300)))
+    scaled = hessian / d[:, None] / d[None, :]
+    lam, vec = np.linalg.eigh(scaled)
+    keep = lam > 1e-13 * max(float(lam[-1]), 1e-300)
+    root_lam = np.sqrt(np.where(keep, lam, 0.0))
+    root = (root_lam[:, None] * vec.T) * d[None, :]
+    e = np.where(keep, (vec.T @ (gradient / d)) / np.where(keep, root_lam, 1.0), 0.0)
+    return root, e
