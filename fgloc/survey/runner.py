@@ -365,6 +365,11 @@ class SurveyRunner:
                         self.estimate()
                     if self.on_progress is not None:
                         self.on_progress(self.progress())
+                if self.rig.repeat_budget > 0:  # the repeat phase, fgloc.survey.repeats (docs/survey.md)
+                    from fgloc.survey.repeats import run_repeats
+
+                    if run_repeats(self, pool):
+                        self.estimate()
         finally:
             for w in self.workers.values():
                 try:
