@@ -26,6 +26,9 @@ stays resumable). 0 turns the rule off.
 Live estimates: after each node (once at least five nodes are seen by two
 cameras) an :class:`~fgloc.survey.live.Estimator` solves the journal so far; the
 default is the batch joint solve. An incremental (iSAM2) estimator can be passed instead.
+
+Repeat phase: with ``repeat_budget`` > 0, after the last node :mod:`fgloc.survey.repeats`
+re-measures the readings the Cramér–Rao planner ranks most informative (resume-safe).
 """
 
 from __future__ import annotations
