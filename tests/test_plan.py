@@ -12,7 +12,7 @@ from fgloc.cli import main
 from fgloc.evaluate.crlb import cramer_rao_bound
 from fgloc.plan.fisher import candidate_info, cloud_evaluate, gauge_frame_covariances
 from fgloc.plan.io import read_site_file, rig_skeleton
-from fgloc.plan.placement import default_prior_m, greedy_select, objective_value, plan_placement
+from fgloc.plan.placement import default_prior_m, greedy_select, objective_value, plan_placement, swap_refine
 from fgloc.plan.relaxation import logdet_gradient, placement_bound
 from fgloc.plan.repeat import RepeatModel, objective_of, plan_repeats
 from fgloc.plan.site import PlanProblem, grid_sites, sample_polygon
@@ -71,6 +71,30 @@ def test_greedy_against_brute_force(objective: str) -> None:
         lazy, _, _ = greedy_select(info, problem.site_ids, k, objective, lazy=True)
         plain, _, _ = greedy_select(info, problem.site_ids, k, objective, lazy=False)
         assert lazy == plain
+
+
+@pytest.mark.parametrize(("objective", "seed"), [("mean", 6), ("worst", 8)])  # fields where greedy is not optimal
+def test_swap_refinement_reaches_a_local_optimum_between_greedy_and_the_best(objective: str, seed: int) -> None:
+    ids, xy, hs = grid_sites((-10, -10, 110, 110), 40, (3.0, 8.0))
+    problem = PlanProblem(sample_polygon(SQUARE, 20, seed), ids, xy, hs, SIGMA)
+    info = candidate_info(problem.jacobians(), problem.nodes_xy, default_prior_m(problem))
+    site, k = problem.site_ids, 3
+
+    def value(s) -> float:
+        return objective_value(objective, cloud_evaluate(info, dict.fromkeys(s, 1.0)))
+
+    greedy, g_value, _ = greedy_select(info, site, k, objective)
+    chosen, r_value, _ = swap_refine(info, site, greedy, objective, g_value)
+    assert r_value == pytest.approx(value(chosen)) and len({site[c] for c in chosen}) == k
+    best = min(value(s) for s in itertools.combinations(range(problem.n_candidates), k)
+               if len({site[c] for c in s}) == k)
+    assert best - 1e-9 * abs(best) <= r_value < g_value
+    for i, c in itertools.product(range(k), range(problem.n_candidates)):  # no single exchange improves it
+        others = chosen[:i] + chosen[i + 1:]
+        if site[c] not in {site[o] for o in others}:
+            assert value([*others, c]) >= r_value - 1e-9 * abs(r_value)
+    plan = plan_placement(problem, k, objective, refine=True)
+    assert sorted(plan.chosen) == sorted(chosen) and plan.cloud_objective == pytest.approx(r_value)
 
 
 def test_relaxation_bound_is_above_every_plan() -> None:
@@ -166,3 +190,13 @@ def test_cli_place_writes_plan_and_rig(tmp_path, capsys) -> None:
     assert len(doc["cameras"]) == 3 and doc["predicted_error_m"]["median"] > 0
     problem, _ = read_site_file(path)
     assert len(doc["nodes"]) == len(problem.nodes_xy) == 30
+
+
+def test_cli_place_swap_writes_the_refined_plan(tmp_path) -> None:
+    path = _write(tmp_path, GOOD)
+    out = tmp_path / "out"
+    assert main(["plan", "place", path, "--cameras", "3", "--swap", "-o", str(out), "--no-picture"]) == 0
+    doc = json.loads((out / "plan.json").read_text())
+    problem, _ = read_site_file(path)
+    plan = plan_placement(problem, 3, "mean", refine=True)
+    assert [c["site"] for c in doc["cameras"]] == [problem.site_ids[c] for c in plan.chosen]

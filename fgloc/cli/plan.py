@@ -24,6 +24,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     pl.add_argument("--objective", default="mean", help="mean | worst | logdet (default mean)")
     pl.add_argument("--sigma-deg", type=float, default=None, help="bearing noise in degrees (default: the file's)")
     pl.add_argument("-o", "--out", required=True, help="output directory (plan.json, rig.json, plan.png)")
+    pl.add_argument("--swap", action="store_true",
+                    help="refine greedy by exchanges (each chosen site against every free one) while the objective improves")
     pl.add_argument("--bound", action="store_true", help="also compute the convex-relaxation log-det bound")
     pl.add_argument("--validate", type=int, default=0, metavar="N", help="check the prediction on N simulated surveys")
     pl.add_argument("--dask", default=None, metavar="ADDRESS",
@@ -52,7 +54,7 @@ def run_place(args: argparse.Namespace) -> int:
     if args.validate < 0:
         raise FglocError(f"--validate: must be >= 0 ({args.validate})")
     problem, polygon = read_site_file(args.sites, args.sigma_deg)
-    plan = plan_placement(problem, args.cameras, args.objective)
+    plan = plan_placement(problem, args.cameras, args.objective, refine=args.swap)
     os.makedirs(args.out, exist_ok=True)
     write_plan(plan, args.out)
     if not args.no_picture:

@@ -127,6 +127,7 @@ class RigConfig:
     motes: MotesConfig
     node_ids: list[str]
     repeats: int = 1
+    repeat_budget: int = 0  # readings re-measured after the node loop, chosen by fgloc.plan.repeat
     search: SearchConfig = SearchConfig()
     retry: RetryConfig = RetryConfig()
     simulation: SimulationConfig = SimulationConfig()
@@ -277,6 +278,10 @@ def parse_rig(data: Any, path: str = "rig.json", base: Path | None = None) -> Ri
         twin=sim.get("twin", "inprocess"),
         frames=sim.get("frames", "spot"),
     )
+    repeat_budget = int(top.get("repeat_budget", 0))
+    if repeat_budget and top.get("nodes", "planar") != "planar":
+        raise _fail(path, "repeat_budget", f"repeat planning supports planar surveys only, got {repeat_budget} "
+                    f"with nodes {show_value(top.get('nodes'))}")
     return RigConfig(
         path=path,
         mode=NodeMode(top.get("nodes", "planar")),
@@ -286,6 +291,7 @@ def parse_rig(data: Any, path: str = "rig.json", base: Path | None = None) -> Ri
         motes=motes,
         node_ids=node_ids,
         repeats=int(top.get("repeats", 1)),
+        repeat_budget=repeat_budget,
         search=search,
         retry=retry,
         simulation=simulation,
@@ -295,6 +301,11 @@ def parse_rig(data: Any, path: str = "rig.json", base: Path | None = None) -> Ri
 
 
 # -- what a resumed survey may change (docs/survey.md, "Resuming after a rig.json edit")
+# ``repeat_budget`` is deliberately operational: it decides how many readings the repeat phase
+# adds, never what a reading means (a repeat is an ordinary reading of a pair, index >= repeats).
+# The repeat plan is greedy on the readings of the node loop alone, so a plan for budget B is a
+# prefix of the plan for any larger budget: a resume with another budget extends or cuts the
+# same list, and every reading already journaled stays valid.
 _MEANING_TOP = ("format", "nodes", "sigma_deg", "gauge", "repeats", "node_ids")
 _MEANING_CAMERA = ("id", "model", "mounting", "zoom")
 _SCENE = ("seed", "heights", "occlusion", "dead_nodes")

@@ -181,6 +181,44 @@ def greedy_select(
     return chosen, current, evaluations
 
 
+def swap_refine(
+    info: CandidateInfo,
+    site_ids: tuple[str, ...],
+    chosen: list[int],
+    objective: str,
+    value: float,
+    max_rounds: int = 10,
+) -> tuple[list[int], float, int]:
+    """Exchange refinement after greedy: replace each chosen candidate by the best other one (one per
+    site; another height at the same site included) while that lowers the objective.
+
+    A round visits every chosen position once; it stops after a round without improvement or
+    after ``max_rounds``. Returns (chosen, objective, evaluations). The objective never rises,
+    so a refined plan is at least as good as greedy's on the selection objective."""
+    chosen = list(chosen)
+    evaluations = 0
+    for round_ in range(max_rounds):
+        improved = False
+        for i in range(len(chosen)):
+            others = chosen[:i] + chosen[i + 1:]
+            used = {site_ids[c] for c in others}
+            best, best_value = chosen[i], value
+            for c in range(len(site_ids)):
+                if c == chosen[i] or site_ids[c] in used:
+                    continue
+                evaluations += 1
+                v = objective_value(objective, cloud_evaluate(info, {k: 1.0 for k in [*others, c]}))
+                if v < best_value - 1e-12 * abs(best_value):
+                    best, best_value = c, v
+            if best != chosen[i]:
+                log.info("placement swap round %d: candidate %d -> %d, %s = %.6g", round_ + 1, chosen[i], best,
+                         objective, best_value)
+                chosen[i], value, improved = best, best_value, True
+        if not improved:
+            break
+    return chosen, value, evaluations
+
+
 def best_gauge_pair(jac: Jacobians, chosen: list[int], objective: str) -> tuple[tuple[int, int], FloatArray, np.ndarray]:
     """The ordered gauge pair among ``chosen`` with the best solver-gauge objective, its covariances and mask."""
     best: tuple[float, tuple[int, int], FloatArray, np.ndarray] | None = None
@@ -200,8 +238,11 @@ def plan_placement(
     prior_m: float | None = None,
     lazy: bool | None = None,
     progress: Callable[[int, int], None] | None = None,
+    refine: bool = False,
 ) -> PlacementPlan:
-    """Choose ``n_cameras`` (>= 2) candidates of ``problem`` minimizing ``objective``; see the module docstring."""
+    """Choose ``n_cameras`` (>= 2) candidates of ``problem`` minimizing ``objective``; see the module docstring.
+
+    ``refine``: follow greedy by :func:`swap_refine` (exchanges while the objective improves)."""
     if objective not in OBJECTIVES:
         raise FglocError(f"objective: expected one of {', '.join(OBJECTIVES)} ({objective!r})")
     if n_cameras < 2:
@@ -209,6 +250,9 @@ def plan_placement(
     jac = problem.jacobians()
     info = candidate_info(jac, problem.nodes_xy, prior_m if prior_m is not None else default_prior_m(problem))
     chosen, value, evaluations = greedy_select(info, problem.site_ids, n_cameras, objective, lazy, progress)
+    if refine:
+        chosen, value, more = swap_refine(info, problem.site_ids, chosen, objective, value)
+        evaluations += more
     (a, b), cov, ok = best_gauge_pair(jac, chosen, objective)
     order = (a, b, *[c for c in chosen if c not in (a, b)])
     if not np.all(ok):

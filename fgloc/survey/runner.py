@@ -26,6 +26,9 @@ stays resumable). 0 turns the rule off.
 Live estimates: after each node (once at least five nodes are seen by two
 cameras) an :class:`~fgloc.survey.live.Estimator` solves the journal so far; the
 default is the batch joint solve. An incremental (iSAM2) estimator can be passed instead.
+
+Repeat phase: with ``repeat_budget`` > 0, after the last node :mod:`fgloc.survey.repeats`
+re-measures the readings the Cramér–Rao planner ranks most informative (resume-safe).
 """
 
 from __future__ import annotations
@@ -365,6 +368,11 @@ class SurveyRunner:
                         self.estimate()
                     if self.on_progress is not None:
                         self.on_progress(self.progress())
+                if self.rig.repeat_budget > 0:  # the repeat phase, fgloc.survey.repeats (docs/survey.md)
+                    from fgloc.survey.repeats import run_repeats
+
+                    if run_repeats(self, pool):
+                        self.estimate()
         finally:
             for w in self.workers.values():
                 try:
