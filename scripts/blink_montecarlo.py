@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import math
 import time
+from dataclasses import replace
 
 import numpy as np
 
@@ -28,15 +29,18 @@ from fgloc.core.geometry import pan_tilt_bearing
 from fgloc.core.model import CameraPose
 from fgloc.drivers.blink_frames import BlinkRenderConfig, motes_with_codes, render_view
 from fgloc.drivers.rendered_camera import LedScene, RenderedCamera
+from fgloc.survey.coded_readings import field_intrinsics
 from fgloc.survey.field_plans import frames_for
 
 
-def trial(seed: int, n_motes: int, book_size: int, glints: int) -> dict[str, float]:
+def trial(seed: int, n_motes: int, book_size: int, glints: int, fields: bool = False) -> dict[str, float]:
     rng = np.random.default_rng(seed)
     intr = CameraIntrinsics.from_fov(640, 480, 65.0)
+    if fields:
+        intr = field_intrinsics(intr)
     book = code_book(book_size)
     head_pan, head_tilt = rng.uniform(-math.pi, math.pi), rng.uniform(-0.6, 0.2)
-    uv = np.column_stack([rng.uniform(15, 625, n_motes), rng.uniform(15, 465, n_motes)])
+    uv = np.column_stack([rng.uniform(15, intr.width - 15, n_motes), rng.uniform(15, intr.height - 15, n_motes)])
     pans, tilts = pixel_to_pan_tilt(intr, uv, head_pan, head_tilt)
     dist = rng.uniform(3.0, 30.0, n_motes)
     pts = pan_tilt_bearing(pans, tilts) * dist[:, None]
@@ -44,22 +48,30 @@ def trial(seed: int, n_motes: int, book_size: int, glints: int) -> dict[str, flo
     pos = {f"n{int(i)}": pts[k] for k, i in enumerate(ids)}
     codes = {f"n{int(i)}": book.bits(int(i)) for i in ids}
     cfg = BlinkRenderConfig(glints=glints, duplicate_rate=0.01)
+    if fields:  # twice the rate; each field collects the light of every second row: half the flux
+        cfg = replace(cfg, frame_rate_hz=2.0 * cfg.frame_rate_hz, led_flux=0.5 * cfg.led_flux,
+                      static_flux=0.5 * cfg.static_flux,
+                      glint_flux=(0.5 * cfg.glint_flux[0], 0.5 * cfg.glint_flux[1]))
     period = round(1.0 / cfg.frame_rate_hz, 5)  # what the motes are told (10 us resolution)
     motes = motes_with_codes(pos, codes, period, rng)
-    spp, stt = pixel_to_pan_tilt(intr, rng.uniform(20, 620, (3, 2)) * [1, 0.75], head_pan, head_tilt)
+    spp, stt = pixel_to_pan_tilt(intr, rng.uniform(20, 620, (3, 2)) * [1, intr.height / intr.width], head_pan, head_tilt)
     statics = pan_tilt_bearing(spp, stt) * 20.0
     cam = RenderedCamera(CameraPose(np.zeros(3), np.eye(3)), LedScene(positions={}))
     frames = render_view(cam, intr, head_pan, head_tilt, motes, frames_for(book.length), rng, cfg, statics)
     res = decode_view(frames, 1.0 / cfg.frame_rate_hz, book, intr, head_pan, head_tilt)
     truth = {int(i): uv[k] for k, i in enumerate(ids)}
     correct = mislabelled = 0
-    err = []
+    err: list[float] = []
+    ex: list[float] = []
+    ey: list[float] = []
     for r in res.readings:
         t = truth.get(r.index)
         if t is not None and math.hypot(r.u - t[0], r.v - t[1]) <= 2.0:
             correct += 1
             k = int(np.flatnonzero(ids == r.index)[0])
             err += [math.remainder(r.pan - pans[k], 2 * math.pi) * math.cos(tilts[k]), r.tilt - tilts[k]]
+            ex.append(err[-2])
+            ey.append(err[-1])
         else:
             mislabelled += 1
     dmin = np.sqrt(((uv[:, None, :] - uv[None, :, :]) ** 2).sum(-1)) + np.diag(np.full(n_motes, np.inf))
@@ -70,7 +82,8 @@ def trial(seed: int, n_motes: int, book_size: int, glints: int) -> dict[str, flo
     return {"decodes": n_motes, "correct": correct, "mislabelled": mislabelled,
             "isolated": int(isolated.sum()), "isolated_missed": iso_missed,
             "ambiguous": len(res.ambiguous()), "erased": res.erased, "samples": res.samples,
-            "sq_err": float(np.sum(np.square(err))), "n_err": len(err)}
+            "sq_err": float(np.sum(np.square(err))), "n_err": len(err),
+            "sq_x": float(np.sum(np.square(ex))), "sq_y": float(np.sum(np.square(ey))), "n_xy": len(ex)}
 
 
 def main() -> None:
@@ -80,15 +93,17 @@ def main() -> None:
     ap.add_argument("--book", type=int, default=100)
     ap.add_argument("--glints", type=int, default=10)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--fields", action="store_true", help="decode 59.94 Hz fields (640 x 240), not frames")
     args = ap.parse_args()
     tot: dict[str, float] = {}
     t0 = time.perf_counter()
     for k in range(args.trials):
-        for key, v in trial(args.seed + k, args.motes, args.book, args.glints).items():
+        for key, v in trial(args.seed + k, args.motes, args.book, args.glints, args.fields).items():
             tot[key] = tot.get(key, 0.0) + v
     dt = time.perf_counter() - t0
     d = tot["decodes"]
-    print(f"{args.trials} views x {args.motes} motes (book {args.book}), {args.glints} glints/view, "
+    print(f"{'fields 640 x 240 at 59.94 Hz' if args.fields else 'frames 640 x 480 at 29.97 Hz'}: "
+          f"{args.trials} views x {args.motes} motes (book {args.book}), {args.glints} glints/view, "
           f"{tot['erased'] / tot['samples']:.1%} samples erased (drops + duplicates), {dt:.0f} s")
     print(f"decodes {d:.0f}: correct {tot['correct']:.0f} ({tot['correct'] / d:.2%}), "
           f"mislabelled {tot['mislabelled']:.0f}, missed {d - tot['correct'] - tot['mislabelled']:.0f} "
@@ -98,6 +113,9 @@ def main() -> None:
     rms = math.sqrt(tot["sq_err"] / max(tot["n_err"], 1))
     print(f"angle error RMS per axis of correct readings: {math.degrees(rms) * 3600:.1f} arcsec "
           f"({math.degrees(rms):.5f} deg)")
+    n_xy = max(tot["n_xy"], 1)
+    print(f"  pan (x cos tilt) {math.degrees(math.sqrt(tot['sq_x'] / n_xy)):.5f} deg, "
+          f"tilt {math.degrees(math.sqrt(tot['sq_y'] / n_xy)):.5f} deg")
 
 
 if __name__ == "__main__":
