@@ -38,10 +38,13 @@ def main() -> None:
     ap.add_argument("--fx-error", type=float, default=0.0, help="relative focal-length calibration error")
     ap.add_argument("--miss-rate", type=float, default=0.0, help="decoder miss rate per recording")
     ap.add_argument("--fields", action="store_true", help="decode single fields (half vertical resolution)")
+    ap.add_argument("--independent-head", action="store_true",
+                    help="diagnostic: an independent head error per reading instead of one per view")
     args = ap.parse_args()
     noise = CodedNoise(decoder_sigma_pan=math.radians(args.decoder_pan),
                        decoder_sigma_tilt=math.radians(args.decoder_tilt), fx_error=args.fx_error,
-                       miss_rate=args.miss_rate, field_rows=args.fields)
+                       miss_rate=args.miss_rate, field_rows=args.fields,
+                       shared_head=not args.independent_head)
     intr = CameraIntrinsics.from_fov(640, 480, 65.0)
     sq = {"seq": [], "coded": []}  # type: dict[str, list[np.ndarray]]
     ne = {"seq": [], "coded": []}  # type: dict[str, list[np.ndarray]]
@@ -63,6 +66,7 @@ def main() -> None:
     lo, hi = chi2.ppf(0.025, 2 * n) / n, chi2.ppf(0.975, 2 * n) / n
     print(f"{args.trials} scenes x {args.nodes} nodes, decoder {args.decoder_pan} / {args.decoder_tilt} deg, "
           f"fx error {args.fx_error}, miss rate {args.miss_rate}, {'fields' if args.fields else 'frames'}, "
+          f"head error {'per reading' if args.independent_head else 'per view'}, "
           f"{dt:.0f} s")
     print(f"per scene: {views / args.trials:.1f} views (both cameras), {refined / args.trials:.1f} refined readings, "
           f"{unresolved / args.trials:.2f} unresolved, {missed / args.trials:.2f} missed, "

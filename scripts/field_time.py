@@ -49,7 +49,7 @@ def field_directions(pose: CameraPose, step: float = 0.01) -> np.ndarray:
 
 def run(n_motes: int, n_cams: int, timing: RigTiming, miss_rate: float, seed: int = 0,
         fields: bool = True, broadcast: bool = True, levels: tuple[float, ...] = (1 / 9, 3 / 9, 1.0),
-        ) -> dict[str, float]:
+        periods: int = 3) -> dict[str, float]:
     rng = np.random.default_rng(seed)
     nodes = np.column_stack([rng.uniform(0, 1, (n_motes, 2)), np.zeros(n_motes)])
     intr = CameraIntrinsics.from_fov(640, 480, 65.0)
@@ -57,7 +57,7 @@ def run(n_motes: int, n_cams: int, timing: RigTiming, miss_rate: float, seed: in
     bearings, searches, views = {}, {}, {}
     refine: dict[str, list[RefinePass]] = {}
     book = code_book(n_motes)
-    k = frames_for(book.length)
+    k = frames_for(book.length, periods)
     fields = fields and timing.head.interlaced
     coded_timing = replace(timing, camera=timing.camera.at_field_rate()) if fields else timing
     retry_views = 0.0
@@ -95,6 +95,7 @@ def main() -> None:
     ap.add_argument("--fps", type=float, default=30000.0 / 1001.0)
     ap.add_argument("--frames", action="store_true", help="decode frames, not fields (interlaced heads)")
     ap.add_argument("--unicast", action="store_true", help="one unicast start per mote, not a broadcast")
+    ap.add_argument("--periods", type=int, default=3, help="code periods recorded per view (K = periods x L + 2)")
     ap.add_argument("--levels", default="0.111,0.333,1", help="refinement zoom ladder (fractions, ascending)")
     args = ap.parse_args()
     levels = tuple(float(x) for x in args.levels.split(","))
@@ -106,7 +107,8 @@ def main() -> None:
     print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for n in (100, 1000):
         for c in (2, 4):
-            r = run(n, c, timing, args.miss_rate, fields=not args.frames, broadcast=not args.unicast, levels=levels)
+            r = run(n, c, timing, args.miss_rate, fields=not args.frames, broadcast=not args.unicast, levels=levels,
+                    periods=args.periods)
             print(f"| {n} | {c} | {r['seq']:.1f} | {r['coded']:.1f} | {r['seq'] / r['coded']:.1f}x | {r['L']} | "
                   f"{r['K']} | {r['rate']:.2f} | {r['views']:.1f} | {r['refine']} | {r['retry']:.2f} | "
                   f"{r['unresolved']} |")

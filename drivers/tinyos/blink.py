@@ -194,3 +194,51 @@ def parse_blink_report(packet: AmPacket) -> tuple[int, bool, int, int] | None:
     if node != packet.src:
         return None
     return node, p[2] == 0x01, p[3], int.from_bytes(p[4:8], "big")
+
+
+class BlinkField:
+    """The motes' side of blink commands (the firmware's behaviour, used by the base-station twin).
+
+    ``running[node] = (length, code)`` for every node blinking. A unicast start runs the
+    word it carries, a start by address runs the node's word of the generated book table,
+    a stop (unicast or broadcast) stops; every node that acted sends its blink report.
+    ``nodes``: the addresses present (None: any address a command names exists).
+    """
+
+    def __init__(self, nodes: set[int] | None = None, silent: set[int] | None = None) -> None:
+        self.nodes = nodes
+        self.silent = silent or set()
+        self.running: dict[int, tuple[int, int]] = {}
+
+    def _present(self, node: int) -> bool:
+        return (self.nodes is None or node in self.nodes) and node not in self.silent
+
+    def handle(self, packet: AmPacket) -> list[AmPacket]:
+        """Reports for one received AM packet (empty when it is no blink command)."""
+        cmd = parse_blink_command(packet)
+        if cmd is None:
+            return []
+        if isinstance(cmd, BlinkBroadcast):
+            from fgloc.camera.blink_codes import code_book
+
+            book = code_book(cmd.count, cmd.length)
+            addrs = range(cmd.first, cmd.first + cmd.count) if self.nodes is None else sorted(self.nodes)
+            out = []
+            for a in addrs:
+                word = word_for_address(book, cmd, a)
+                if word is not None and self._present(a):
+                    self.running[a] = (cmd.length, word)
+                    out.append(blink_report(a, True, cmd.length, word, packet.group))
+            return out
+        targets = ([packet.dest] if packet.dest != AM_BROADCAST
+                   else sorted(self.running) if self.nodes is None else sorted(self.nodes))
+        out = []
+        for node in targets:
+            if not self._present(node):
+                continue
+            if cmd.start:
+                self.running[node] = (cmd.length, cmd.code)
+            else:
+                self.running.pop(node, None)
+            out.append(blink_report(node, cmd.start, cmd.length, cmd.code, packet.group))
+        return out

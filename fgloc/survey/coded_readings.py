@@ -55,6 +55,7 @@ class CodedNoise:
     miss_rate: float = 0.0
     separation_px: float = 4.0
     field_rows: bool = False  #: decoding single fields: half the vertical resolution
+    shared_head: bool = True  #: one head error per view (False: per reading, a diagnostic)
     levels: tuple[float, ...] = (1 / 9, 3 / 9, 1.0)
 
 
@@ -118,7 +119,7 @@ def coded_observations(
             if rng.random() < noise.miss_rate**2:  # missed in the recording and in its retry
                 n_missed += 1
                 continue
-            if view not in head_err:
+            if view not in head_err or not noise.shared_head:
                 head_err[view] = rng.normal(0.0, noise.head_sigma, 2)
             hp, ht, z = view
             zi = intr.at_zoom(z)

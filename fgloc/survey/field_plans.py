@@ -202,10 +202,10 @@ def coded_survey_time(
                      frames_per_view, sum(len(rp.views) for ps in refine.values() for rp in ps))
 
 
-def frames_for(code_length: int) -> int:
-    """Frames per view: three code periods (each bit read three times, so ~9 % erased
-    samples from drops and repeats rarely erase a bit completely) plus two."""
-    return 3 * code_length + 2
+def frames_for(code_length: int, periods: int = 3) -> int:
+    """Frames per view: ``periods`` code periods (default three: each bit read three times, so
+    ~9 % erased samples from drops and repeats rarely erase a bit completely) plus two."""
+    return periods * code_length + 2
 
 
 def close_motes(pan_tilt: np.ndarray, pixel_angle: float, separation_px: float) -> np.ndarray:
