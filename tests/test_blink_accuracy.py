@@ -39,7 +39,9 @@ def test_coded_readings_are_exact_without_noise() -> None:
     ids = [f"n{j}" for j in range(80)]
     got = coded_observations(["a", "b"], cams, ids, nodes, area, INTR, noise, rng)
     assert sum(got.refined.values()) > 0  # the far field is crowded: some readings come from zoomed views
-    assert len(got.observations) == 160 - sum(got.unresolved.values())
+    pairs = {(o.camera, o.node) for o in got.observations}
+    assert len(pairs) == 160 - sum(got.unresolved.values())
+    assert len(got.observations) > len(pairs)  # overlapping views read many motes twice
     for o in got.observations:
         cam = cams[0 if o.camera == "a" else 1]
         p, t = bearing_pan_tilt(world_to_base(cam.rotation, cam.position, nodes[int(o.node[1:])][None]))
@@ -49,11 +51,13 @@ def test_coded_readings_are_exact_without_noise() -> None:
 def test_coded_accuracy_and_covariance_against_sequential() -> None:
     rms_seq, rms_coded, anees = _pool(CodedNoise(), range(8))
     assert rms_coded <= 1.1 * rms_seq
-    assert 1.2 < anees < 3.0  # 480 node-trials of chi-square(2): mean 2
+    # 480 node-trials of chi-square(2) have mean 2; nodes of one scene share camera errors, so the
+    # band is wider than the independent 95 % bounds [1.83, 2.18]; a 1 % focal error gives 5.2
+    assert 1.5 < anees < 2.6
 
 
-@pytest.mark.parametrize("fx_error", [0.03])
+@pytest.mark.parametrize("fx_error", [0.01, -0.01])
 def test_wrong_focal_length_is_caught(fx_error: float) -> None:
-    # off-centre readings with a 3 % focal-length error: the covariance check must fail
+    # off-centre readings with a 1 % focal-length error: the covariance check must fail
     _, _, anees = _pool(CodedNoise(fx_error=fx_error), range(8))
     assert anees > 3.0

@@ -17,11 +17,13 @@ so a reading is composed of
   the distance from the image centre.
 
 Views: each camera covers the deployment area with :func:`plan_views` at the survey
-zoom; a mote is read in the first view of the plan that covers it. Motes whose
-nearest neighbour is closer than ``separation_px`` are read in the refinement view
-(:func:`plan_refinement`) at the lowest zoom that separates them; motes no zoom
-separates, and motes the decoder misses twice (``miss_rate`` per recording, one retry),
-give no reading from that camera (missed, never guessed).
+zoom, then records its refinement passes (:func:`plan_refinement`: motes whose nearest
+neighbour is closer than ``separation_px``, at the lowest zoom that separates them).
+A mote gives a reading in **every** recorded view that contains it and separates it
+(views overlap, so many motes are read twice, each time with that view's head error);
+``every_view=False`` keeps its first reading only. Motes no view separates, and readings
+the decoder misses twice (``miss_rate`` per recording, one retry), are missing
+(reported, never guessed).
 
 Each reading carries ``sigma = sqrt(head_sigma^2 + decoder_sigma^2)`` (the per-axis
 decoder sigma, the larger of the two) as its own noise: the solver sees independent
@@ -55,6 +57,7 @@ class CodedNoise:
     miss_rate: float = 0.0
     separation_px: float = 4.0
     field_rows: bool = False  #: decoding single fields: half the vertical resolution
+    every_view: bool = True  #: a reading from every view a mote is decodable in (False: its first only)
     shared_head: bool = True  #: one head error per view (False: per reading, a diagnostic)
     levels: tuple[float, ...] = (1 / 9, 3 / 9, 1.0)
 
@@ -88,34 +91,22 @@ def coded_observations(
         wide = plan_views(intr, region)
         passes, _ = plan_refinement(intr, pt, noise.separation_px, noise.levels, start=wide[-1] if wide else (0, 0),
                                     field_rows=noise.field_rows)
-        # each mote's view: (head pan, head tilt, zoom); refined motes in the first covering view of their pass
-        view_of: list[tuple[float, float, float] | None] = [None] * len(pt)
-        cov = coverage(intr, pt, np.array(wide), 12.0) if wide else np.zeros((0, len(pt)), bool)
-        for j in range(len(pt)):
-            v = np.flatnonzero(cov[:, j])
-            if v.size:
-                view_of[j] = (*wide[int(v[0])], 0.0)
+        # every (view, mote) pair that gives a reading: the mote is inside the view and separable at its zoom
         need = noise.separation_px / np.maximum(neighbour_px(pt, intr, noise.field_rows), 1e-12)
-        n_unres = 0
-        assigned = need <= 1.0
-        for rp in passes:
-            zi = intr.at_zoom(rp.zoom)
-            mag = zi.fx / intr.fx
-            mine = ~assigned & (need <= mag)
-            rc = coverage(zi, pt, np.array(rp.views), 12.0)
-            for j in np.flatnonzero(mine):
-                v = np.flatnonzero(rc[:, j])
-                view_of[j] = (*rp.views[int(v[0])], rp.zoom) if v.size else None
-            assigned |= mine
-        for j in np.flatnonzero(~assigned):
-            view_of[j] = None
-            n_unres += 1
+        all_views = [(p, t, 0.0) for p, t in wide] + [(p, t, rp.zoom) for rp in passes for p, t in rp.views]
+        pairs: list[tuple[tuple[float, float, float], int]] = []
+        seen = np.zeros(len(pt), bool)
+        for view in all_views:
+            zi = intr.at_zoom(view[2])
+            ok = coverage(zi, pt, np.array([view[:2]]), 12.0)[0] & (need <= zi.fx / intr.fx) & ~(
+                seen if not noise.every_view else np.zeros(len(pt), bool))
+            pairs += [(view, int(j)) for j in np.flatnonzero(ok)]
+            seen |= ok
+        n_unres = int((~seen).sum())
         wide_fy = field_intrinsics(intr).fy if noise.field_rows else intr.fy
         head_err: dict[tuple[float, float, float], np.ndarray] = {}
         n_missed = 0
-        for j, view in enumerate(view_of):
-            if view is None:
-                continue
+        for view, j in pairs:
             if rng.random() < noise.miss_rate**2:  # missed in the recording and in its retry
                 n_missed += 1
                 continue
