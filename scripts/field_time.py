@@ -6,10 +6,14 @@ towards the square's centre. Both surveys search the same region: the pan-tilt b
 (sequential) or the directions (coded) of the square seen from each camera.
 Camera: 640 x 480, 65 deg horizontal field of view (EVI-D100 wide end).
 
-    OPENBLAS_NUM_THREADS=1 .venv/bin/python scripts/field_time.py [--miss-rate Q] [--head EVI-D100]
+    OPENBLAS_NUM_THREADS=1 .venv/bin/python scripts/field_time.py [--miss-rate Q] [--head EVI-D100] \
+        [--frames] [--unicast] [--levels 0.111,0.333,1] [--periods 3]
 
-``--miss-rate`` is the per-decode miss rate measured by scripts/blink_montecarlo.py;
-a view in which any of its motes is expected to be missed is recorded twice.
+``--miss-rate`` is the per-decode miss rate of isolated motes measured by
+scripts/blink_montecarlo.py (frames 0.0494, fields 0.1296); a view in which any of its
+motes is expected to be missed is recorded twice. The coded survey starts every mote by
+one broadcast (``--unicast``: one start per mote), decodes fields on interlaced heads
+(``--frames``: frames), and refines crowded motes on the zoom ladder ``--levels``.
 """
 
 from __future__ import annotations

@@ -29,7 +29,7 @@ import numpy as np
 
 from fgloc.camera.intrinsics import CameraIntrinsics
 from fgloc.camera.led_search import LedLocator, PinholePixelModel, SearchConfig, Spot
-from fgloc.core.geometry import FloatArray, pan_tilt_bearing
+from fgloc.core.geometry import FloatArray
 from fgloc.survey.clock import (
     FieldTime,
     Frames,
@@ -206,12 +206,3 @@ def frames_for(code_length: int, periods: int = 3) -> int:
     """Frames per view: ``periods`` code periods (default three: each bit read three times, so
     ~9 % erased samples from drops and repeats rarely erase a bit completely) plus two."""
     return periods * code_length + 2
-
-
-def close_motes(pan_tilt: np.ndarray, pixel_angle: float, separation_px: float) -> np.ndarray:
-    """(N,) bool: motes (rows (pan, tilt) rad) with another within ``separation_px`` pixels of
-    ``pixel_angle`` rad/px: the pairs one view at that scale cannot separate."""
-    b = pan_tilt_bearing(pan_tilt[:, 0], pan_tilt[:, 1])
-    ang = np.arccos(np.clip(b @ b.T, -1.0, 1.0))
-    np.fill_diagonal(ang, np.inf)
-    return np.asarray(ang.min(axis=1) < separation_px * pixel_angle)
