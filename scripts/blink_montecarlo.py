@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import math
 import time
+from dataclasses import replace
 
 import numpy as np
 
@@ -28,15 +29,22 @@ from fgloc.core.geometry import pan_tilt_bearing
 from fgloc.core.model import CameraPose
 from fgloc.drivers.blink_frames import BlinkRenderConfig, motes_with_codes, render_view
 from fgloc.drivers.rendered_camera import LedScene, RenderedCamera
+from fgloc.survey.coded_readings import field_intrinsics
 from fgloc.survey.field_plans import frames_for
 
 
-def trial(seed: int, n_motes: int, book_size: int, glints: int) -> dict[str, float]:
+def trial(seed: int, n_motes: int, book_size: int, glints: int, fields: bool = False,
+          frames: int | None = None, extend: int = 0) -> dict[str, float]:
+    """One view. ``frames`` recorded (default 3L + 2); with ``extend`` > 0 the recording
+    goes on for ``extend`` more frames and the whole stack is decoded again (keys ``ext_*``):
+    the retry of a view whose motes were missed, without moving the head."""
     rng = np.random.default_rng(seed)
     intr = CameraIntrinsics.from_fov(640, 480, 65.0)
+    if fields:
+        intr = field_intrinsics(intr)
     book = code_book(book_size)
     head_pan, head_tilt = rng.uniform(-math.pi, math.pi), rng.uniform(-0.6, 0.2)
-    uv = np.column_stack([rng.uniform(15, 625, n_motes), rng.uniform(15, 465, n_motes)])
+    uv = np.column_stack([rng.uniform(15, intr.width - 15, n_motes), rng.uniform(15, intr.height - 15, n_motes)])
     pans, tilts = pixel_to_pan_tilt(intr, uv, head_pan, head_tilt)
     dist = rng.uniform(3.0, 30.0, n_motes)
     pts = pan_tilt_bearing(pans, tilts) * dist[:, None]
@@ -44,27 +52,45 @@ def trial(seed: int, n_motes: int, book_size: int, glints: int) -> dict[str, flo
     pos = {f"n{int(i)}": pts[k] for k, i in enumerate(ids)}
     codes = {f"n{int(i)}": book.bits(int(i)) for i in ids}
     cfg = BlinkRenderConfig(glints=glints, duplicate_rate=0.01)
+    if fields:  # twice the rate; each field collects the light of every second row: half the flux
+        cfg = replace(cfg, frame_rate_hz=2.0 * cfg.frame_rate_hz, led_flux=0.5 * cfg.led_flux,
+                      static_flux=0.5 * cfg.static_flux,
+                      glint_flux=(0.5 * cfg.glint_flux[0], 0.5 * cfg.glint_flux[1]))
     period = round(1.0 / cfg.frame_rate_hz, 5)  # what the motes are told (10 us resolution)
     motes = motes_with_codes(pos, codes, period, rng)
-    spp, stt = pixel_to_pan_tilt(intr, rng.uniform(20, 620, (3, 2)) * [1, 0.75], head_pan, head_tilt)
+    spp, stt = pixel_to_pan_tilt(intr, rng.uniform(20, 620, (3, 2)) * [1, intr.height / intr.width], head_pan, head_tilt)
     statics = pan_tilt_bearing(spp, stt) * 20.0
     cam = RenderedCamera(CameraPose(np.zeros(3), np.eye(3)), LedScene(positions={}))
-    frames = render_view(cam, intr, head_pan, head_tilt, motes, frames_for(book.length), rng, cfg, statics)
-    res = decode_view(frames, 1.0 / cfg.frame_rate_hz, book, intr, head_pan, head_tilt)
+    k0 = frames if frames is not None else frames_for(book.length)
+    stack = render_view(cam, intr, head_pan, head_tilt, motes, k0 + extend, rng, cfg, statics)
     truth = {int(i): uv[k] for k, i in enumerate(ids)}
-    correct = mislabelled = 0
-    err = []
-    for r in res.readings:
-        t = truth.get(r.index)
-        if t is not None and math.hypot(r.u - t[0], r.v - t[1]) <= 2.0:
-            correct += 1
-            k = int(np.flatnonzero(ids == r.index)[0])
-            err += [math.remainder(r.pan - pans[k], 2 * math.pi) * math.cos(tilts[k]), r.tilt - tilts[k]]
-        else:
-            mislabelled += 1
-    return {"decodes": n_motes, "correct": correct, "mislabelled": mislabelled,
-            "ambiguous": len(res.ambiguous()), "erased": res.erased, "samples": res.samples,
-            "sq_err": float(np.sum(np.square(err))), "n_err": len(err)}
+    dmin = np.sqrt(((uv[:, None, :] - uv[None, :, :]) ** 2).sum(-1)) + np.diag(np.full(n_motes, np.inf))
+    isolated = dmin.min(axis=1) >= 4.0  # no other mote within 4 px: the field plan's criterion
+    out: dict[str, float] = {"decodes": n_motes, "isolated": int(isolated.sum())}
+    for prefix, fr in [("", stack[:k0])] + ([("ext_", stack)] if extend else []):
+        res = decode_view(fr, 1.0 / cfg.frame_rate_hz, book, intr, head_pan, head_tilt)
+        correct = mislabelled = 0
+        ex: list[float] = []
+        ey: list[float] = []
+        found = set()
+        for r in res.readings:
+            t = truth.get(r.index)
+            if t is not None and math.hypot(r.u - t[0], r.v - t[1]) <= 2.0:
+                correct += 1
+                found.add(r.index)
+                k = int(np.flatnonzero(ids == r.index)[0])
+                ex.append(math.remainder(r.pan - pans[k], 2 * math.pi) * math.cos(tilts[k]))
+                ey.append(r.tilt - tilts[k])
+            else:
+                mislabelled += 1
+        iso_missed = sum(1 for k, i in enumerate(ids) if isolated[k] and int(i) not in found)
+        out.update({prefix + "correct": correct, prefix + "mislabelled": mislabelled,
+                    prefix + "isolated_missed": iso_missed, prefix + "ambiguous": len(res.ambiguous()),
+                    prefix + "erased": res.erased, prefix + "samples": res.samples,
+                    prefix + "sq_err": float(np.sum(np.square(ex)) + np.sum(np.square(ey))),
+                    prefix + "n_err": 2 * len(ex), prefix + "sq_x": float(np.sum(np.square(ex))),
+                    prefix + "sq_y": float(np.sum(np.square(ey))), prefix + "n_xy": len(ex)})
+    return out
 
 
 def main() -> None:
@@ -74,23 +100,36 @@ def main() -> None:
     ap.add_argument("--book", type=int, default=100)
     ap.add_argument("--glints", type=int, default=10)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--fields", action="store_true", help="decode 59.94 Hz fields (640 x 240), not frames")
+    ap.add_argument("--frames", type=int, default=None, help="frames per view (default 3L + 2)")
+    ap.add_argument("--extend", type=int, default=0, help="also decode after this many more frames")
     args = ap.parse_args()
     tot: dict[str, float] = {}
     t0 = time.perf_counter()
     for k in range(args.trials):
-        for key, v in trial(args.seed + k, args.motes, args.book, args.glints).items():
+        for key, v in trial(args.seed + k, args.motes, args.book, args.glints, args.fields, args.frames,
+                             args.extend).items():
             tot[key] = tot.get(key, 0.0) + v
     dt = time.perf_counter() - t0
     d = tot["decodes"]
-    print(f"{args.trials} views x {args.motes} motes (book {args.book}), {args.glints} glints/view, "
-          f"{tot['erased'] / tot['samples']:.1%} samples erased (drops + duplicates), {dt:.0f} s")
-    print(f"decodes {d:.0f}: correct {tot['correct']:.0f} ({tot['correct'] / d:.2%}), "
-          f"mislabelled {tot['mislabelled']:.0f}, missed {d - tot['correct'] - tot['mislabelled']:.0f} "
-          f"({(d - tot['correct'] - tot['mislabelled']) / d:.2%}), ambiguous reports {tot['ambiguous']:.0f}")
-    rms = math.sqrt(tot["sq_err"] / max(tot["n_err"], 1))
-    print(f"angle error RMS per axis of correct readings: {math.degrees(rms) * 3600:.1f} arcsec "
-          f"({math.degrees(rms):.5f} deg)")
-
+    book = code_book(args.book)
+    k0 = args.frames if args.frames is not None else frames_for(book.length)
+    print(f"{'fields 640 x 240 at 59.94 Hz' if args.fields else 'frames 640 x 480 at 29.97 Hz'}: "
+          f"{args.trials} views x {args.motes} motes (book {args.book}, L = {book.length}), {args.glints} glints/view, "
+          f"{dt:.0f} s")
+    for prefix, k in [("", k0)] + ([("ext_", k0 + args.extend)] if args.extend else []):
+        miss = d - tot[prefix + "correct"] - tot[prefix + "mislabelled"]
+        print(f"{k} samples/view, {tot[prefix + 'erased'] / tot[prefix + 'samples']:.1%} erased (drops + duplicates): "
+              f"decodes {d:.0f}: correct {tot[prefix + 'correct']:.0f} ({tot[prefix + 'correct'] / d:.2%}), "
+              f"mislabelled {tot[prefix + 'mislabelled']:.0f}, missed {miss:.0f} ({miss / d:.2%}), "
+              f"ambiguous reports {tot[prefix + 'ambiguous']:.0f}")
+        print(f"  isolated motes (no other within 4 px) {tot['isolated']:.0f}: missed "
+              f"{tot[prefix + 'isolated_missed']:.0f} ({tot[prefix + 'isolated_missed'] / max(tot['isolated'], 1):.2%})")
+        rms = math.sqrt(tot[prefix + "sq_err"] / max(tot[prefix + "n_err"], 1))
+        n_xy = max(tot[prefix + "n_xy"], 1)
+        print(f"  angle error RMS per axis of correct readings: {math.degrees(rms) * 3600:.1f} arcsec "
+              f"({math.degrees(rms):.5f} deg); pan (x cos tilt) {math.degrees(math.sqrt(tot[prefix + 'sq_x'] / n_xy)):.5f}"
+              f" deg, tilt {math.degrees(math.sqrt(tot[prefix + 'sq_y'] / n_xy)):.5f} deg")
 
 if __name__ == "__main__":
     main()

@@ -6,16 +6,21 @@ towards the square's centre. Both surveys search the same region: the pan-tilt b
 (sequential) or the directions (coded) of the square seen from each camera.
 Camera: 640 x 480, 65 deg horizontal field of view (EVI-D100 wide end).
 
-    OPENBLAS_NUM_THREADS=1 .venv/bin/python scripts/field_time.py [--miss-rate Q] [--head EVI-D100]
+    OPENBLAS_NUM_THREADS=1 .venv/bin/python scripts/field_time.py [--miss-rate Q] [--head EVI-D100] \
+        [--frames] [--unicast] [--levels 0.111,0.333,1] [--periods 3]
 
-``--miss-rate`` is the per-decode miss rate measured by scripts/blink_montecarlo.py;
-a view in which any of its motes is expected to be missed is recorded twice.
+``--miss-rate`` is the per-decode miss rate of isolated motes measured by
+scripts/blink_montecarlo.py (frames 0.0494, fields 0.1296); a view in which any of its
+motes is expected to be missed is recorded twice. The coded survey starts every mote by
+one broadcast (``--unicast``: one start per mote), decodes fields on interlaced heads
+(``--frames``: frames), and refines crowded motes on the zoom ladder ``--levels``.
 """
 
 from __future__ import annotations
 
 import argparse
 import math
+from dataclasses import replace
 
 import numpy as np
 
@@ -25,8 +30,8 @@ from fgloc.camera.led_search import SearchConfig
 from fgloc.core.geometry import bearing_pan_tilt, rot_z, world_to_base
 from fgloc.core.model import CameraPose
 from fgloc.survey.clock import HEAD_MODELS, CameraTiming, RigTiming
-from fgloc.survey.field_plans import close_motes, coded_survey_time, frames_for, sequential_survey_time
-from fgloc.survey.view_planner import coverage, plan_views
+from fgloc.survey.field_plans import coded_survey_time, frames_for, sequential_survey_time
+from fgloc.survey.view_planner import RefinePass, coverage, plan_refinement, plan_views
 
 
 def cameras(n: int, height: float = 0.1) -> dict[str, CameraPose]:
@@ -46,18 +51,21 @@ def field_directions(pose: CameraPose, step: float = 0.01) -> np.ndarray:
     return np.column_stack([p, t])
 
 
-def run(n_motes: int, n_cams: int, timing: RigTiming, miss_rate: float, seed: int = 0) -> dict[str, float]:
+def run(n_motes: int, n_cams: int, timing: RigTiming, miss_rate: float, seed: int = 0,
+        fields: bool = True, broadcast: bool = True, levels: tuple[float, ...] = (1 / 9, 3 / 9, 1.0),
+        periods: int = 3) -> dict[str, float]:
     rng = np.random.default_rng(seed)
     nodes = np.column_stack([rng.uniform(0, 1, (n_motes, 2)), np.zeros(n_motes)])
     intr = CameraIntrinsics.from_fov(640, 480, 65.0)
-    tele = intr.at_zoom(1.0)
     cams = cameras(n_cams)
     bearings, searches, views = {}, {}, {}
-    refine: dict[str, list[tuple[float, float]]] = {}
+    refine: dict[str, list[RefinePass]] = {}
     book = code_book(n_motes)
-    k = frames_for(book.length)
-    pixel_angle = 1.0 / intr.fx
+    k = frames_for(book.length, periods)
+    fields = fields and timing.head.interlaced
+    coded_timing = replace(timing, camera=timing.camera.at_field_rate()) if fields else timing
     retry_views = 0.0
+    unresolved = 0
     for c, pose in cams.items():
         d = world_to_base(pose.rotation, pose.position, nodes)
         bearings[c] = d / np.linalg.norm(d, axis=1, keepdims=True)
@@ -69,14 +77,18 @@ def run(n_motes: int, n_cams: int, timing: RigTiming, miss_rate: float, seed: in
         cov = coverage(intr, pt, np.array(views[c]), 12.0)
         per_view = cov.sum(axis=1)
         retry_views += float(np.sum(1.0 - (1.0 - miss_rate) ** per_view)) / max(len(views[c]), 1) / n_cams
-        close = close_motes(pt, pixel_angle, 4.0)
-        refine[c] = plan_views(tele, pt[close], start=views[c][-1]) if close.any() else []
+        refine[c], lost = plan_refinement(intr, pt, 4.0, levels, start=views[c][-1], field_rows=fields)
+        unresolved += lost
     seq = sequential_survey_time(bearings, intr, searches, timing)
-    coded = coded_survey_time(views, n_motes, k, timing, retry_fraction=retry_views, refine_views=refine)
+    # the start broadcast is sent three times (a running mote ignores a repeat); a mote that
+    # missed all three is a miss, retried like the decoder's misses
+    coded = coded_survey_time(views, n_motes, k, coded_timing, retry_fraction=retry_views, refine=refine,
+                              broadcast_start=broadcast, start_broadcasts=3)
     return {
         "seq": seq.time.total, "seq_desc": seq.time.describe(), "coded": coded.time.total,  # type: ignore[dict-item]
         "coded_desc": coded.time.describe(), "views": sum(coded.views.values()) / n_cams,  # type: ignore[dict-item]
         "L": book.length, "K": k, "refine": coded.refinements, "retry": retry_views, "missing": seq.not_found,
+        "unresolved": unresolved, "rate": coded_timing.camera.frame_rate_hz,
     }
 
 
@@ -85,19 +97,27 @@ def main() -> None:
     ap.add_argument("--head", default="EVI-D100", choices=sorted(HEAD_MODELS))
     ap.add_argument("--miss-rate", type=float, default=0.0)
     ap.add_argument("--fps", type=float, default=30000.0 / 1001.0)
+    ap.add_argument("--frames", action="store_true", help="decode frames, not fields (interlaced heads)")
+    ap.add_argument("--unicast", action="store_true", help="one unicast start per mote, not a broadcast")
+    ap.add_argument("--periods", type=int, default=3, help="code periods recorded per view (K = periods x L + 2)")
+    ap.add_argument("--levels", default="0.111,0.333,1", help="refinement zoom ladder (fractions, ascending)")
     args = ap.parse_args()
+    levels = tuple(float(x) for x in args.levels.split(","))
     timing = RigTiming(head=HEAD_MODELS[args.head], camera=CameraTiming(frame_rate_hz=args.fps))
-    print(f"head {args.head}, {args.fps:.2f} frames/s, miss rate {args.miss_rate}")
-    print("| motes | cameras | sequential (s) | coded (s) | speed-up | L | frames/view | views/camera | "
-          "refinement views | retried views |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
+    print(f"head {args.head}, {args.fps:.2f} frames/s, miss rate {args.miss_rate}, "
+          f"{'unicast' if args.unicast else 'broadcast'} start, refinement zooms {levels}")
+    print("| motes | cameras | sequential (s) | coded (s) | speed-up | L | samples/view | decode rate (Hz) | "
+          "views/camera | refinement views | retried views | unresolved |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for n in (100, 1000):
         for c in (2, 4):
-            r = run(n, c, timing, args.miss_rate)
+            r = run(n, c, timing, args.miss_rate, fields=not args.frames, broadcast=not args.unicast, levels=levels,
+                    periods=args.periods)
             print(f"| {n} | {c} | {r['seq']:.1f} | {r['coded']:.1f} | {r['seq'] / r['coded']:.1f}x | {r['L']} | "
-                  f"{r['K']} | {r['views']:.1f} | {r['refine']} | {r['retry']:.2f} |")
-            print(f"|   | sequential phases: {r['seq_desc']} (not found {r['missing']}) |||||||||")
-            print(f"|   | coded phases: {r['coded_desc']} |||||||||")
+                  f"{r['K']} | {r['rate']:.2f} | {r['views']:.1f} | {r['refine']} | {r['retry']:.2f} | "
+                  f"{r['unresolved']} |")
+            print(f"|   | sequential phases: {r['seq_desc']} (not found {r['missing']}) |||||||||||")
+            print(f"|   | coded phases: {r['coded_desc']} |||||||||||")
 
 
 if __name__ == "__main__":

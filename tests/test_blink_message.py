@@ -4,13 +4,17 @@ from __future__ import annotations
 
 import pytest
 
+from fgloc.camera.blink_codes import code_book
 from fgloc.drivers.tinyos.blink import (
     AM_BLINK_CODE,
+    BlinkBroadcast,
     BlinkCommand,
+    blink_broadcast,
     blink_command,
     blink_report,
     parse_blink_command,
     parse_blink_report,
+    word_for_address,
 )
 from fgloc.drivers.tinyos.framing import Deframer, data_frame, parse_body
 from fgloc.drivers.tinyos.messages import AmPacket
@@ -73,3 +77,42 @@ def test_bad_commands_refused() -> None:
         BlinkCommand(True, 16, 1 << 16, 0.033).payload()
     with pytest.raises(ValueError):
         BlinkCommand(True, 16, 5, 1.0).payload()
+
+
+def test_broadcast_start_bytes() -> None:
+    cmd = BlinkBroadcast(length=16, first=1, count=100, bit_period_s=0.01668, cycles=0)
+    pkt = blink_broadcast(cmd)
+    expected = bytes.fromhex("00 ffff 0000 0a 22 8b" "02 10 0001 0064 0684 0000")
+    assert pkt.pack() == expected
+    body = bytes([0x44, 0x02]) + expected
+    crc = _crc_xmodem(body)
+    assert data_frame(pkt, 2) == bytes([0x7E]) + body + bytes([crc & 0xFF, crc >> 8, 0x7E])
+    assert crc == 0xDF96  # the worked example in docs/blink-codes.md
+    got = parse_blink_command(parse_body(Deframer().feed(data_frame(pkt, 2))[0]).packet)  # type: ignore[arg-type]
+    assert got == cmd
+
+
+def test_broadcast_address_to_word() -> None:
+    cmd = BlinkBroadcast(length=20, first=10, count=1000, bit_period_s=0.01668)
+    book = code_book(1000)
+    assert book.length == 20
+    assert word_for_address(book, cmd, 10) == book.words[0]
+    assert word_for_address(book, cmd, 1009) == book.words[999]
+    assert word_for_address(book, cmd, 9) is None and word_for_address(book, cmd, 1010) is None
+    assert word_for_address(code_book(100), cmd, 10) is None  # a 16-bit book: wrong length
+    # the firmware's table is the largest book; any survey's book is its prefix
+    assert code_book(1000).words == code_book(1112).words[:1000]
+    assert code_book(37, length=20).words == book.words[:37]
+
+
+def test_broadcast_only_valid_to_all_and_stop_broadcast() -> None:
+    payload = BlinkBroadcast(16, 1, 100, 0.01668).payload()
+    assert parse_blink_command(AmPacket(dest=5, src=0, am_type=AM_BLINK_CODE, payload=payload)) is None
+    stop = blink_broadcast(BlinkCommand(start=False))
+    assert stop.dest == 0xFFFF and parse_blink_command(stop) == BlinkCommand(start=False)
+    with pytest.raises(ValueError):
+        blink_broadcast(BlinkCommand(True, 16, 5, 0.033))
+    for bad in ("02 04 0001 0064 0684 0000", "02 10 0001 0000 0684 0000", "02 10 ffff 0002 0684 0000",
+                "02 10 0001 0064 0000 0000"):
+        pkt = AmPacket(dest=0xFFFF, src=0, am_type=AM_BLINK_CODE, payload=bytes.fromhex(bad))
+        assert parse_blink_command(pkt) is None

@@ -60,3 +60,28 @@ def test_price_phases_and_parallel() -> None:
     assert parallel([a, b]) is b
     assert (a + b).total == pytest.approx(3.5)
     assert price([Frames(0)], timing).total == 0.0
+
+
+def test_field_rate_and_coded_plan_by_hand() -> None:
+    from fgloc.survey.field_plans import coded_survey_time
+    from fgloc.survey.view_planner import RefinePass
+
+    cam = CameraTiming(frame_rate_hz=25.0, grab_latency_s=0.04).at_field_rate()
+    assert cam.frame_rate_hz == 50.0 and cam.grab_latency_s == 0.04
+    assert cam.burst_time(10) == pytest.approx(0.01 + 0.2 + 0.04)
+    timing = RigTiming(head=EVI_D100, camera=cam, radio=RadioTiming(unicast_s=0.03, broadcast_s=0.01))
+    d10 = math.radians(10.0)
+    views = {"a": [(0.0, 0.0), (d10, 0.0)], "b": [(0.0, 0.0)]}
+    refine = {"a": [RefinePass(0.25, [(d10, -d10)], 3), RefinePass(1.0, [(d10, -2 * d10)], 2)]}
+    ct = coded_survey_time(views, 100, 10, timing, refine=refine, broadcast_start=True, start_broadcasts=3)
+    burst = 0.25
+    view0 = 0.1 + 0.04 + burst  # no move to the first view: settle, read, frames (slew = command only)
+    move10_pan = EVI_D100.slew_time(d10, 0.0)
+    move10_tilt = EVI_D100.slew_time(0.0, d10)
+    wide = (0.05 + view0) + (move10_pan + view0)
+    zoom = (0.25 + 0.75 + 1.0) * 2.0  # in to 0.25, on to 1.0, back out: 2 s for the full range
+    fine = 2 * (move10_tilt + view0)
+    assert ct.time.total == pytest.approx(wide + zoom + fine + 3 * 0.01 + 0.01)  # 3 start + 1 stop broadcasts
+    assert ct.refinements == 2
+    unicast = coded_survey_time(views, 100, 10, timing, broadcast_start=False)
+    assert unicast.time.phases["radio"] == pytest.approx(100 * 0.03 + 0.01)

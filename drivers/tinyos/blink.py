@@ -18,6 +18,27 @@ state (0x00 stopped, 0x01 running), length (1), code (4), so the base station kn
 that the node runs the right word. Start times need no coordination: the code book
 (:mod:`fgloc.camera.blink_codes`) is rotation-free.
 
+**Broadcast start by address**, PC -> all nodes, the same AM type ``0x8B``, dest
+``0xFFFF`` (:func:`blink_broadcast`), payload 10 bytes::
+
+    offset size field
+    0      1    command      0x02 start by address
+    1      1    length       code length L in bits (the book's length)
+    2      2    first        address A0 of book word 0
+    4      2    count        N: addresses A0 .. A0 + N - 1 take book words 0 .. N - 1
+    6      2    bit_period   as above, units of 10 us
+    8      2    cycles       as above, 0 = until stopped
+
+A node with address ``A`` in ``A0 .. A0 + N - 1`` runs word ``A - A0`` of the
+``L``-bit book (:func:`word_for_address`); any other node stays dark. The book's words
+are a deterministic greedy prefix (word ``k`` of the ``L``-bit book is the same for
+every book size, :func:`fgloc.camera.blink_codes.code_book`), so the firmware holds one
+generated table per length (1112 words x 4 bytes for L = 20) and never needs a word
+from the radio. One broadcast replaces N unicast starts; a node that misses it is not
+decoded, is reported missed and is started again by a unicast. Nodes still send their
+blink report, after a random backoff, while the cameras record; nobody waits for them.
+A stop for all nodes is the 10-byte stop payload sent to ``0xFFFF``.
+
 Example (protocols.md 3.4 framing): start node 5 with the 16-bit word 0x0A5F at
 33.37 ms per bit until stopped, seq 0x01::
 
@@ -29,12 +50,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from fgloc.camera.blink_codes import CodeBook
 from fgloc.drivers.tinyos.errors import MoteProtocolError
 from fgloc.drivers.tinyos.messages import AM_BROADCAST, DEFAULT_GROUP, AmPacket
 
 AM_BLINK_CODE = 0x8B
 AM_BLINK_REPORT = 0x8C
-BLINK_STOP, BLINK_START = 0x00, 0x01
+BLINK_STOP, BLINK_START, BLINK_START_BY_ADDRESS = 0x00, 0x01, 0x02
 MAX_CODE_BITS = 32
 BIT_PERIOD_UNIT_S = 1e-5
 
@@ -81,16 +103,77 @@ class BlinkCommand:
         return BlinkCommand(True, length, code, period * BIT_PERIOD_UNIT_S, int.from_bytes(payload[8:10], "big"))
 
 
+@dataclass(frozen=True)
+class BlinkBroadcast:
+    """Broadcast start by address: nodes ``first .. first + count - 1`` run words ``0 .. count - 1``
+    of the ``length``-bit book, ``bit_period_s`` seconds per bit, ``cycles`` repeats (0 = forever)."""
+
+    length: int
+    first: int
+    count: int
+    bit_period_s: float
+    cycles: int = 0
+
+    def payload(self) -> bytes:
+        """The 10-byte payload (see the module docstring)."""
+        if not 8 <= self.length <= MAX_CODE_BITS:
+            raise ValueError(f"code length {self.length} not in 8..{MAX_CODE_BITS}")
+        if not 0 <= self.first <= 0xFFFE or not 1 <= self.count <= 0xFFFF - self.first:
+            raise ValueError(f"addresses {self.first} + {self.count} not in 0..0xFFFE")
+        period = round(self.bit_period_s / BIT_PERIOD_UNIT_S)
+        if not 1 <= period <= 0xFFFF:
+            raise ValueError(f"bit period {self.bit_period_s} s not in 10 us .. 655.35 ms")
+        if not 0 <= self.cycles <= 0xFFFF:
+            raise ValueError(f"cycles {self.cycles} not in 0..65535")
+        return (bytes([BLINK_START_BY_ADDRESS, self.length]) + self.first.to_bytes(2, "big")
+                + self.count.to_bytes(2, "big") + period.to_bytes(2, "big") + self.cycles.to_bytes(2, "big"))
+
+    @staticmethod
+    def from_payload(payload: bytes) -> BlinkBroadcast:
+        """Inverse of :meth:`payload`; MoteProtocolError on a malformed payload."""
+        if len(payload) != 10 or payload[0] != BLINK_START_BY_ADDRESS:
+            raise MoteProtocolError(f"not a broadcast blink payload: {payload.hex(' ')}")
+        length = payload[1]
+        first, count, period, cycles = (int.from_bytes(payload[i:i + 2], "big") for i in (2, 4, 6, 8))
+        if not 8 <= length <= MAX_CODE_BITS or count == 0 or period == 0 or first + count > 0xFFFF:
+            raise MoteProtocolError(f"broadcast blink: bad length/addresses/period: {payload.hex(' ')}")
+        return BlinkBroadcast(length, first, count, period * BIT_PERIOD_UNIT_S, cycles)
+
+    def word_index(self, address: int) -> int | None:
+        """Book index node ``address`` runs, or None (the node stays dark)."""
+        k = address - self.first
+        return k if 0 <= k < self.count else None
+
+
+def blink_broadcast(command: BlinkBroadcast | BlinkCommand, src: int = 0, group: int = DEFAULT_GROUP) -> AmPacket:
+    """The AM packet broadcasting a start by address, or a stop (``BlinkCommand(start=False)``), to all nodes."""
+    if isinstance(command, BlinkCommand) and command.start:
+        raise ValueError("a unicast start carries one node's word; broadcast a BlinkBroadcast instead")
+    return AmPacket(dest=AM_BROADCAST, src=src, am_type=AM_BLINK_CODE, payload=command.payload(), group=group)
+
+
+def word_for_address(book: CodeBook, command: BlinkBroadcast, address: int) -> int | None:
+    """The code word node ``address`` runs after ``command`` (what the firmware's table gives),
+    or None when the node stays dark or ``book`` has another length or too few words."""
+    k = command.word_index(address)
+    if k is None or book.length != command.length or k >= len(book):
+        return None
+    return book.words[k]
+
+
 def blink_command(node: int, command: BlinkCommand, src: int = 0, group: int = DEFAULT_GROUP) -> AmPacket:
     """The AM packet carrying ``command`` to node address ``node``."""
     return AmPacket(dest=node, src=src, am_type=AM_BLINK_CODE, payload=command.payload(), group=group)
 
 
-def parse_blink_command(packet: AmPacket) -> BlinkCommand | None:
-    """The command in ``packet``, or None when it is not a (well-formed) blink command."""
+def parse_blink_command(packet: AmPacket) -> BlinkCommand | BlinkBroadcast | None:
+    """The command in ``packet``, or None when it is not a (well-formed) blink command.
+    A start by address is only valid broadcast (dest 0xFFFF)."""
     if packet.am_type != AM_BLINK_CODE:
         return None
     try:
+        if packet.payload[:1] == bytes([BLINK_START_BY_ADDRESS]):
+            return BlinkBroadcast.from_payload(packet.payload) if packet.dest == AM_BROADCAST else None
         return BlinkCommand.from_payload(packet.payload)
     except MoteProtocolError:
         return None
@@ -111,3 +194,51 @@ def parse_blink_report(packet: AmPacket) -> tuple[int, bool, int, int] | None:
     if node != packet.src:
         return None
     return node, p[2] == 0x01, p[3], int.from_bytes(p[4:8], "big")
+
+
+class BlinkField:
+    """The motes' side of blink commands (the firmware's behaviour, used by the base-station twin).
+
+    ``running[node] = (length, code)`` for every node blinking. A unicast start runs the
+    word it carries, a start by address runs the node's word of the generated book table,
+    a stop (unicast or broadcast) stops; every node that acted sends its blink report.
+    ``nodes``: the addresses present (None: any address a command names exists).
+    """
+
+    def __init__(self, nodes: set[int] | None = None, silent: set[int] | None = None) -> None:
+        self.nodes = nodes
+        self.silent = silent or set()
+        self.running: dict[int, tuple[int, int]] = {}
+
+    def _present(self, node: int) -> bool:
+        return (self.nodes is None or node in self.nodes) and node not in self.silent
+
+    def handle(self, packet: AmPacket) -> list[AmPacket]:
+        """Reports for one received AM packet (empty when it is no blink command)."""
+        cmd = parse_blink_command(packet)
+        if cmd is None:
+            return []
+        if isinstance(cmd, BlinkBroadcast):
+            from fgloc.camera.blink_codes import code_book
+
+            book = code_book(cmd.count, cmd.length)
+            addrs = range(cmd.first, cmd.first + cmd.count) if self.nodes is None else sorted(self.nodes)
+            out = []
+            for a in addrs:
+                word = word_for_address(book, cmd, a)
+                if word is not None and self._present(a):
+                    self.running[a] = (cmd.length, word)
+                    out.append(blink_report(a, True, cmd.length, word, packet.group))
+            return out
+        targets = ([packet.dest] if packet.dest != AM_BROADCAST
+                   else sorted(self.running) if self.nodes is None else sorted(self.nodes))
+        out = []
+        for node in targets:
+            if not self._present(node):
+                continue
+            if cmd.start:
+                self.running[node] = (cmd.length, cmd.code)
+            else:
+                self.running.pop(node, None)
+            out.append(blink_report(node, cmd.start, cmd.length, cmd.code, packet.group))
+        return out

@@ -10,6 +10,13 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 from fgloc.core.retry import RetryPolicy
+from fgloc.drivers.tinyos.blink import (
+    BlinkBroadcast,
+    BlinkCommand,
+    blink_broadcast,
+    blink_command,
+    parse_blink_report,
+)
 from fgloc.drivers.tinyos.errors import MoteDisconnected, MoteTimeout
 from fgloc.drivers.tinyos.forwarder import SerialForwarderLink, parse_tcp_url
 from fgloc.drivers.tinyos.messages import ALL_LEDS, DEFAULT_GROUP, AmPacket, led_command, node_address, parse_led_report
@@ -82,6 +89,53 @@ class MoteNetwork:
         except LedNotConfirmed:
             return False
         return True
+
+    def start_code(self, node_id: str, length: int, code: int, bit_period_s: float, cycles: int = 0) -> bool:
+        """Start one node's coded blink (unicast, ``drivers/tinyos/blink.py``); True once its blink
+        report confirms the word, False if it never does within ``attempts`` x ``report_timeout``."""
+        node = node_address(node_id, self.address_map)
+        packet = blink_command(node, BlinkCommand(True, length, code, bit_period_s, cycles), group=self.group)
+        with self._lock:
+            for _ in range(self.attempts):
+                got = self._blink_reports(packet, {node}, self.report_timeout)
+                if got.get(node) == (True, length, code):
+                    return True
+        return False
+
+    def stop_code(self, node_id: str) -> bool:
+        """Stop one node's coded blink (unicast); True once its report says stopped."""
+        node = node_address(node_id, self.address_map)
+        packet = blink_command(node, BlinkCommand(start=False), group=self.group)
+        with self._lock:
+            for _ in range(self.attempts):
+                got = self._blink_reports(packet, {node}, self.report_timeout)
+                if node in got and not got[node][0]:
+                    return True
+        return False
+
+    def broadcast_codes(self, command: BlinkBroadcast | BlinkCommand, expect: set[int] | None, wait: float,
+                        ) -> dict[int, tuple[bool, int, int]]:
+        """Broadcast a start by address or a stop to every node; the blink reports (node ->
+        (running, length, code)) that arrived within ``wait`` s, or as soon as every node in
+        ``expect`` has answered (None: wait the whole time)."""
+        with self._lock:
+            return self._blink_reports(blink_broadcast(command, group=self.group), expect, wait)
+
+    def _blink_reports(self, packet: AmPacket, expect: set[int] | None, wait: float) -> dict[int, tuple[bool, int, int]]:
+        self._drain()
+        self.link.send(packet)
+        got: dict[int, tuple[bool, int, int]] = {}
+        deadline = time.monotonic() + wait
+        while (remaining := deadline - time.monotonic()) > 0 and (expect is None or not expect <= set(got)):
+            reply = self.link.receive(remaining)
+            if reply is None:
+                break
+            rep = parse_blink_report(reply)
+            if rep is None:
+                self._keep(reply)
+                continue
+            got[rep[0]] = rep[1:]
+        return got
 
     def _drain(self) -> None:
         while True:

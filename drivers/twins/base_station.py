@@ -25,6 +25,7 @@ import threading
 import time
 from collections.abc import Callable, Iterable
 
+from fgloc.drivers.tinyos.blink import AM_BLINK_CODE, BlinkField
 from fgloc.drivers.tinyos.errors import MoteProtocolError
 from fgloc.drivers.tinyos.forwarder import SF_HELLO
 from fgloc.drivers.tinyos.framing import (
@@ -54,11 +55,15 @@ class MoteFieldEmulator:
         self.on_led = on_led
         self.led_on: dict[int, bool] = {}
         self.received: list[AmPacket] = []
+        self.blink = BlinkField()
         self._lock = threading.Lock()
 
     def handle(self, packet: AmPacket) -> list[tuple[float, AmPacket]]:
         with self._lock:
             self.received.append(packet)
+            if packet.am_type == AM_BLINK_CODE:  # coded blink sequences (drivers/tinyos/blink.py)
+                self.blink.nodes, self.blink.silent = self.nodes, self.silent
+                return [(self.radio_delay, r) for r in self.blink.handle(packet)]
             if packet.am_type != AM_LED_COMMAND or len(packet.payload) != 2 or packet.payload[0] not in (LED_OFF,
                                                                                                          LED_ON):
                 return []

@@ -32,7 +32,12 @@ Completion). Then the head settles (``settle_s``) before a frame is usable.
   speed-byte range it shares with the D100), the same 0.2 s ramps, HTTP command
   round trip 0.1 s, position read by polling until two reads agree (0.2 s), settle
   0.1 s. Treat SNC-RZ25N figures as placeholders until measured.
-* Camera frames: NTSC 29.97 frames/s (both heads are NTSC video). A frame grabbed
+* Camera frames: NTSC 29.97 frames/s (both heads are NTSC video). The EVI-D100's
+  video is analog and interlaced, so a frame grabber delivers 59.94 fields/s, each
+  exposed separately with every second row (``HeadModel.interlaced``,
+  :meth:`CameraTiming.at_field_rate`); a coded survey may decode fields (half the
+  vertical resolution). The SNC-RZ25N is read over the network as JPEG frames:
+  **assumed** not field-decodable. A frame grabbed
   "now" is on average half a frame period away plus one period of grabber latency
   (``CameraTiming.grab_latency_s``), paid once per burst of consecutive frames.
 * Radio (MicaZ base station, protocols.md 3): one command = serial frame at 57600
@@ -44,7 +49,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 #: Phase names used in reports, in display order.
 PHASES = ("slew", "settle", "centring", "frames", "position", "zoom", "radio", "led_wait")
@@ -84,6 +89,7 @@ class HeadModel:
     command_s: float  #: absolute-move command round trip (packet, ACK, Completion)
     position_s: float  #: one position read-back
     zoom_full_s: float  #: wide <-> tele zoom travel (linear in the zoom fraction)
+    interlaced: bool = False  #: video reaches the PC as interlaced fields (decodable at field rate)
 
     def slew_time(self, dpan: float, dtilt: float) -> float:
         """Seconds for an absolute move by (dpan, dtilt) radians: both axes at once + command."""
@@ -92,7 +98,7 @@ class HeadModel:
 
 EVI_D100 = HeadModel(
     name="EVI-D100", pan=_axis(300.0, 0.2), tilt=_axis(125.0, 0.2),
-    settle_s=0.1, command_s=0.05, position_s=0.04, zoom_full_s=2.0,
+    settle_s=0.1, command_s=0.05, position_s=0.04, zoom_full_s=2.0, interlaced=True,
 )
 SNC_RZ25N = HeadModel(
     name="SNC-RZ25N (assumed)", pan=_axis(300.0, 0.2), tilt=_axis(300.0, 0.2),
@@ -112,6 +118,11 @@ class CameraTiming:
     @property
     def frame_period_s(self) -> float:
         return 1.0 / self.frame_rate_hz
+
+    def at_field_rate(self) -> CameraTiming:
+        """The same video decoded field by field (interlaced NTSC: two fields per frame, each
+        with every second row): twice the rate, the grabber latency unchanged."""
+        return replace(self, frame_rate_hz=2.0 * self.frame_rate_hz)
 
     def burst_time(self, frames: int) -> float:
         """Seconds to grab ``frames`` consecutive frames: wait half a period on average for the

@@ -7,12 +7,14 @@ the grid nearest-first, centre, read back) on a :class:`ClockedHead` that record
 move, settle, frame and position read instead of moving, then the LED goes off.
 Cameras work in parallel, so a node costs the radio plus its slowest camera.
 
-**Coded** (:mod:`fgloc.camera.blink_codes`): one start command per mote (unicast, each
-mote gets its own word), then every camera records ``frames_per_view`` frames in each
-view of its plan (:mod:`fgloc.survey.view_planner`), all cameras in parallel, then one
-stop broadcast. ``retry_fraction`` of the views are recorded a second time (motes
-missed in the first window); motes too close to separate at the survey zoom are
-recorded again in refinement views at tele zoom (planned like the wide views).
+**Coded** (:mod:`fgloc.camera.blink_codes`): one broadcast start (each mote takes its
+word from the book by its address, ``drivers/tinyos/blink.py``; or, the old way, one
+unicast start per mote), then every camera records ``frames_per_view`` frames (or
+fields) in each view of its plan (:mod:`fgloc.survey.view_planner`), all cameras in
+parallel, then one stop broadcast. ``retry_fraction`` of the views are recorded a second
+time right away (motes missed in the first window); motes too close to separate at the
+survey zoom are recorded again in refinement passes at the lowest zoom that separates
+them (:func:`fgloc.survey.view_planner.plan_refinement`).
 
 Angles radians, times seconds.
 """
@@ -27,7 +29,7 @@ import numpy as np
 
 from fgloc.camera.intrinsics import CameraIntrinsics
 from fgloc.camera.led_search import LedLocator, PinholePixelModel, SearchConfig, Spot
-from fgloc.core.geometry import FloatArray, pan_tilt_bearing
+from fgloc.core.geometry import FloatArray
 from fgloc.survey.clock import (
     FieldTime,
     Frames,
@@ -42,6 +44,7 @@ from fgloc.survey.clock import (
     price,
     sum_times,
 )
+from fgloc.survey.view_planner import RefinePass
 
 
 class ClockedHead:
@@ -170,39 +173,36 @@ def coded_view_ops(views: Sequence[tuple[float, float]], frames_per_view: int, r
 
 def coded_survey_time(
     views: dict[str, list[tuple[float, float]]], n_motes: int, frames_per_view: int, timing: RigTiming,
-    retry_fraction: float = 0.0, refine_views: dict[str, list[tuple[float, float]]] | None = None,
-    refine_dzoom: float = 1.0,
+    retry_fraction: float = 0.0, refine: dict[str, list[RefinePass]] | None = None,
+    broadcast_start: bool = True, start_broadcasts: int = 1, restarts: int = 0,
 ) -> CodedTime:
-    """Price the coded survey (see the module docstring). ``refine_views[camera]`` are the
-    views recorded at zoom ``refine_dzoom`` (fraction of the optical range) after the wide
-    pass, to resolve pairs the wide views could not separate: one zoom in, the views, one
-    zoom out."""
-    refine_views = refine_views or {}
+    """Price the coded survey (see the module docstring). ``refine[camera]`` are its refinement
+    passes (ascending zoom): zoom in to each pass's level, record its views, and after the
+    last pass zoom back out. ``broadcast_start``: one broadcast starts every mote (each takes
+    its word by address; sent ``start_broadcasts`` times), plus ``restarts`` unicast starts for motes that missed it;
+    otherwise one unicast start per mote. A stop broadcast ends the survey."""
+    refine = refine or {}
     lanes = []
     for cam, vs in views.items():
         ops = coded_view_ops(vs, frames_per_view, retry_fraction, vs[0] if vs else (0.0, 0.0))
-        rv = refine_views.get(cam, [])
-        if rv:
-            here = vs[-1] if vs else (0.0, 0.0)
-            ops += [Zoom(refine_dzoom, "centring")]
-            ops += [replace(o, phase="centring") for o in coded_view_ops(rv, frames_per_view, 0.0, here)]
-            ops += [Zoom(refine_dzoom, "centring")]
+        here = vs[-1] if vs else (0.0, 0.0)
+        zoom = 0.0
+        for rp in refine.get(cam, []):
+            if not rp.views:
+                continue
+            ops += [Zoom(rp.zoom - zoom, "centring")]
+            ops += [replace(o, phase="centring") for o in coded_view_ops(rp.views, frames_per_view, 0.0, here)]
+            here, zoom = rp.views[-1], rp.zoom
+        if zoom:
+            ops += [Zoom(zoom, "centring")]
         lanes.append(price(ops, timing))
-    radio = price([Radio(unicast=n_motes, broadcast=1)], timing)
+    start = Radio(unicast=restarts, broadcast=start_broadcasts) if broadcast_start else Radio(unicast=n_motes)
+    radio = price([start, Radio(broadcast=1)], timing)
     return CodedTime(radio + parallel(lanes), {c: len(v) for c, v in views.items()},
-                     frames_per_view, sum(len(v) for v in refine_views.values()))
+                     frames_per_view, sum(len(rp.views) for ps in refine.values() for rp in ps))
 
 
-def frames_for(code_length: int) -> int:
-    """Frames per view: three code periods (each bit read three times, so ~9 % erased
-    samples from drops and repeats rarely erase a bit completely) plus two."""
-    return 3 * code_length + 2
-
-
-def close_motes(pan_tilt: np.ndarray, pixel_angle: float, separation_px: float) -> np.ndarray:
-    """(N,) bool: motes (rows (pan, tilt) rad) with another within ``separation_px`` pixels of
-    ``pixel_angle`` rad/px: the pairs one view at that scale cannot separate."""
-    b = pan_tilt_bearing(pan_tilt[:, 0], pan_tilt[:, 1])
-    ang = np.arccos(np.clip(b @ b.T, -1.0, 1.0))
-    np.fill_diagonal(ang, np.inf)
-    return np.asarray(ang.min(axis=1) < separation_px * pixel_angle)
+def frames_for(code_length: int, periods: int = 3) -> int:
+    """Frames per view: ``periods`` code periods (default three: each bit read three times, so
+    ~9 % erased samples from drops and repeats rarely erase a bit completely) plus two."""
+    return periods * code_length + 2

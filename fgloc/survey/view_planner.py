@@ -8,11 +8,17 @@ image at least ``margin_px`` from the border, by the exact composition of
 range of pan, are used as such). Views are chosen greedily (largest number of still
 uncovered targets first, candidates on a grid of ``step`` x the field of view), then
 ordered nearest-neighbour from the head's start position so slews stay short.
+
+Crowded targets (:func:`plan_refinement`): targets too close to a neighbour to be
+separated at the survey zoom are recorded again, each at the lowest zoom of a short
+ladder that separates it, in tiles planned the same way; targets no zoom separates are
+counted, not chased.
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -80,3 +86,57 @@ def plan_views(
         order.append(left.pop(k))
         here = pan_tilt_bearing(*order[-1])
     return order
+
+
+def neighbour_px(pan_tilt: np.ndarray, intr: CameraIntrinsics, field_rows: bool = False) -> np.ndarray:
+    """(N,) distance in pixels (at ``intr``'s focal lengths) from each target to its nearest
+    neighbour, in the tangent plane at the target: ``dx = dpan cos(tilt) fx``,
+    ``dy = dtilt fy`` (image x along pan, y along tilt, as at a view's centre).
+    ``field_rows``: one video field (every second row), so ``fy`` is halved."""
+    pt = np.asarray(pan_tilt, dtype=float)
+    if len(pt) < 2:
+        return np.full(len(pt), np.inf)
+    fy = intr.fy / (2.0 if field_rows else 1.0)
+    dpan = np.remainder(pt[:, None, 0] - pt[None, :, 0] + math.pi, 2.0 * math.pi) - math.pi
+    dx = dpan * np.cos(0.5 * (pt[:, None, 1] + pt[None, :, 1])) * intr.fx
+    dy = (pt[:, None, 1] - pt[None, :, 1]) * fy
+    d = np.hypot(dx, dy)
+    np.fill_diagonal(d, np.inf)
+    return np.asarray(d.min(axis=1))
+
+
+@dataclass(frozen=True)
+class RefinePass:
+    """Views recorded at one zoom (fraction of the optical range) to separate crowded targets."""
+
+    zoom: float
+    views: list[tuple[float, float]]
+    targets: int  #: targets this pass is for
+
+
+def plan_refinement(
+    intr: CameraIntrinsics, pan_tilt: np.ndarray, separation_px: float, levels: tuple[float, ...] = (1 / 9, 3 / 9, 1.0),
+    margin_px: float = 12.0, start: tuple[float, float] = (0.0, 0.0), field_rows: bool = False,
+    max_magnification: float = 10.0,
+) -> tuple[list[RefinePass], int]:
+    """Zoom in only where needed: targets whose nearest neighbour is closer than
+    ``separation_px`` at the survey zoom (``intr``) are refined at the lowest zoom of
+    ``levels`` (ascending) that puts the neighbour ``separation_px`` away, each level's
+    targets covered by :func:`plan_views` at that zoom (tiles, not one view per target).
+    Returns the passes (ascending zoom, empty levels left out) and the number of targets
+    no level separates (reported missed from this camera, not recorded again)."""
+    pt = np.asarray(pan_tilt, dtype=float)
+    d = neighbour_px(pt, intr, field_rows)
+    need = separation_px / np.maximum(d, 1e-12)  # magnification each target needs
+    passes: list[RefinePass] = []
+    done = need <= 1.0
+    here = start
+    for z in levels:
+        mag = intr.at_zoom(z, max_magnification).fx / intr.fx
+        mine = ~done & (need <= mag)
+        if mine.any():
+            views = plan_views(intr.at_zoom(z, max_magnification), pt[mine], margin_px, start=here)
+            passes.append(RefinePass(z, views, int(mine.sum())))
+            here = views[-1] if views else here
+        done |= mine
+    return passes, int((~done).sum())

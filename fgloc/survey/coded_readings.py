@@ -1,0 +1,181 @@
+"""Simulated (pan, tilt) readings of a coded survey, for accuracy comparisons with the sequential one.
+
+A sequential survey centres each lit LED and reads the head: one independent head
+error per reading (the paper's model, :func:`fgloc.sim.scenes.observe`). A coded
+survey reads the head **once per view** and takes every mote in the view off-centre,
+so a reading is composed of
+
+* the head position error of that view, **shared by every mote in the view**
+  (``CodedNoise.head_sigma`` per axis, radians);
+* the decoder's centroid error, independent per reading (``decoder_sigma_pan`` /
+  ``decoder_sigma_tilt``, radians at the survey zoom, as measured by
+  ``scripts/blink_montecarlo.py``; a pixel error, so in angle divided by the
+  magnification in a refinement view);
+* an optional focal-length calibration error (``fx_error``, relative): the pixel ->
+  pan-tilt composition (:func:`fgloc.camera.pixel_angles.pixel_to_pan_tilt`) then
+  uses focal lengths ``(1 + fx_error)`` times the true ones, an error that grows with
+  the distance from the image centre.
+
+Views: each camera covers the deployment area with :func:`plan_views` at the survey
+zoom, then records its refinement passes (:func:`plan_refinement`: motes whose nearest
+neighbour is closer than ``separation_px``, at the lowest zoom that separates them).
+A mote gives a reading in **every** recorded view that contains it and separates it
+(views overlap, so many motes are read twice, each time with that view's head error);
+``every_view=False`` keeps its first reading only. Motes no view separates, and readings
+the decoder misses twice (``miss_rate`` per recording, one retry), are missing
+(reported, never guessed).
+
+Each reading carries ``sigma = sqrt(head_sigma^2 + decoder_sigma^2)`` (the per-axis
+decoder sigma, the larger of the two) as its own noise: the solver sees independent
+readings, so the shared head error per view is exactly what the ANEES check tests.
+
+Angles radians; pixels OpenCV convention.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from fgloc.camera.intrinsics import CameraIntrinsics
+from fgloc.camera.pixel_angles import pan_tilt_to_pixel, pixel_to_pan_tilt
+from fgloc.core.geometry import FloatArray, bearing_pan_tilt, world_to_base
+from fgloc.core.model import CameraPose, Observation
+from fgloc.survey.view_planner import coverage, neighbour_px, plan_refinement, plan_views
+
+
+@dataclass(frozen=True)
+class CodedNoise:
+    """Error model of coded readings (radians; ``fx_error`` relative; ``miss_rate`` per recording)."""
+
+    head_sigma: float = math.radians(0.1)
+    decoder_sigma_pan: float = math.radians(0.01)
+    decoder_sigma_tilt: float = math.radians(0.01)
+    fx_error: float = 0.0
+    miss_rate: float = 0.0
+    separation_px: float = 4.0
+    field_rows: bool = False  #: decoding single fields: half the vertical resolution
+    every_view: bool = True  #: a reading from every view a mote is decodable in (False: its first only)
+    shared_head: bool = True  #: one head error per view (False: per reading, a diagnostic)
+    levels: tuple[float, ...] = (1 / 9, 3 / 9, 1.0)
+
+
+@dataclass(frozen=True)
+class CodedReadings:
+    """Observations of one coded survey and what it could not read (per camera counts)."""
+
+    observations: list[Observation]
+    views: dict[str, int]
+    refined: dict[str, int]
+    unresolved: dict[str, int]
+    missed: dict[str, int]
+
+
+def coded_observations(
+    camera_ids: list[str], cameras: list[CameraPose], node_ids: list[str], nodes: FloatArray,
+    area: FloatArray, intr: CameraIntrinsics, noise: CodedNoise, rng: np.random.Generator,
+) -> CodedReadings:
+    """Simulated coded readings of ``nodes`` (N, 3) by ``cameras`` (truth poses, gauge frame);
+    ``area`` (M, 3) samples the deployment area each camera's wide views must cover."""
+    out: list[Observation] = []
+    n_views: dict[str, int] = {}
+    refined: dict[str, int] = {}
+    unresolved: dict[str, int] = {}
+    missed: dict[str, int] = {}
+    for cid, cam in zip(camera_ids, cameras):
+        region = np.column_stack(bearing_pan_tilt(world_to_base(cam.rotation, cam.position, area)))
+        d = world_to_base(cam.rotation, cam.position, nodes)
+        pt = np.column_stack(bearing_pan_tilt(d / np.linalg.norm(d, axis=1, keepdims=True)))
+        wide = plan_views(intr, region)
+        passes, _ = plan_refinement(intr, pt, noise.separation_px, noise.levels, start=wide[-1] if wide else (0, 0),
+                                    field_rows=noise.field_rows)
+        # every (view, mote) pair that gives a reading: the mote is inside the view and separable at its zoom
+        need = noise.separation_px / np.maximum(neighbour_px(pt, intr, noise.field_rows), 1e-12)
+        all_views = [(p, t, 0.0) for p, t in wide] + [(p, t, rp.zoom) for rp in passes for p, t in rp.views]
+        pairs: list[tuple[tuple[float, float, float], int]] = []
+        seen = np.zeros(len(pt), bool)
+        for view in all_views:
+            zi = intr.at_zoom(view[2])
+            ok = coverage(zi, pt, np.array([view[:2]]), 12.0)[0] & (need <= zi.fx / intr.fx) & ~(
+                seen if not noise.every_view else np.zeros(len(pt), bool))
+            pairs += [(view, int(j)) for j in np.flatnonzero(ok)]
+            seen |= ok
+        n_unres = int((~seen).sum())
+        wide_fy = field_intrinsics(intr).fy if noise.field_rows else intr.fy
+        head_err: dict[tuple[float, float, float], np.ndarray] = {}
+        n_missed = 0
+        for view, j in pairs:
+            if rng.random() < noise.miss_rate**2:  # missed in the recording and in its retry
+                n_missed += 1
+                continue
+            if view not in head_err or not noise.shared_head:
+                head_err[view] = rng.normal(0.0, noise.head_sigma, 2)
+            hp, ht, z = view
+            zi = intr.at_zoom(z)
+            dec = field_intrinsics(zi) if noise.field_rows else zi
+            mag = zi.fx / intr.fx
+            uv, _ = pan_tilt_to_pixel(dec, pt[j:j + 1, 0], pt[j:j + 1, 1], hp, ht)
+            # the centroid error is a pixel error (the same in a zoomed view's pixels)
+            uv = uv + rng.normal(0.0, 1.0, 2) * [noise.decoder_sigma_pan * intr.fx, noise.decoder_sigma_tilt * wide_fy]
+            assumed = replace(dec, fx=dec.fx * (1.0 + noise.fx_error), fy=dec.fy * (1.0 + noise.fx_error))
+            e = head_err[view]
+            p, t = pixel_to_pan_tilt(assumed, uv, hp + e[0], ht + e[1])
+            sig = math.hypot(noise.head_sigma, max(noise.decoder_sigma_pan, noise.decoder_sigma_tilt) / mag)
+            out.append(Observation(cid, node_ids[j], float(np.remainder(p[0] + math.pi, 2 * math.pi) - math.pi),
+                                   float(t[0]), sigma=sig))
+        n_views[cid] = len(wide) + sum(len(rp.views) for rp in passes)
+        refined[cid] = int(sum(rp.targets for rp in passes))
+        unresolved[cid] = n_unres
+        missed[cid] = n_missed
+    return CodedReadings(out, n_views, refined, unresolved, missed)
+
+
+def field_intrinsics(intr: CameraIntrinsics) -> CameraIntrinsics:
+    """One field of interlaced video: every second row (half the height and ``fy``; field row
+    r is frame row 2r, so ``cy`` halves too)."""
+    return replace(intr, fy=0.5 * intr.fy, cy=0.5 * intr.cy, height=intr.height // 2)
+
+
+@dataclass(frozen=True)
+class AccuracyTrial:
+    """Errors of one scene solved from sequential and from coded readings, on the nodes both
+    localized: squared position errors (baseline units^2) and NEES (planar, 2 dof)."""
+
+    sq_seq: FloatArray
+    sq_coded: FloatArray
+    nees_seq: FloatArray
+    nees_coded: FloatArray
+    readings: CodedReadings
+    dropped: int  #: nodes only the sequential solve localized
+
+
+def accuracy_trial(seed: int, n_nodes: int, intr: CameraIntrinsics, noise: CodedNoise,
+                   area_step: float = 0.02) -> AccuracyTrial:
+    """One seeded paper scene (:func:`fgloc.sim.scenes.paper_scenario`, head sigma
+    ``noise.head_sigma``): sequential readings as the simulator takes them, coded readings by
+    :func:`coded_observations`; both solved by :func:`fgloc.solve.joint.solve_survey`."""
+    from fgloc.evaluate.score import nees
+    from fgloc.sim.scenes import PaperScenario, paper_scenario
+    from fgloc.solve.joint import solve_survey
+
+    seq = paper_scenario(PaperScenario(n_nodes=n_nodes, sigma=noise.head_sigma, seed=seed))
+    assert seq.truth is not None
+    g = np.arange(0.0, 1.0 + 1e-9, area_step)
+    xx, yy = np.meshgrid(g, g)
+    area = np.column_stack([xx.ravel(), yy.ravel(), np.zeros(xx.size)])
+    cams = [seq.truth.cameras[c] for c in seq.camera_ids]
+    rng = np.random.default_rng([seed, 16])
+    readings = coded_observations(seq.camera_ids, cams, seq.node_ids, seq.truth_node_array(), area, intr, noise, rng)
+    coded = replace(seq, observations=readings.observations)
+    coded.__dict__.pop("observation_table", None)
+    r_seq, r_cod = solve_survey(seq), solve_survey(coded)
+    ids = [n for n in seq.node_ids if n in r_seq.nodes and n in r_cod.nodes]
+    truth = np.array([seq.truth.nodes[n][:2] for n in ids])
+    out = []
+    for r in (r_seq, r_cod):
+        e = np.array([r.nodes[n].position[:2] for n in ids]) - truth
+        cov = np.array([r.nodes[n].covariance for n in ids])
+        out += [np.sum(e**2, axis=1), nees(e, cov)]
+    return AccuracyTrial(out[0], out[2], out[1], out[3], readings, sum(n not in r_cod.nodes for n in r_seq.nodes))
