@@ -11,9 +11,8 @@ in the consensus re-placement of flagged surveys.
     python scripts/bench_million.py                       # 10k, 100k and 1M readings
     python scripts/bench_million.py --repeats 100 1000    # chosen sizes
 
-Measured (2 cores, OPENBLAS_NUM_THREADS=1, while the test suite ran on the other core, so
-the times are inflated; peak memory is not): 10k readings 3.5 s / 140 MiB, 100k 30.3 s /
-449 MiB, 1M 592 s / 5588 MiB (docs/scaling.md).
+Measured (2 cores, OPENBLAS_NUM_THREADS=1, node-eliminated solve): 10k readings 1.1 s / 97 MiB,
+100k 3.3 s / 198 MiB, 1M 31.3 s / 1306 MiB (docs/scaling.md).
 """
 
 from __future__ import annotations
