@@ -146,7 +146,8 @@ class EliminatedReadings:
         k = len(self.camera_keys)
         bounds = np.searchsorted(self.camera, np.arange(k + 1))
         self._slices = [slice(int(bounds[i]), int(bounds[i + 1])) for i in range(k)]
-        self._pair = self.node * k + self.camera
+        pair = self.node * k + self.camera
+        self._unique_pairs = len(np.unique(pair)) == len(pair)  # no repeated readings
         self._cache_key: bytes | None = None
         self._pass: _Pass | None = None
         self._system: ReducedSystem | None = None
@@ -318,19 +319,29 @@ class EliminatedReadings:
         # Camera Jacobians: de/dxi = [de/dq skew(q) | -de/dq]; row . skew(q) = row x q.
         jc = np.empty((m, 2, 6))
         dq, q = p.dq, p.q
-        jc[:, :, 0:3] = np.cross(dq, q[:, None, :])
+        for a, b, c in ((0, 1, 2), (1, 2, 0), (2, 0, 1)):  # (dq x q)_a = dq_b q_c - dq_c q_b
+            np.multiply(dq[:, :, b], q[:, None, c], out=jc[:, :, a])
+            jc[:, :, a] -= dq[:, :, c] * q[:, None, b]
         jc[:, :, 3:6] = -dq
         A, g = self._node_blocks(p)
-        cols = [p.jn[:, 0, a] * jc[:, 0, b] + p.jn[:, 1, a] * jc[:, 1, b] for a in range(d) for b in range(6)]
-        pair_sums = _sum_by(self._pair, cols, n * k)  # (n*k, d*6)
-        B = pair_sums.reshape(n, k, d, 6).transpose(0, 2, 1, 3).reshape(n, d, 6 * k)
+        # Node-camera coupling B_j = sum over the pair's readings of jn^T jc, stored (n, d, k, 6).
+        prod = np.empty((m, d, 6))
+        for a in range(d):
+            np.multiply(p.jn[:, 0, a, None], jc[:, 0, :], out=prod[:, a, :])
+            prod[:, a, :] += p.jn[:, 1, a, None] * jc[:, 1, :]
+        B4 = np.zeros((n, d, k, 6))
+        if self._unique_pairs:
+            B4[self.node, :, self.camera, :] = prod  # one reading per (node, camera): a scatter
+        else:
+            np.add.at(B4, (self.node, slice(None), self.camera, slice(None)), prod)
+        B = B4.reshape(n, d, 6 * k)
         H = np.zeros((6 * k, 6 * k))
         gc = np.zeros(6 * k)
         for i, sl in enumerate(self._slices):
             block = jc[sl].reshape(-1, 6)
             H[6 * i : 6 * i + 6, 6 * i : 6 * i + 6] = block.T @ block
             gc[6 * i : 6 * i + 6] = block.T @ p.e[sl].reshape(-1)
-        A_inv = np.linalg.inv(A)
+        A_inv = _inv_small(A)
         gain = A_inv @ B  # (n, d, 6k)
         flat_b = B.reshape(n * d, 6 * k)
         S = H - flat_b.T @ gain.reshape(n * d, 6 * k)
@@ -373,6 +384,21 @@ class EliminatedReadings:
         spread = system.node_gain @ camera_covariance
         cov = a_inv + np.einsum("nik,njk->nij", spread, system.node_gain)
         return 0.5 * (cov + np.transpose(cov, (0, 2, 1)))
+
+
+def _inv_small(A: FloatArray) -> FloatArray:
+    """Inverses of a stack of symmetric d x d blocks (closed form for d = 2, else LAPACK)."""
+    if A.shape[-1] != 2:
+        return np.linalg.inv(A)
+    a, b, c = A[:, 0, 0], A[:, 0, 1], A[:, 1, 1]
+    det = a * c - b * b
+    if not np.all(det > 0):
+        return np.linalg.inv(A)  # LAPACK raises on a singular block, as before
+    out = np.empty_like(A)
+    out[:, 0, 0] = c / det
+    out[:, 1, 1] = a / det
+    out[:, 0, 1] = out[:, 1, 0] = -b / det
+    return out
 
 
 def factor_rows(hessian: FloatArray, gradient: FloatArray) -> tuple[FloatArray, FloatArray]:
