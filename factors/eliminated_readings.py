@@ -148,6 +148,7 @@ class EliminatedReadings:
         self._slices = [slice(int(bounds[i]), int(bounds[i + 1])) for i in range(k)]
         pair = self.node * k + self.camera
         self._unique_pairs = len(np.unique(pair)) == len(pair)  # no repeated readings
+        self._b_index: np.ndarray | None = None
         self._cache_key: bytes | None = None
         self._pass: _Pass | None = None
         self._system: ReducedSystem | None = None
@@ -196,7 +197,8 @@ class EliminatedReadings:
         dq[:, 1, 2] = -r / n2 * f
         jn = np.empty((m, 2, d))
         for i, sl in enumerate(self._slices):
-            jn[sl] = dq[sl] @ rot[i].T[:, :d]  # de/dx = de/dq R^T
+            # de/dx = de/dq R^T: one (2 m_i x 3) @ (3 x d) GEMM per camera, not m_i tiny ones.
+            jn[sl] = (dq[sl].reshape(-1, 3) @ rot[i].T[:, :d]).reshape(-1, 2, d)
         node_cost = np.asarray(np.bincount(self.node, weights=loss, minlength=len(nodes)), dtype=float)
         coef = None
         if self.kernel is Kernel.CAUCHY:
@@ -259,7 +261,7 @@ class EliminatedReadings:
         for _ in range(self.MAX_NODE_STEPS):
             A, g = self._node_blocks(p)
             A = self._newton_blocks(p, A)
-            step = -np.linalg.solve(A, g[..., None])[..., 0]
+            step = -_solve_small(A, g)
             predicted = -0.5 * np.einsum("nd,nd->n", g, step)
             active &= predicted > self.NODE_TOL * np.maximum(p.node_cost, 1.0)
             if not active.any():
@@ -325,16 +327,16 @@ class EliminatedReadings:
         jc[:, :, 3:6] = -dq
         A, g = self._node_blocks(p)
         # Node-camera coupling B_j = sum over the pair's readings of jn^T jc, stored (n, d, k, 6).
-        prod = np.empty((m, d, 6))
-        for a in range(d):
-            np.multiply(p.jn[:, 0, a, None], jc[:, 0, :], out=prod[:, a, :])
-            prod[:, a, :] += p.jn[:, 1, a, None] * jc[:, 1, :]
-        B4 = np.zeros((n, d, k, 6))
+        prod = np.matmul(p.jn.transpose(0, 2, 1), jc)  # (m, d, 6) jn^T jc per reading
+        if self._b_index is None:  # flat index of each product entry in B (n, d, k, 6), once per problem
+            self._b_index = (((self.node[:, None, None] * d + np.arange(d)[None, :, None]) * k
+                              + self.camera[:, None, None]) * 6 + np.arange(6)[None, None, :]).ravel()
         if self._unique_pairs:
-            B4[self.node, :, self.camera, :] = prod  # one reading per (node, camera): a scatter
+            B = np.zeros(n * d * 6 * k)
+            B[self._b_index] = prod.ravel()  # one reading per (node, camera): a scatter
         else:
-            np.add.at(B4, (self.node, slice(None), self.camera, slice(None)), prod)
-        B = B4.reshape(n, d, 6 * k)
+            B = np.bincount(self._b_index, weights=prod.ravel(), minlength=n * d * 6 * k)
+        B = B.reshape(n, d, 6 * k)
         H = np.zeros((6 * k, 6 * k))
         gc = np.zeros(6 * k)
         for i, sl in enumerate(self._slices):
@@ -399,6 +401,19 @@ def _inv_small(A: FloatArray) -> FloatArray:
     out[:, 1, 1] = a / det
     out[:, 0, 1] = out[:, 1, 0] = -b / det
     return out
+
+
+def _solve_small(A: FloatArray, g: FloatArray) -> FloatArray:
+    """``A_j^-1 g_j`` for a stack of symmetric d x d blocks (closed form for d = 2, else LAPACK)."""
+    if A.shape[-1] == 2:
+        a, b, c = A[:, 0, 0], A[:, 0, 1], A[:, 1, 1]
+        det = a * c - b * b
+        if np.all(det > 0):
+            out = np.empty_like(g)
+            out[:, 0] = (c * g[:, 0] - b * g[:, 1]) / det
+            out[:, 1] = (a * g[:, 1] - b * g[:, 0]) / det
+            return out
+    return np.asarray(np.linalg.solve(A, g[..., None])[..., 0])
 
 
 def factor_rows(hessian: FloatArray, gradient: FloatArray) -> tuple[FloatArray, FloatArray]:
