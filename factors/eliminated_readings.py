@@ -168,19 +168,21 @@ class EliminatedReadings:
         """Whitened, weighted errors and node Jacobians of every reading (one vectorized pass)."""
         m, d = len(self.pan), self.dim
         x = nodes[self.node]
-        q = np.empty((m, 3))
+        qt = np.empty((3, m))  # q^T: component rows, contiguous
         for i, sl in enumerate(self._slices):
-            pts = x[sl] - pos[i, :d] if d == 3 else np.column_stack([x[sl] - pos[i, :2], np.full(sl.stop - sl.start, -pos[i, 2])])
-            q[sl] = pts @ rot[i]  # R^T (x - c), rows
-        qx, qy, qz = q[:, 0], q[:, 1], q[:, 2]
+            # q = R^T (x - c) with x = (x, y, 0) in planar mode: rows x R[:d] - c R.
+            np.matmul(rot[i][:d].T, x[sl].T, out=qt[:, sl])
+            qt[:, sl] -= (pos[i] @ rot[i])[:, None]
+        qx, qy, qz = qt
         r2xy = qx * qx + qy * qy
         n2 = r2xy + qz * qz
-        r = np.maximum(np.sqrt(r2xy), np.maximum(PAN_SINGULARITY_EPS * np.sqrt(n2), 1e-100))
+        rxy = np.sqrt(r2xy)
+        r = np.maximum(rxy, np.maximum(PAN_SINGULARITY_EPS * np.sqrt(n2), 1e-100))
         rr = r * r
         n2 = np.maximum(n2, rr)
         e = np.empty((m, 2))
         e[:, 0] = wrap_angle(self.pan - np.arctan2(qy, qx))
-        e[:, 1] = self.tilt - np.arctan2(qz, np.sqrt(r2xy))
+        e[:, 1] = self.tilt - np.arctan2(qz, rxy)
         e *= self.inv_sigma[:, None]
         s2 = e[:, 0] ** 2 + e[:, 1] ** 2
         loss, weight = loss_and_weight(s2, self.kernel, self.scale)
@@ -188,17 +190,21 @@ class EliminatedReadings:
         if self.kernel is not Kernel.GAUSSIAN:
             e *= np.sqrt(weight)[:, None]
         # de/dq = -d(pan, tilt)/dq (geometry.pan_tilt_jacobian), whitened and weighted.
-        dq = np.zeros((m, 2, 3))
-        dq[:, 0, 0] = qy / rr * f
-        dq[:, 0, 1] = -qx / rr * f
-        rn = r * n2
-        dq[:, 1, 0] = qx * qz / rn * f
-        dq[:, 1, 1] = qy * qz / rn * f
-        dq[:, 1, 2] = -r / n2 * f
+        dq = np.empty((m, 2, 3))
+        f_rr = f / rr
+        np.multiply(qy, f_rr, out=dq[:, 0, 0])
+        np.multiply(qx, -f_rr, out=dq[:, 0, 1])
+        dq[:, 0, 2] = 0.0
+        f_rn = f / (r * n2)
+        np.multiply(qz, f_rn, out=rxy)  # rxy no longer needed: reuse as qz f / (r n2)
+        np.multiply(qx, rxy, out=dq[:, 1, 0])
+        np.multiply(qy, rxy, out=dq[:, 1, 1])
+        np.multiply(r, -f / n2, out=dq[:, 1, 2])
         jn = np.empty((m, 2, d))
         for i, sl in enumerate(self._slices):
             # de/dx = de/dq R^T: one (2 m_i x 3) @ (3 x d) GEMM per camera, not m_i tiny ones.
             jn[sl] = (dq[sl].reshape(-1, 3) @ rot[i].T[:, :d]).reshape(-1, 2, d)
+        q = qt.T
         node_cost = np.asarray(np.bincount(self.node, weights=loss, minlength=len(nodes)), dtype=float)
         coef = None
         if self.kernel is Kernel.CAUCHY:
