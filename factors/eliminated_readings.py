@@ -147,7 +147,9 @@ class EliminatedReadings:
         bounds = np.searchsorted(self.camera, np.arange(k + 1))
         self._slices = [slice(int(bounds[i]), int(bounds[i + 1])) for i in range(k)]
         pair = self.node * k + self.camera
-        self._unique_pairs = len(np.unique(pair)) == len(pair)  # no repeated readings
+        n_nodes = len(nodes)
+        # No repeated readings of a (node, camera) pair (a bincount: np.unique's hashing is slow).
+        self._unique_pairs = bool(len(pair) == 0 or np.bincount(pair, minlength=n_nodes * k).max() <= 1)
         self._b_index: np.ndarray | None = None
         self._cache_key: bytes | None = None
         self._pass: _Pass | None = None
@@ -254,7 +256,7 @@ class EliminatedReadings:
         cols = [p.newton_coef * v[:, a] * v[:, b] for a in range(d) for b in range(d)]
         extra = _sum_by(self.node, cols, len(A)).reshape(len(A), d, d)
         full = A + extra
-        ok = np.linalg.eigvalsh(full)[:, 0] > 1e-9 * np.linalg.eigvalsh(A)[:, -1]
+        ok = _eig_extremes(full)[0] > 1e-9 * _eig_extremes(A)[1]
         return np.where(ok[:, None, None], full, A)
 
     def _solve_nodes(self, rot: FloatArray, pos: FloatArray, start: FloatArray) -> _Pass:
@@ -407,6 +409,16 @@ def _inv_small(A: FloatArray) -> FloatArray:
     out[:, 1, 1] = a / det
     out[:, 0, 1] = out[:, 1, 0] = -b / det
     return out
+
+
+def _eig_extremes(A: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Smallest and largest eigenvalue of each symmetric d x d block (closed form for d = 2)."""
+    if A.shape[-1] == 2:
+        mid = 0.5 * (A[:, 0, 0] + A[:, 1, 1])
+        rad = np.hypot(0.5 * (A[:, 0, 0] - A[:, 1, 1]), A[:, 0, 1])
+        return mid - rad, mid + rad
+    eig = np.linalg.eigvalsh(A)
+    return eig[:, 0], eig[:, -1]
 
 
 def _solve_small(A: FloatArray, g: FloatArray) -> FloatArray:

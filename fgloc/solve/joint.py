@@ -91,7 +91,9 @@ def auto_gauge_sigma(survey: Survey, initial: InitialEstimate) -> float:
         if cid in initial.cameras:
             cam_pos[i] = initial.cameras[cid].position
     n_nodes = len(survey.node_ids)
-    pairs = np.unique(table.camera_index.astype(np.int64) * n_nodes + table.node_index)  # each (camera, node) once
+    seen = np.zeros(len(survey.camera_ids) * n_nodes, dtype=bool)
+    seen[table.camera_index.astype(np.int64) * n_nodes + table.node_index] = True
+    pairs = np.flatnonzero(seen)  # each (camera, node) pair once
     cams, nodes = pairs // n_nodes, pairs % n_nodes
     keep = np.isfinite(cam_pos[cams, 0]) & np.isfinite(node_pos[nodes, 0])
     ranges = np.linalg.norm(node_pos[nodes[keep]] - cam_pos[cams[keep]], axis=1)
