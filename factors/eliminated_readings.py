@@ -399,11 +399,11 @@ class EliminatedReadings:
 def _inv_small(A: FloatArray) -> FloatArray:
     """Inverses of a stack of symmetric d x d blocks (closed form for d = 2, else LAPACK)."""
     if A.shape[-1] != 2:
-        return np.linalg.inv(A)
+        return np.asarray(np.linalg.inv(A), dtype=float)
     a, b, c = A[:, 0, 0], A[:, 0, 1], A[:, 1, 1]
     det = a * c - b * b
     if not np.all(det > 0):
-        return np.linalg.inv(A)  # LAPACK raises on a singular block, as before
+        return np.asarray(np.linalg.inv(A), dtype=float)  # LAPACK raises on a singular block, as before
     out = np.empty_like(A)
     out[:, 0, 0] = c / det
     out[:, 1, 1] = a / det
@@ -417,7 +417,7 @@ def _eig_extremes(A: FloatArray) -> tuple[FloatArray, FloatArray]:
         mid = 0.5 * (A[:, 0, 0] + A[:, 1, 1])
         rad = np.hypot(0.5 * (A[:, 0, 0] - A[:, 1, 1]), A[:, 0, 1])
         return mid - rad, mid + rad
-    eig = np.linalg.eigvalsh(A)
+    eig = np.asarray(np.linalg.eigvalsh(A), dtype=float)
     return eig[:, 0], eig[:, -1]
 
 
