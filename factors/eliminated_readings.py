@@ -166,12 +166,30 @@ class EliminatedReadings:
         return len(self.nodes)
 
     # -- evaluation -----------------------------------------------------------------
-    def _evaluate(self, rot: FloatArray, pos: FloatArray, nodes: FloatArray) -> _Pass:
-        """Whitened, weighted errors and node Jacobians of every reading (one vectorized pass)."""
-        m, d = len(self.pan), self.dim
-        x = nodes[self.node]
+    def _evaluate(
+        self, rot: FloatArray, pos: FloatArray, nodes: FloatArray, base: _Pass | None = None,
+        moved: np.ndarray | None = None,
+    ) -> _Pass:
+        """Whitened, weighted errors and node Jacobians of every reading (one vectorized pass).
+
+        With ``base`` (a pass at the same cameras) and ``moved`` (n,) marking the only nodes
+        whose position differs from ``base.nodes``, only those nodes' readings are evaluated
+        and the rest is taken from ``base`` (when they are under half of the readings)."""
+        rows = None
+        if base is not None and moved is not None:
+            rows = np.flatnonzero(moved[self.node])
+            if len(rows) > len(self.node) // 2:
+                rows = None
+        if rows is None:
+            node, pan, tilt, inv_sigma, slices = self.node, self.pan, self.tilt, self.inv_sigma, self._slices
+        else:
+            node, pan, tilt, inv_sigma = self.node[rows], self.pan[rows], self.tilt[rows], self.inv_sigma[rows]
+            bounds = np.searchsorted(self.camera[rows], np.arange(len(self.camera_keys) + 1))
+            slices = [slice(int(bounds[i]), int(bounds[i + 1])) for i in range(len(self.camera_keys))]
+        m, d = len(pan), self.dim
+        x = nodes[node]
         qt = np.empty((3, m))  # q^T: component rows, contiguous
-        for i, sl in enumerate(self._slices):
+        for i, sl in enumerate(slices):
             # q = R^T (x - c) with x = (x, y, 0) in planar mode: rows x R[:d] - c R.
             np.matmul(rot[i][:d].T, x[sl].T, out=qt[:, sl])
             qt[:, sl] -= (pos[i] @ rot[i])[:, None]
@@ -183,12 +201,12 @@ class EliminatedReadings:
         rr = r * r
         n2 = np.maximum(n2, rr)
         e = np.empty((m, 2))
-        e[:, 0] = wrap_angle(self.pan - np.arctan2(qy, qx))
-        e[:, 1] = self.tilt - np.arctan2(qz, rxy)
-        e *= self.inv_sigma[:, None]
+        e[:, 0] = wrap_angle(pan - np.arctan2(qy, qx))
+        e[:, 1] = tilt - np.arctan2(qz, rxy)
+        e *= inv_sigma[:, None]
         s2 = e[:, 0] ** 2 + e[:, 1] ** 2
         loss, weight = loss_and_weight(s2, self.kernel, self.scale)
-        f = self.inv_sigma * np.sqrt(weight) if self.kernel is not Kernel.GAUSSIAN else self.inv_sigma
+        f = inv_sigma * np.sqrt(weight) if self.kernel is not Kernel.GAUSSIAN else inv_sigma
         if self.kernel is not Kernel.GAUSSIAN:
             e *= np.sqrt(weight)[:, None]
         # de/dq = -d(pan, tilt)/dq (geometry.pan_tilt_jacobian), whitened and weighted.
@@ -203,18 +221,26 @@ class EliminatedReadings:
         np.multiply(qy, rxy, out=dq[:, 1, 1])
         np.multiply(r, -f / n2, out=dq[:, 1, 2])
         jn = np.empty((m, 2, d))
-        for i, sl in enumerate(self._slices):
+        for i, sl in enumerate(slices):
             # de/dx = de/dq R^T: one (2 m_i x 3) @ (3 x d) GEMM per camera, not m_i tiny ones.
             jn[sl] = (dq[sl].reshape(-1, 3) @ rot[i].T[:, :d]).reshape(-1, 2, d)
         q = qt.T
-        node_cost = np.asarray(np.bincount(self.node, weights=loss, minlength=len(nodes)), dtype=float)
+        node_cost = np.asarray(np.bincount(node, weights=loss, minlength=len(nodes)), dtype=float)
         coef = None
         if self.kernel is Kernel.CAUCHY:
             coef = np.full(m, -2.0 / self.scale**2)
         elif self.kernel is Kernel.HUBER:
             sn = np.sqrt(s2)
             coef = np.where(sn > self.scale, -1.0 / (self.scale * np.maximum(sn, 1e-300)), 0.0)
-        return _Pass(nodes, e, jn, dq, q, loss, node_cost, coef)
+        if rows is None or base is None or moved is None:
+            return _Pass(nodes, e, jn, dq, q, loss, node_cost, coef)
+        out = _Pass(nodes, base.e.copy(), base.jn.copy(), base.dq.copy(), np.array(base.q), base.loss.copy(),
+                    base.node_cost.copy(), None if base.newton_coef is None else base.newton_coef.copy())
+        out.e[rows], out.jn[rows], out.dq[rows], out.q[rows], out.loss[rows] = e, jn, dq, q, loss
+        out.node_cost[moved] = node_cost[moved]  # every reading of a moved node is in rows
+        if out.newton_coef is not None and coef is not None:
+            out.newton_coef[rows] = coef
+        return out
 
     def _node_costs(self, rot: FloatArray, pos: FloatArray, nodes: FloatArray, rows: np.ndarray) -> FloatArray:
         """(n,) cost of each node from the readings ``rows`` only (zero for other nodes)."""
@@ -276,7 +302,7 @@ class EliminatedReadings:
                 break
             step[~active] = 0.0
             slack = 1e-13 * np.maximum(p.node_cost, 1.0)  # rounding of a node's cost
-            trial = self._evaluate(rot, pos, p.nodes + step)
+            trial = self._evaluate(rot, pos, p.nodes + step, p, active)
             worse = active & (trial.node_cost > p.node_cost + slack)
             if worse.any():
                 # Halve the steps of those few nodes, evaluating only their readings.
@@ -288,7 +314,7 @@ class EliminatedReadings:
                         break
                 step[worse] = 0.0  # no decrease along the step: those nodes stay (and are done)
                 active &= ~worse
-                trial = self._evaluate(rot, pos, p.nodes + step)
+                trial = self._evaluate(rot, pos, p.nodes + step, p, active)
             p = trial
         return p
 
