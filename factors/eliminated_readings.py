@@ -146,7 +146,11 @@ class EliminatedReadings:
         k = len(self.camera_keys)
         bounds = np.searchsorted(self.camera, np.arange(k + 1))
         self._slices = [slice(int(bounds[i]), int(bounds[i + 1])) for i in range(k)]
-        self._pair = self.node * k + self.camera
+        pair = self.node * k + self.camera
+        n_nodes = len(nodes)
+        # No repeated readings of a (node, camera) pair (a bincount: np.unique's hashing is slow).
+        self._unique_pairs = bool(len(pair) == 0 or np.bincount(pair, minlength=n_nodes * k).max() <= 1)
+        self._b_index: np.ndarray | None = None
         self._cache_key: bytes | None = None
         self._pass: _Pass | None = None
         self._system: ReducedSystem | None = None
@@ -162,48 +166,81 @@ class EliminatedReadings:
         return len(self.nodes)
 
     # -- evaluation -----------------------------------------------------------------
-    def _evaluate(self, rot: FloatArray, pos: FloatArray, nodes: FloatArray) -> _Pass:
-        """Whitened, weighted errors and node Jacobians of every reading (one vectorized pass)."""
-        m, d = len(self.pan), self.dim
-        x = nodes[self.node]
-        q = np.empty((m, 3))
-        for i, sl in enumerate(self._slices):
-            pts = x[sl] - pos[i, :d] if d == 3 else np.column_stack([x[sl] - pos[i, :2], np.full(sl.stop - sl.start, -pos[i, 2])])
-            q[sl] = pts @ rot[i]  # R^T (x - c), rows
-        qx, qy, qz = q[:, 0], q[:, 1], q[:, 2]
+    def _evaluate(
+        self, rot: FloatArray, pos: FloatArray, nodes: FloatArray, base: _Pass | None = None,
+        moved: np.ndarray | None = None,
+    ) -> _Pass:
+        """Whitened, weighted errors and node Jacobians of every reading (one vectorized pass).
+
+        With ``base`` (a pass at the same cameras) and ``moved`` (n,) marking the only nodes
+        whose position differs from ``base.nodes``, only those nodes' readings are evaluated
+        and the rest is taken from ``base`` (when they are under half of the readings)."""
+        rows = None
+        if base is not None and moved is not None:
+            rows = np.flatnonzero(moved[self.node])
+            if len(rows) > len(self.node) // 2:
+                rows = None
+        if rows is None:
+            node, pan, tilt, inv_sigma, slices = self.node, self.pan, self.tilt, self.inv_sigma, self._slices
+        else:
+            node, pan, tilt, inv_sigma = self.node[rows], self.pan[rows], self.tilt[rows], self.inv_sigma[rows]
+            bounds = np.searchsorted(self.camera[rows], np.arange(len(self.camera_keys) + 1))
+            slices = [slice(int(bounds[i]), int(bounds[i + 1])) for i in range(len(self.camera_keys))]
+        m, d = len(pan), self.dim
+        x = nodes[node]
+        qt = np.empty((3, m))  # q^T: component rows, contiguous
+        for i, sl in enumerate(slices):
+            # q = R^T (x - c) with x = (x, y, 0) in planar mode: rows x R[:d] - c R.
+            np.matmul(rot[i][:d].T, x[sl].T, out=qt[:, sl])
+            qt[:, sl] -= (pos[i] @ rot[i])[:, None]
+        qx, qy, qz = qt
         r2xy = qx * qx + qy * qy
         n2 = r2xy + qz * qz
-        r = np.maximum(np.sqrt(r2xy), np.maximum(PAN_SINGULARITY_EPS * np.sqrt(n2), 1e-100))
+        rxy = np.sqrt(r2xy)
+        r = np.maximum(rxy, np.maximum(PAN_SINGULARITY_EPS * np.sqrt(n2), 1e-100))
         rr = r * r
         n2 = np.maximum(n2, rr)
         e = np.empty((m, 2))
-        e[:, 0] = wrap_angle(self.pan - np.arctan2(qy, qx))
-        e[:, 1] = self.tilt - np.arctan2(qz, np.sqrt(r2xy))
-        e *= self.inv_sigma[:, None]
+        e[:, 0] = wrap_angle(pan - np.arctan2(qy, qx))
+        e[:, 1] = tilt - np.arctan2(qz, rxy)
+        e *= inv_sigma[:, None]
         s2 = e[:, 0] ** 2 + e[:, 1] ** 2
         loss, weight = loss_and_weight(s2, self.kernel, self.scale)
-        f = self.inv_sigma * np.sqrt(weight) if self.kernel is not Kernel.GAUSSIAN else self.inv_sigma
+        f = inv_sigma * np.sqrt(weight) if self.kernel is not Kernel.GAUSSIAN else inv_sigma
         if self.kernel is not Kernel.GAUSSIAN:
             e *= np.sqrt(weight)[:, None]
         # de/dq = -d(pan, tilt)/dq (geometry.pan_tilt_jacobian), whitened and weighted.
-        dq = np.zeros((m, 2, 3))
-        dq[:, 0, 0] = qy / rr * f
-        dq[:, 0, 1] = -qx / rr * f
-        rn = r * n2
-        dq[:, 1, 0] = qx * qz / rn * f
-        dq[:, 1, 1] = qy * qz / rn * f
-        dq[:, 1, 2] = -r / n2 * f
+        dq = np.empty((m, 2, 3))
+        f_rr = f / rr
+        np.multiply(qy, f_rr, out=dq[:, 0, 0])
+        np.multiply(qx, -f_rr, out=dq[:, 0, 1])
+        dq[:, 0, 2] = 0.0
+        f_rn = f / (r * n2)
+        np.multiply(qz, f_rn, out=rxy)  # rxy no longer needed: reuse as qz f / (r n2)
+        np.multiply(qx, rxy, out=dq[:, 1, 0])
+        np.multiply(qy, rxy, out=dq[:, 1, 1])
+        np.multiply(r, -f / n2, out=dq[:, 1, 2])
         jn = np.empty((m, 2, d))
-        for i, sl in enumerate(self._slices):
-            jn[sl] = dq[sl] @ rot[i].T[:, :d]  # de/dx = de/dq R^T
-        node_cost = np.asarray(np.bincount(self.node, weights=loss, minlength=len(nodes)), dtype=float)
+        for i, sl in enumerate(slices):
+            # de/dx = de/dq R^T: one (2 m_i x 3) @ (3 x d) GEMM per camera, not m_i tiny ones.
+            jn[sl] = (dq[sl].reshape(-1, 3) @ rot[i].T[:, :d]).reshape(-1, 2, d)
+        q = qt.T
+        node_cost = np.asarray(np.bincount(node, weights=loss, minlength=len(nodes)), dtype=float)
         coef = None
         if self.kernel is Kernel.CAUCHY:
             coef = np.full(m, -2.0 / self.scale**2)
         elif self.kernel is Kernel.HUBER:
             sn = np.sqrt(s2)
             coef = np.where(sn > self.scale, -1.0 / (self.scale * np.maximum(sn, 1e-300)), 0.0)
-        return _Pass(nodes, e, jn, dq, q, loss, node_cost, coef)
+        if rows is None or base is None or moved is None:
+            return _Pass(nodes, e, jn, dq, q, loss, node_cost, coef)
+        out = _Pass(nodes, base.e.copy(), base.jn.copy(), base.dq.copy(), np.array(base.q), base.loss.copy(),
+                    base.node_cost.copy(), None if base.newton_coef is None else base.newton_coef.copy())
+        out.e[rows], out.jn[rows], out.dq[rows], out.q[rows], out.loss[rows] = e, jn, dq, q, loss
+        out.node_cost[moved] = node_cost[moved]  # every reading of a moved node is in rows
+        if out.newton_coef is not None and coef is not None:
+            out.newton_coef[rows] = coef
+        return out
 
     def _node_costs(self, rot: FloatArray, pos: FloatArray, nodes: FloatArray, rows: np.ndarray) -> FloatArray:
         """(n,) cost of each node from the readings ``rows`` only (zero for other nodes)."""
@@ -245,7 +282,7 @@ class EliminatedReadings:
         cols = [p.newton_coef * v[:, a] * v[:, b] for a in range(d) for b in range(d)]
         extra = _sum_by(self.node, cols, len(A)).reshape(len(A), d, d)
         full = A + extra
-        ok = np.linalg.eigvalsh(full)[:, 0] > 1e-9 * np.linalg.eigvalsh(A)[:, -1]
+        ok = _eig_extremes(full)[0] > 1e-9 * _eig_extremes(A)[1]
         return np.where(ok[:, None, None], full, A)
 
     def _solve_nodes(self, rot: FloatArray, pos: FloatArray, start: FloatArray) -> _Pass:
@@ -258,14 +295,14 @@ class EliminatedReadings:
         for _ in range(self.MAX_NODE_STEPS):
             A, g = self._node_blocks(p)
             A = self._newton_blocks(p, A)
-            step = -np.linalg.solve(A, g[..., None])[..., 0]
+            step = -_solve_small(A, g)
             predicted = -0.5 * np.einsum("nd,nd->n", g, step)
             active &= predicted > self.NODE_TOL * np.maximum(p.node_cost, 1.0)
             if not active.any():
                 break
             step[~active] = 0.0
             slack = 1e-13 * np.maximum(p.node_cost, 1.0)  # rounding of a node's cost
-            trial = self._evaluate(rot, pos, p.nodes + step)
+            trial = self._evaluate(rot, pos, p.nodes + step, p, active)
             worse = active & (trial.node_cost > p.node_cost + slack)
             if worse.any():
                 # Halve the steps of those few nodes, evaluating only their readings.
@@ -277,7 +314,7 @@ class EliminatedReadings:
                         break
                 step[worse] = 0.0  # no decrease along the step: those nodes stay (and are done)
                 active &= ~worse
-                trial = self._evaluate(rot, pos, p.nodes + step)
+                trial = self._evaluate(rot, pos, p.nodes + step, p, active)
             p = trial
         return p
 
@@ -318,19 +355,29 @@ class EliminatedReadings:
         # Camera Jacobians: de/dxi = [de/dq skew(q) | -de/dq]; row . skew(q) = row x q.
         jc = np.empty((m, 2, 6))
         dq, q = p.dq, p.q
-        jc[:, :, 0:3] = np.cross(dq, q[:, None, :])
+        for a, b, c in ((0, 1, 2), (1, 2, 0), (2, 0, 1)):  # (dq x q)_a = dq_b q_c - dq_c q_b
+            np.multiply(dq[:, :, b], q[:, None, c], out=jc[:, :, a])
+            jc[:, :, a] -= dq[:, :, c] * q[:, None, b]
         jc[:, :, 3:6] = -dq
         A, g = self._node_blocks(p)
-        cols = [p.jn[:, 0, a] * jc[:, 0, b] + p.jn[:, 1, a] * jc[:, 1, b] for a in range(d) for b in range(6)]
-        pair_sums = _sum_by(self._pair, cols, n * k)  # (n*k, d*6)
-        B = pair_sums.reshape(n, k, d, 6).transpose(0, 2, 1, 3).reshape(n, d, 6 * k)
+        # Node-camera coupling B_j = sum over the pair's readings of jn^T jc, stored (n, d, k, 6).
+        prod = np.matmul(p.jn.transpose(0, 2, 1), jc)  # (m, d, 6) jn^T jc per reading
+        if self._b_index is None:  # flat index of each product entry in B (n, d, k, 6), once per problem
+            self._b_index = (((self.node[:, None, None] * d + np.arange(d)[None, :, None]) * k
+                              + self.camera[:, None, None]) * 6 + np.arange(6)[None, None, :]).ravel()
+        if self._unique_pairs:
+            B = np.zeros(n * d * 6 * k)
+            B[self._b_index] = prod.ravel()  # one reading per (node, camera): a scatter
+        else:
+            B = np.bincount(self._b_index, weights=prod.ravel(), minlength=n * d * 6 * k)
+        B = B.reshape(n, d, 6 * k)
         H = np.zeros((6 * k, 6 * k))
         gc = np.zeros(6 * k)
         for i, sl in enumerate(self._slices):
             block = jc[sl].reshape(-1, 6)
             H[6 * i : 6 * i + 6, 6 * i : 6 * i + 6] = block.T @ block
             gc[6 * i : 6 * i + 6] = block.T @ p.e[sl].reshape(-1)
-        A_inv = np.linalg.inv(A)
+        A_inv = _inv_small(A)
         gain = A_inv @ B  # (n, d, 6k)
         flat_b = B.reshape(n * d, 6 * k)
         S = H - flat_b.T @ gain.reshape(n * d, 6 * k)
@@ -373,6 +420,44 @@ class EliminatedReadings:
         spread = system.node_gain @ camera_covariance
         cov = a_inv + np.einsum("nik,njk->nij", spread, system.node_gain)
         return 0.5 * (cov + np.transpose(cov, (0, 2, 1)))
+
+
+def _inv_small(A: FloatArray) -> FloatArray:
+    """Inverses of a stack of symmetric d x d blocks (closed form for d = 2, else LAPACK)."""
+    if A.shape[-1] != 2:
+        return np.asarray(np.linalg.inv(A), dtype=float)
+    a, b, c = A[:, 0, 0], A[:, 0, 1], A[:, 1, 1]
+    det = a * c - b * b
+    if not np.all(det > 0):
+        return np.asarray(np.linalg.inv(A), dtype=float)  # LAPACK raises on a singular block, as before
+    out = np.empty_like(A)
+    out[:, 0, 0] = c / det
+    out[:, 1, 1] = a / det
+    out[:, 0, 1] = out[:, 1, 0] = -b / det
+    return out
+
+
+def _eig_extremes(A: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Smallest and largest eigenvalue of each symmetric d x d block (closed form for d = 2)."""
+    if A.shape[-1] == 2:
+        mid = 0.5 * (A[:, 0, 0] + A[:, 1, 1])
+        rad = np.hypot(0.5 * (A[:, 0, 0] - A[:, 1, 1]), A[:, 0, 1])
+        return mid - rad, mid + rad
+    eig = np.asarray(np.linalg.eigvalsh(A), dtype=float)
+    return eig[:, 0], eig[:, -1]
+
+
+def _solve_small(A: FloatArray, g: FloatArray) -> FloatArray:
+    """``A_j^-1 g_j`` for a stack of symmetric d x d blocks (closed form for d = 2, else LAPACK)."""
+    if A.shape[-1] == 2:
+        a, b, c = A[:, 0, 0], A[:, 0, 1], A[:, 1, 1]
+        det = a * c - b * b
+        if np.all(det > 0):
+            out = np.empty_like(g)
+            out[:, 0] = (c * g[:, 0] - b * g[:, 1]) / det
+            out[:, 1] = (a * g[:, 1] - b * g[:, 0]) / det
+            return out
+    return np.asarray(np.linalg.solve(A, g[..., None])[..., 0])
 
 
 def factor_rows(hessian: FloatArray, gradient: FloatArray) -> tuple[FloatArray, FloatArray]:

@@ -82,14 +82,22 @@ def auto_gauge_sigma(survey: Survey, initial: InitialEstimate) -> float:
     high above a short baseline. The positions do not depend on it.
     """
     table = survey.observation_table
-    ranges = []
-    for cid, cam in initial.cameras.items():
-        i = survey.camera_ids.index(cid)
-        js = np.unique(table.node_index[table.camera_index == i])
-        pts = [initial.nodes[survey.node_ids[j]] for j in js if survey.node_ids[j] in initial.nodes]
-        if pts:
-            ranges.append(np.linalg.norm(np.asarray(pts) - cam.position, axis=1))
-    typical_range = float(np.median(np.concatenate(ranges))) if ranges else 1.0
+    node_pos = np.full((len(survey.node_ids), 3), np.nan)
+    for j, nid in enumerate(survey.node_ids):
+        if nid in initial.nodes:
+            node_pos[j] = initial.nodes[nid]
+    cam_pos = np.full((len(survey.camera_ids), 3), np.nan)
+    for i, cid in enumerate(survey.camera_ids):
+        if cid in initial.cameras:
+            cam_pos[i] = initial.cameras[cid].position
+    n_nodes = len(survey.node_ids)
+    seen = np.zeros(len(survey.camera_ids) * n_nodes, dtype=bool)
+    seen[table.camera_index.astype(np.int64) * n_nodes + table.node_index] = True
+    pairs = np.flatnonzero(seen)  # each (camera, node) pair once
+    cams, nodes = pairs // n_nodes, pairs % n_nodes
+    keep = np.isfinite(cam_pos[cams, 0]) & np.isfinite(node_pos[nodes, 0])
+    ranges = np.linalg.norm(node_pos[nodes[keep]] - cam_pos[cams[keep]], axis=1)
+    typical_range = float(np.median(ranges)) if len(ranges) else 1.0
     return float(max(1e-3 * np.median(table.sigma) * typical_range, 1e-9))
 
 

@@ -25,6 +25,16 @@ FLAG_CHI2 = 2.0 * np.log(1e6)
 MAX_FLAG_ROUNDS = 4
 
 
+def _node_positions(survey: Survey, estimate: InitialEstimate) -> np.ndarray:
+    """(n_nodes, 3) estimated node positions in survey node order; NaN rows where none."""
+    pos = np.full((len(survey.node_ids), 3), np.nan)
+    for j, nid in enumerate(survey.node_ids):
+        p = estimate.nodes.get(nid)
+        if p is not None:
+            pos[j] = p
+    return pos
+
+
 def deletion_residuals(survey: Survey, estimate: InitialEstimate, included: np.ndarray) -> np.ndarray:
     """Squared Mahalanobis norm of every reading's residual with the reading itself left out.
 
@@ -34,24 +44,24 @@ def deletion_residuals(survey: Survey, estimate: InitialEstimate, included: np.n
     noise model it is chi-square with 2 degrees of freedom, also where a reading
     is very sensitive to the node (near the pole, pan moves a lot for a small
     shift). NaN where the camera or node has no estimate or no other reading
-    determines the node.
+    determines the node. One vectorized pass over all readings (node sums by
+    ``np.add.at``), no loop over nodes.
     """
     t = survey.observation_table
     dim = survey.mode.position_dim
     n_obs = len(t)
     r = np.full((n_obs, 2), np.nan)
     jac = np.full((n_obs, 2, dim), np.nan)
+    node_pos = _node_positions(survey, estimate)
+    have_node = np.all(np.isfinite(node_pos), axis=1)[t.node_index]
     for i, cid in enumerate(survey.camera_ids):
         cam = estimate.cameras.get(cid)
         if cam is None:
             continue
-        rows = np.flatnonzero(t.camera_index == i)
-        have = np.array([survey.node_ids[j] in estimate.nodes for j in t.node_index[rows]], dtype=bool)
-        rows = rows[have]
+        rows = np.flatnonzero((t.camera_index == i) & have_node)
         if not len(rows):
             continue
-        pts = np.array([estimate.nodes[survey.node_ids[j]] for j in t.node_index[rows]])
-        q = (pts - cam.position) @ cam.rotation
+        q = (node_pos[t.node_index[rows]] - cam.position) @ cam.rotation
         pan, tilt = bearing_pan_tilt(q)
         r[rows] = pan_tilt_residual(t.pan[rows], t.tilt[rows], pan, tilt)
         jac[rows] = (pan_tilt_jacobian(q) @ cam.rotation.T)[:, :, :dim]
@@ -76,29 +86,79 @@ def deletion_residuals(survey: Survey, estimate: InitialEstimate, included: np.n
     return out
 
 
+def _segment_median(values: np.ndarray, group: np.ndarray, n_groups: int) -> np.ndarray:
+    """(n_groups,) ``np.median`` of ``values`` within each group (NaN for empty groups)."""
+    order = np.lexsort((values, group))
+    v, g = values[order], group[order]
+    starts = np.searchsorted(g, np.arange(n_groups + 1))
+    counts = np.diff(starts)
+    lo = starts[:-1] + np.maximum(counts - 1, 0) // 2
+    hi = starts[:-1] + counts // 2
+    out = np.full(n_groups, np.nan)
+    has = counts > 0
+    out[has] = (v[lo[has]] + v[hi[has]]) / 2.0
+    return out
+
+
+#: Nodes with at most this many ground hits get the consensus in one batched pass per
+#: hit count; nodes with more (many repeats) go through :func:`consensus_ground_point`.
+_BATCHED_CONSENSUS_HITS = 64
+
+
 def replace_by_consensus(survey: Survey, estimate: InitialEstimate) -> None:
     """Re-place every planar node with three or more readings at the consensus of its
     readings' ground points (z = 0, gauge frame) under the estimated cameras, when at
-    least two of them agree; ``estimate.nodes`` is updated in place."""
+    least two of them agree; ``estimate.nodes`` is updated in place.
+
+    The same 1-point consensus as :func:`fgloc.init.planar.consensus_ground_point`,
+    batched: ground hits of all readings at once, then one ``(nodes, h, h)``
+    agreement table per hit count h; only nodes with more than
+    ``_BATCHED_CONSENSUS_HITS`` hits are handled one by one.
+    """
     t = survey.observation_table
     cam_ids = survey.camera_ids
+    n_nodes = len(survey.node_ids)
     placed = np.array([c in estimate.cameras for c in cam_ids], dtype=bool)
     rotations = np.array([estimate.cameras[c].rotation if p else np.eye(3) for c, p in zip(cam_ids, placed)])
     positions = np.array([estimate.cameras[c].position if p else np.zeros(3) for c, p in zip(cam_ids, placed)])
-    order = np.argsort(t.node_index, kind="stable")  # readings grouped by node: O(M log M), not O(N M)
-    starts = np.searchsorted(t.node_index[order], np.arange(len(survey.node_ids) + 1))
-    for j in np.flatnonzero(np.diff(starts) >= 3):
-        rows = order[starts[j]:starts[j + 1]]
-        rows = rows[placed[t.camera_index[rows]]]
-        if len(rows) < 3:
+    rows = np.flatnonzero(placed[t.camera_index])
+    node = t.node_index[rows]
+    n_rows = np.bincount(node, minlength=n_nodes)
+    sigma = _segment_median(t.sigma[rows], node, n_nodes)  # per node, over its placed readings
+    ci = t.camera_index[rows]
+    dirs = np.einsum("mij,mj->mi", rotations[ci], pan_tilt_bearing(t.pan[rows], t.tilt[rows]))
+    pts, tol, ok = ground_hits(positions[ci], dirs, sigma[node])  # type: ignore[arg-type]
+    ok &= n_rows[node] >= 3
+    rows, node, pts, tol = rows[ok], node[ok], pts[ok], tol[ok]
+    order = np.argsort(node, kind="stable")  # hits grouped by node, reading order within a node
+    node, pts, tol = node[order], pts[order], tol[order]
+    starts = np.searchsorted(node, np.arange(n_nodes + 1))
+    hits = np.diff(starts)
+    new_xy = np.full((n_nodes, 2), np.nan)
+    for h in np.unique(hits[hits >= 3]):
+        js = np.flatnonzero(hits == h)
+        if h > _BATCHED_CONSENSUS_HITS:
+            for j in js:
+                seg = slice(starts[j], starts[j + 1])
+                xy, inliers = consensus_ground_point(pts[seg], tol[seg])
+                if inliers.sum() >= 2:
+                    new_xy[j] = xy
             continue
-        ci = t.camera_index[rows]
-        dirs = np.einsum("mij,mj->mi", rotations[ci], pan_tilt_bearing(t.pan[rows], t.tilt[rows]))
-        pts, tol, ok = ground_hits(positions[ci], dirs, float(np.median(t.sigma[rows])))
-        if ok.sum() >= 3:
-            xy, inliers = consensus_ground_point(pts[ok], tol[ok])
-            if inliers.sum() >= 2:
-                estimate.nodes[survey.node_ids[j]] = np.array([xy[0], xy[1], 0.0])
+        idx = starts[js][:, None] + np.arange(h)[None, :]  # (nj, h)
+        p, tl = pts[idx], tol[idx]  # (nj, h, 2), (nj, h)
+        dist = np.hypot(p[:, :, None, 0] - p[:, None, :, 0], p[:, :, None, 1] - p[:, None, :, 1])
+        agree = dist < tl[:, :, None] + tl[:, None, :]
+        counts = agree.sum(axis=2)
+        # Most agreeing hits, ties to the sharpest, then the first (lexsort((tol, -counts))[0]).
+        best_tol = np.where(counts == counts.max(axis=1, keepdims=True), tl, np.inf)
+        best = np.argmin(best_tol, axis=1)
+        inliers = agree[np.arange(len(js)), best]  # (nj, h)
+        w = np.where(inliers, 1.0 / tl**2, 0.0)
+        xy = (w[:, :, None] * p).sum(axis=1) / w.sum(axis=1)[:, None]
+        good = inliers.sum(axis=1) >= 2
+        new_xy[js[good]] = xy[good]
+    for j in np.flatnonzero(np.isfinite(new_xy[:, 0])):
+        estimate.nodes[survey.node_ids[j]] = np.array([new_xy[j, 0], new_xy[j, 1], 0.0])
 
 
 def flag_readings(
