@@ -11,8 +11,8 @@ in the consensus re-placement of flagged surveys.
     python scripts/bench_million.py                       # 10k, 100k and 1M readings
     python scripts/bench_million.py --repeats 100 1000    # chosen sizes
 
-Measured (2 cores, OPENBLAS_NUM_THREADS=1, node-eliminated solve): 10k readings 1.1 s / 97 MiB,
-100k 3.3 s / 198 MiB, 1M 31.3 s / 1306 MiB (docs/scaling.md).
+Measured (2 cores, OPENBLAS_NUM_THREADS=1, node-eliminated solve): 10k readings 0.6 s / 98 MiB,
+100k 1.2 s / 214 MiB, 1M 19.0 s / 1562 MiB (docs/scaling.md).
 """
 
 from __future__ import annotations
