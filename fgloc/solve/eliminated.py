@@ -24,7 +24,7 @@ User factors on node keys need the reference graph (:func:`fgloc.solve.joint.bui
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import gtsam
 import numpy as np
@@ -33,9 +33,16 @@ from fgloc.core.model import CameraPose, NodeEstimate, NodeMode, Result, SolveSt
 from fgloc.factors.baseline_prior import BaselinePrior
 from fgloc.factors.eliminated_readings import EliminatedReadings, Kernel
 from fgloc.init.start import InitialEstimate
-from fgloc.solve.joint import RobustKernel, SolverOptions, auto_gauge_sigma, camera_key, initialize, node_key
+from fgloc.solve.joint import (
+    RobustKernel,
+    SolverOptions,
+    SolveSteps,
+    auto_gauge_sigma,
+    camera_key,
+    node_key,
+    run_flagging_pipeline,
+)
 from fgloc.solve.levenberg_marquardt import IterationCallback, LMOutcome, levenberg_marquardt
-from fgloc.solve.outliers import MAX_FLAG_ROUNDS, flag_readings, reflag
 
 
 class EliminationFailed(RuntimeError):
@@ -219,6 +226,15 @@ def solve_eliminated(
     return collect_eliminated(problem, optimize_eliminated(problem, options, on_iteration, stages), options, stages)
 
 
+ELIMINATED_GRAPH = SolveSteps(
+    build=build_eliminated,
+    optimize=optimize_eliminated,
+    estimate=estimate_eliminated,
+    collect=collect_eliminated,
+    node_ids=lambda problem: problem.node_ids,
+)
+
+
 def solve_survey_eliminated(
     survey: Survey, options: SolverOptions = SolverOptions(), on_iteration: IterationCallback | None = None
 ) -> Result:
@@ -227,49 +243,4 @@ def solve_survey_eliminated(
     Raises :class:`EliminationFailed` when a node or camera system is numerically
     singular; the caller then runs the reference graph, which names the culprit.
     """
-    stages: dict[str, float] = {}
-    t0 = time.perf_counter()
-    init = initialize(survey)
-    stages["initialize"] = time.perf_counter() - t0
-    kernel = options.robust
-    if kernel is RobustKernel.AUTO:
-        kernel = RobustKernel.CAUCHY if init.suspected_outliers > 0 else RobustKernel.NONE
-    t0 = time.perf_counter()
-    problem = build_eliminated(survey, init, replace(options, robust=kernel))
-    stages["build"] = time.perf_counter() - t0
-    first = optimize_eliminated(problem, options, on_iteration, stages)
-    values = first.values
-    flagged, ambiguous = flag_readings(survey, estimate_eliminated(problem, values), problem.observation_index,
-                                       options.flag_chi2)
-    if flagged and kernel is RobustKernel.NONE and options.robust is RobustKernel.AUTO:
-        kernel = RobustKernel.CAUCHY
-        problem = build_eliminated(survey, estimate_eliminated(problem, values), replace(options, robust=kernel))
-        values = optimize_eliminated(problem, options, None, stages).values
-        flagged, ambiguous = flag_readings(survey, estimate_eliminated(problem, values), problem.observation_index,
-                                           options.flag_chi2)
-    if not flagged and kernel is RobustKernel.NONE:
-        return collect_eliminated(problem, first, options, stages)
-    start = estimate_eliminated(problem, values)
-    robust = replace(options, robust=kernel if kernel is not RobustKernel.NONE else RobustKernel.CAUCHY)
-    for _ in range(MAX_FLAG_ROUNDS):
-        refl, ambiguous = reflag(survey, start, frozenset(f.index for f in flagged), ambiguous, options.flag_chi2)
-        if {f.index for f in refl} == {f.index for f in flagged}:
-            break
-        flagged = refl
-        loop_problem = build_eliminated(survey, start, robust, frozenset(f.index for f in flagged))
-        start = estimate_eliminated(loop_problem, optimize_eliminated(loop_problem, options, None, stages).values)
-    exclude = frozenset(f.index for f in flagged)
-    final_problem = build_eliminated(survey, start, replace(options, robust=RobustKernel.NONE), exclude)
-    final_problem.unlocalized.update(ambiguous)
-    kept_nodes = set(final_problem.node_ids)
-    for nid in start.nodes:
-        if nid not in kept_nodes and nid not in final_problem.unlocalized:
-            final_problem.unlocalized[nid] = "all its readings were flagged as outliers"
-    result = solve_eliminated(final_problem, options, None, stages)
-    result.flagged = flagged
-    if result.stats is not None:
-        result.stats.method = f"joint ({kernel.value} kernel, then Gaussian without flagged readings)"
-        result.stats.initial_error = first.error_history[0]
-        result.stats.error_history = first.error_history + result.stats.error_history[1:]
-        result.stats.iterations += first.iterations
-    return result
+    return run_flagging_pipeline(survey, options, on_iteration, ELIMINATED_GRAPH)

@@ -19,7 +19,9 @@ import enum
 import logging
 import re
 import time
+from collections.abc import Callable, Collection
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import gtsam
 import numpy as np
@@ -403,6 +405,40 @@ def solve_survey(
             return solve_survey_eliminated(survey, options, on_iteration)
         except EliminationFailed as exc:
             logger.info(f"nodes-eliminated solve failed ({exc}); solving the reference graph")
+    return run_flagging_pipeline(survey, options, on_iteration, REFERENCE_GRAPH)
+
+
+@dataclass(frozen=True)
+class SolveSteps:
+    """What :func:`run_flagging_pipeline` needs from one problem representation.
+
+    The reference graph (one factor per reading, :data:`REFERENCE_GRAPH`) and the
+    node-eliminated camera graph (:mod:`fgloc.solve.eliminated`) provide the same
+    five operations, so the start / flag / re-solve / final-solve logic exists once.
+    A problem must carry ``observation_index`` and ``unlocalized`` like
+    :class:`LocalizationProblem`.
+    """
+
+    build: Callable[[Survey, InitialEstimate, SolverOptions, frozenset[int]], Any]
+    optimize: Callable[[Any, SolverOptions, IterationCallback | None, dict[str, float]], LMOutcome]
+    estimate: Callable[[Any, gtsam.Values], InitialEstimate]
+    collect: Callable[[Any, LMOutcome, SolverOptions, dict[str, float]], Result]
+    node_ids: Callable[[Any], Collection[str]]
+
+
+REFERENCE_GRAPH = SolveSteps(
+    build=build_problem,
+    optimize=optimize,
+    estimate=estimate_from_values,
+    collect=collect_result,
+    node_ids=lambda problem: problem.node_keys,
+)
+
+
+def run_flagging_pipeline(
+    survey: Survey, options: SolverOptions, on_iteration: IterationCallback | None, steps: SolveSteps
+) -> Result:
+    """The steps of :func:`solve_survey` on one problem representation (see its docstring)."""
     stages: dict[str, float] = {}
     t0 = time.perf_counter()
     init = initialize(survey)
@@ -411,21 +447,21 @@ def solve_survey(
     if kernel is RobustKernel.AUTO:
         kernel = RobustKernel.CAUCHY if init.suspected_outliers > 0 else RobustKernel.NONE
     t0 = time.perf_counter()
-    problem = build_problem(survey, init, replace(options, robust=kernel))
+    problem = steps.build(survey, init, replace(options, robust=kernel), frozenset())
     stages["build"] = time.perf_counter() - t0
-    first = optimize(problem, options, on_iteration, stages)
+    first = steps.optimize(problem, options, on_iteration, stages)
     values = first.values
-    flagged, ambiguous = flag_readings(survey, estimate_from_values(problem, values), problem.observation_index,
+    flagged, ambiguous = flag_readings(survey, steps.estimate(problem, values), problem.observation_index,
                                       options.flag_chi2)
     if flagged and kernel is RobustKernel.NONE and options.robust is RobustKernel.AUTO:
         kernel = RobustKernel.CAUCHY
-        problem = build_problem(survey, estimate_from_values(problem, values), replace(options, robust=kernel))
-        values = optimize(problem, options, None, stages).values
-        flagged, ambiguous = flag_readings(survey, estimate_from_values(problem, values), problem.observation_index,
+        problem = steps.build(survey, steps.estimate(problem, values), replace(options, robust=kernel), frozenset())
+        values = steps.optimize(problem, options, None, stages).values
+        flagged, ambiguous = flag_readings(survey, steps.estimate(problem, values), problem.observation_index,
                                       options.flag_chi2)
     if not flagged and kernel is RobustKernel.NONE:
-        return collect_result(problem, first, options, stages)
-    start = estimate_from_values(problem, values)
+        return steps.collect(problem, first, options, stages)
+    start = steps.estimate(problem, values)
     robust = replace(options, robust=kernel if kernel is not RobustKernel.NONE else RobustKernel.CAUCHY)
     for _ in range(MAX_FLAG_ROUNDS):
         # Re-check every reading, flagged ones included, against a robust solve
@@ -434,15 +470,16 @@ def solve_survey(
         if {f.index for f in refl} == {f.index for f in flagged}:
             break
         flagged = refl
-        loop_problem = build_problem(survey, start, robust, frozenset(f.index for f in flagged))
-        start = estimate_from_values(loop_problem, optimize(loop_problem, options, None, stages).values)
+        loop_problem = steps.build(survey, start, robust, frozenset(f.index for f in flagged))
+        start = steps.estimate(loop_problem, steps.optimize(loop_problem, options, None, stages).values)
     exclude = frozenset(f.index for f in flagged)
-    final_problem = build_problem(survey, start, replace(options, robust=RobustKernel.NONE), exclude)
+    final_problem = steps.build(survey, start, replace(options, robust=RobustKernel.NONE), exclude)
     final_problem.unlocalized.update(ambiguous)
+    kept = set(steps.node_ids(final_problem))
     for nid in start.nodes:
-        if nid not in final_problem.node_keys and nid not in final_problem.unlocalized:
+        if nid not in kept and nid not in final_problem.unlocalized:
             final_problem.unlocalized[nid] = "all its readings were flagged as outliers"
-    result = solve_problem(final_problem, options, None, stages).result
+    result = steps.collect(final_problem, steps.optimize(final_problem, options, None, stages), options, stages)
     result.flagged = flagged
     if result.stats is not None:
         result.stats.method = f"joint ({kernel.value} kernel, then Gaussian without flagged readings)"
