@@ -18,7 +18,7 @@ from fgloc.solve.joint import solve_survey
 from fgloc.survey.repeats import base_survey
 from fgloc.survey.session import journal_survey, run_survey
 from tests.test_rig_config import EXAMPLE
-from tests.test_survey_runner import obs_by_key, opened
+from tests.test_survey_runner import obs_by_key, opened, resume_from_cuts
 
 BUDGET = 8
 
@@ -80,22 +80,13 @@ def test_repeats_shrink_the_cramer_rao_trace_more_than_unplanned_ones(full_run):
 
 def test_kill_and_resume_during_the_repeat_phase_gives_the_same_readings(full_run, tmp_path):
     rig, full = full_run
-    reference = obs_by_key(full / "journal.jsonl")
     data = (full / "journal.jsonl").read_bytes()
     ends = [i + 1 for i, b in enumerate(data) if b == ord("\n")]
     lines = data.splitlines()
     last_done = max(k for k, line in enumerate(lines) if b'"node_done"' in line)
     repeat_ends = ends[last_done:]  # cut after the last node_done and after every repeat record
     assert len(repeat_ends) >= BUDGET + 1
-    cuts = repeat_ends + [e + 9 for e in repeat_ends[:-1]]  # clean cuts and torn last lines
-    for k, cut in enumerate(cuts):
-        d = tmp_path / f"cut{k}"
-        d.mkdir()
-        (d / "journal.jsonl").write_bytes(data[:cut])
-        run_survey(rig, d, resume=True, opened=opened(rig)[0])
-        state = read_journal(d / "journal.jsonl")
-        assert state.duplicates_ignored == 0, cut
-        assert obs_by_key(d / "journal.jsonl") == reference, cut
+    resume_from_cuts(rig, data, repeat_ends, tmp_path)  # clean cuts and torn last lines
 
 
 def test_repeat_budget_is_operational_and_a_larger_budget_extends_the_plan(tmp_path):

@@ -38,6 +38,26 @@ def obs_by_key(path):
     return {k: (o.pan, o.tilt) for k, o in read_journal(path).observations.items()}
 
 
+def resume_from_cuts(rig, data: bytes, ends: list[int], tmp_path) -> list:
+    """Cut ``data`` (a finished journal) after each of ``ends`` and 9 bytes into the next
+    record (a torn line), resume each cut, and check it ends with exactly the uninterrupted
+    run's observations and no duplicate; returns the resumed journal states."""
+    full = tmp_path / "uncut.jsonl"
+    full.write_bytes(data)
+    reference = obs_by_key(full)
+    states = []
+    for k, cut in enumerate(ends + [e + 9 for e in ends[:-1]]):
+        d = tmp_path / f"cut{k}"
+        d.mkdir()
+        (d / "journal.jsonl").write_bytes(data[:cut])
+        run_survey(rig, d, resume=True, opened=opened(rig)[0])
+        state = read_journal(d / "journal.jsonl")
+        assert state.duplicates_ignored == 0, cut
+        assert obs_by_key(d / "journal.jsonl") == reference, cut
+        states.append(state)
+    return states
+
+
 def test_survey_observes_every_visible_pair_and_records_the_rest(tmp_path):
     rig = small_rig(10)
     rig_opened, sim = opened(rig)
@@ -64,18 +84,9 @@ def test_resume_from_any_kill_point_gives_the_same_observations(tmp_path):
     rig = small_rig(6)
     full_dir = tmp_path / "full"
     run_survey(rig, full_dir, opened=opened(rig)[0])
-    reference = obs_by_key(full_dir / "journal.jsonl")
     data = (full_dir / "journal.jsonl").read_bytes()
     ends = [i + 1 for i, b in enumerate(data) if b == ord("\n")]
-    cuts = ends + [e + 9 for e in ends[:-1]]  # clean cuts and torn last lines
-    for k, cut in enumerate(cuts):
-        d = tmp_path / f"cut{k}"
-        d.mkdir()
-        (d / "journal.jsonl").write_bytes(data[:cut])
-        run_survey(rig, d, resume=True, opened=opened(rig)[0])
-        state = read_journal(d / "journal.jsonl")
-        assert state.duplicates_ignored == 0, cut
-        assert obs_by_key(d / "journal.jsonl") == reference, cut
+    for state in resume_from_cuts(rig, data, ends, tmp_path):
         assert state.done == set(rig.node_ids)
 
 
