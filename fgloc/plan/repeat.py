@@ -101,6 +101,7 @@ class RepeatModel:
             idx = self.loc[p]
             np.add.at(h, (idx[:, None], idx[None, :]), w[p] * self.jac[p].T @ self.jac[p])
         self.information = h
+        self.base_weights = w  # readings per pair at the survey's sigma (the one-pass information is sum w J^T J)
         self.covariance = np.linalg.inv(h)
 
     def node_traces(self, cov: FloatArray | None = None) -> FloatArray:
@@ -118,7 +119,7 @@ class RepeatModel:
         if objective == "logdet":
             return np.linalg.slogdet(k)[1]
         if objective == "mean":
-            cross = self.covariance[self.node_dims][:, loc].transpose(1, 0, 2)  # (P, 2N, 8)
+            cross = self.covariance[self.node_dims[0]:, :][:, loc].transpose(1, 0, 2)  # (P, 2N, 8); node dims are last
             g = jac @ np.einsum("pki,pkj->pij", cross, cross) @ jac.transpose(0, 2, 1)
             return np.einsum("pij,pji->p", np.linalg.inv(k), g)
         worst = int(np.argmax(self.node_traces()))
