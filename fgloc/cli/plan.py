@@ -38,6 +38,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     pr.add_argument("--budget", type=int, required=True, help="number of readings to plan")
     pr.add_argument("--objective", default="mean", help="mean | worst | logdet (default mean)")
     pr.add_argument("--json", action="store_true", help="print machine-readable JSON")
+    pr.add_argument("--bound", action="store_true",
+                    help="also bound the plan by the convex relaxation (mean, logdet) and certify whether "
+                         "1.3x the readings of one pass can reach the trace of every reading measured 3x")
     pr.set_defaults(run=run_repeat)
 
 
@@ -99,14 +102,63 @@ def run_repeat(args: argparse.Namespace) -> int:
     if args.objective not in ("mean", "worst", "logdet"):
         raise FglocError(f"--objective: expected one of mean, worst, logdet ({args.objective!r})")
     survey = read_survey(args.survey)
-    plan = plan_repeats(survey, read_result(args.result), args.budget, args.objective)
+    result = read_result(args.result)
+    plan = plan_repeats(survey, result, args.budget, args.objective)
+    bound, feasibility = _repeat_bound(survey, result, plan) if args.bound else (None, None)
     if args.json:
-        print(json.dumps({"objective": plan.objective, "before": plan.before, "after": plan.after,
-                          "readings": [{"camera": r.camera, "node": r.node, "gain": r.gain} for r in plan.readings]},
-                         indent=1))
+        doc = {"objective": plan.objective, "before": plan.before, "after": plan.after,
+               "readings": [{"camera": r.camera, "node": r.node, "gain": r.gain} for r in plan.readings]}
+        if args.bound:
+            doc["bound"] = bound
+            doc["feasibility"] = feasibility
+        print(json.dumps(doc, indent=1))
         return 0
     print(f"{plan.objective}: {plan.before:.6g} -> {plan.after:.6g} with {len(plan.readings)} more readings "
           f"(survey has {plan.n_readings_now}); summed node trace {plan.trace_before:.3e} -> {plan.trace_after:.3e}")
     for r in plan.readings:
         print(f"{r.camera}\t{r.node}\t{r.gain:.4g}")
+    if args.bound:
+        _print_bound(bound, feasibility)
     return 0
+
+
+def _repeat_bound(survey, result, plan) -> tuple[dict | None, dict]:  # type: ignore[no-untyped-def]
+    """The relaxation bound of ``plan`` (None for ``worst``) and the feasibility certificate, as JSON."""
+    from fgloc.plan.repeat import RepeatModel
+    from fgloc.plan.repeat_bound import BOUND_OBJECTIVES, PairSystem, counts_of, plan_bound, repeat_feasibility
+
+    bound = None
+    if plan.objective in BOUND_OBJECTIVES:
+        model = RepeatModel(survey, result)
+        counts = counts_of(model, [(r.camera, r.node) for r in plan.readings])
+        b = plan_bound(PairSystem.from_model(model), counts, plan.objective)
+        bound = {"objective": b.objective, "budget": b.budget, "before": b.before, "achieved": b.achieved,
+                 "bound": b.bound, "relaxed": b.relaxed, "gap": b.gap, "gap_percent": b.gap_percent,
+                 "gain_ratio": b.gain_ratio, "iterations": b.iterations}
+    f = repeat_feasibility(survey, result)
+    feasibility = {"status": f.status, "n_readings": f.n_readings, "budget": f.budget,
+                   "trace_one_pass": f.trace_one_pass, "target": f.target, "bound": f.bound,
+                   "free_bound": f.free_bound, "certified_min_budget": f.certified_min_budget,
+                   "certified_min_ratio": f.ratio(f.certified_min_budget),
+                   "relaxed_reach_budget": f.relaxed_reach_budget, "greedy_budget": f.greedy_budget,
+                   "greedy_ratio": f.ratio(f.greedy_budget)}
+    return bound, feasibility
+
+
+def _print_bound(bound: dict | None, f: dict) -> None:
+    if bound is None:
+        print("relaxation bound: not supported for objective worst (max of node traces is not smooth)")
+    else:
+        unit = "nats" if bound["objective"] == "logdet" else "baseline units^2"
+        print(f"relaxation bound ({bound['objective']}): no plan of {bound['budget']} readings gets below "
+              f"{bound['bound']:.6g}; this plan {bound['achieved']:.6g}, gap {bound['gap']:.3g} {unit} "
+              f"({bound['gap_percent']:.2f}% of the bound), {100 * bound['gain_ratio']:.1f}% of the best possible gain")
+    greedy = ("not reached" if f["greedy_budget"] is None
+              else f"{f['greedy_budget']} extra ({f['greedy_ratio']:.2f}x one pass)")
+    print(f"every reading 3x: target summed trace {f['target']:.4e} (one pass {f['trace_one_pass']:.4e}); "
+          f"with {f['budget']} extra readings (1.3x one pass) no plan gets below {f['bound']:.4e}: {f['status']}")
+    print(f"  needs >= {f['certified_min_budget']} extra readings ({f['certified_min_ratio']:.2f}x one pass, certified); "
+          f"greedy: {greedy}")
+    if f["free_bound"] > f["target"]:
+        print(f"  not even {f['n_readings'] + f['budget']} readings allocated freely over the pairs (first pass not kept) "
+              f"get below {f['free_bound']:.4e}")

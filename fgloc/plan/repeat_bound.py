@@ -366,7 +366,7 @@ def repeat_feasibility(survey: Survey, result: Result, fraction: float = 0.3, gr
     free = solve_relaxation(PairSystem(system.jc, system.jn, system.node, zero, system.n_nodes, system.cam_prior),
                             n + budget, "mean", start=system.base, rtol=1e-6, max_iter=max_iter, stop_below=target)
     certified, reach = certified_budgets(system, target, max_iter)
-    cap = int(np.ceil(2.0 * system.base.sum()))
+    cap = 2 * n
     greedy_budget = None
     if greedy:
         plan = plan_repeats(survey, result, cap, "mean", stop_trace=target)
