@@ -11,8 +11,13 @@ from __future__ import annotations
 import argparse
 import json
 import os
+from typing import TYPE_CHECKING
 
 from fgloc.core.errors import FglocError
+
+if TYPE_CHECKING:
+    from fgloc.core.model import Result, Survey
+    from fgloc.plan.repeat import RepeatPlan
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -104,7 +109,7 @@ def run_repeat(args: argparse.Namespace) -> int:
     survey = read_survey(args.survey)
     result = read_result(args.result)
     plan = plan_repeats(survey, result, args.budget, args.objective)
-    bound, feasibility = _repeat_bound(survey, result, plan) if args.bound else (None, None)
+    bound, feasibility = _repeat_bound(survey, result, plan) if args.bound else (None, {})
     if args.json:
         doc = {"objective": plan.objective, "before": plan.before, "after": plan.after,
                "readings": [{"camera": r.camera, "node": r.node, "gain": r.gain} for r in plan.readings]}
@@ -122,7 +127,7 @@ def run_repeat(args: argparse.Namespace) -> int:
     return 0
 
 
-def _repeat_bound(survey, result, plan) -> tuple[dict | None, dict]:  # type: ignore[no-untyped-def]
+def _repeat_bound(survey: Survey, result: Result, plan: RepeatPlan) -> tuple[dict | None, dict]:
     """The relaxation bound of ``plan`` (None for ``worst``) and the feasibility certificate, as JSON."""
     from fgloc.plan.repeat import RepeatModel
     from fgloc.plan.repeat_bound import BOUND_OBJECTIVES, PairSystem, counts_of, plan_bound, repeat_feasibility

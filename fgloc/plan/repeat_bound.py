@@ -76,9 +76,9 @@ class PairSystem:
         dc = int(model.node_dims[0])
         p = len(model.pairs)
         jc = np.zeros((p, 2, dc))
-        rows = np.arange(p)[:, None]
-        for k in range(6):  # padded gauge-camera columns repeat a real index with a zero Jacobian
-            np.add.at(jc, (rows.ravel(), slice(None), model.loc[:, k]), model.jac[:, :, k])
+        rows = np.arange(p)
+        for k in range(6):  # padded gauge-camera columns repeat a real index with a zero Jacobian: add
+            jc[rows, :, model.loc[:, k]] += model.jac[:, :, k]
         node = (model.loc[:, 6] - dc) // 2
         return cls(jc, model.jac[:, :, 6:].copy(), node.astype(int), np.asarray(model.base_weights, float),
                    len(model.node_index), np.zeros((dc, dc)))
