@@ -14,9 +14,10 @@ whitened Jacobian ``J`` (2 x 8) changes it by a rank-2 update, with gains:
 * ``worst``: the drop of the trace of the currently worst node.
 
 Only pairs already read at least once (the camera can see the node) are candidates.
-The log-det bound: for weights w over pairs with ``sum w = B`` the relaxed optimum is at
-most ``f(w) + B max_p g_p - w . g`` with ``g_p = tr(J_p Sigma(w) J_p^T)`` (concavity), evaluated
-at the greedy plan itself.
+``RepeatPlan.logdet_bound`` is the concavity bound ``f(w) + B max_p g_p - w . g`` with
+``g_p = tr(J_p Sigma(w) J_p^T)`` evaluated at the greedy plan itself only (loose); the solved
+convex relaxation, for ``mean`` and ``logdet``, and the "every reading 3x" certificate are in
+:mod:`fgloc.plan.repeat_bound`.
 """
 
 from __future__ import annotations
