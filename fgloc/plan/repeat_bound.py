@@ -107,40 +107,40 @@ def evaluate(system: PairSystem, extra: FloatArray, objective: str = "mean", gra
     w = system.base + np.asarray(extra, float)
     jc, jn, node, n = system.jc, system.jn, system.node, system.n_nodes
     dc = jc.shape[2]
+    wjn = w[:, None, None] * jn
     d = np.zeros((n, 2, 2))
-    np.add.at(d, node, np.einsum("p,pai,paj->pij", w, jn, jn))
+    np.add.at(d, node, wjn.transpose(0, 2, 1) @ jn)
     b = np.zeros((n, 2, dc))
-    np.add.at(b, node, np.einsum("p,pai,paj->pij", w, jn, jc))
-    a = system.cam_prior + np.einsum("p,pai,paj->ij", w, jc, jc)
+    np.add.at(b, node, wjn.transpose(0, 2, 1) @ jc)
+    xs = (np.sqrt(w)[:, None, None] * jc).reshape(-1, dc)
+    a = system.cam_prior + xs.T @ xs
     d_inv, det = _inv2(d)
     inf = Evaluation(np.inf, np.full(n, np.inf), -np.inf, None)
     if np.any(det <= 1e-300 + 1e-14 * (d[:, 0, 0] + d[:, 1, 1]) ** 2):
         return inf
-    wm = np.einsum("nij,njk->nik", d_inv, b)  # W_n = D_n^-1 B_n
-    s = a - np.einsum("nai,naj->ij", b, wm)
+    wm = d_inv @ b  # W_n = D_n^-1 B_n  (N, 2, dc)
+    wf = wm.reshape(-1, dc)
+    s = a - b.reshape(-1, dc).T @ wf
     s = 0.5 * (s + s.T)
     try:
         chol = np.linalg.cholesky(s)
     except np.linalg.LinAlgError:
         return inf
-    eye = np.eye(dc)
-    l_inv = np.linalg.solve(chol, eye)
+    l_inv = np.linalg.solve(chol, np.eye(dc))
     s_inv = l_inv.T @ l_inv  # Sigma_cc
-    traces = d_inv[:, 0, 0] + d_inv[:, 1, 1] + np.einsum("nai,ij,naj->n", wm, s_inv, wm)
+    traces = d_inv[:, 0, 0] + d_inv[:, 1, 1] + ((wf @ s_inv) * wf).sum(axis=1).reshape(n, 2).sum(axis=1)
     logdet = float(np.sum(np.log(det)) + 2.0 * np.sum(np.log(np.diag(chol))))
     value = float(traces.sum()) if objective == "mean" else -logdet
     if not gradient:
         return Evaluation(value, traces, logdet, None)
-    wp, dp = wm[node], d_inv[node]
-    q = np.einsum("pai,pba->pib", wp, jn) - jc.transpose(0, 2, 1)  # W_j^T Jn^T - Jc^T  (P, dc, 2)
+    wp_t, dp = wm[node].transpose(0, 2, 1), d_inv[node]  # W_j^T (P, dc, 2), D_j^-1
+    q = wp_t @ jn.transpose(0, 2, 1) - jc.transpose(0, 2, 1)  # W_j^T Jn^T - Jc^T  (P, dc, 2)
+    v = s_inv @ q  # Sigma_cc q
     if objective == "logdet":
-        g = np.einsum("pib,ij,pjb->p", q, s_inv, q) + np.einsum("pba,pac,pbc->p", jn, dp, jn)
+        g = (v * q).sum(axis=(1, 2)) + ((jn @ dp) * jn).sum(axis=(1, 2))
         return Evaluation(value, traces, logdet, -g)
-    g_mat = np.einsum("nai,naj->ij", wm, wm)
-    v = np.einsum("ij,pjb->pib", s_inv, q)
-    x = np.einsum("pac,pbc->pab", dp, jn)  # D_j^-1 Jn^T
-    g = (np.einsum("pib,ij,pjb->p", v, g_mat, v) + 2.0 * np.einsum("pib,pai,pab->p", v, wp, x)
-         + np.einsum("pab,pab->p", x, x))
+    x = dp @ jn.transpose(0, 2, 1)  # D_j^-1 Jn^T
+    g = ((wf.T @ wf) @ v * v).sum(axis=(1, 2)) + 2.0 * ((wp_t @ x) * v).sum(axis=(1, 2)) + (x * x).sum(axis=(1, 2))
     return Evaluation(value, traces, logdet, -g)
 
 
@@ -325,9 +325,11 @@ def certified_budgets(system: PairSystem, target: float, max_iter: int = 500) ->
     lo = 0  # proven: every plan of lo extra readings misses the target
     hi = int(np.ceil(2.0 * total))  # 2 w0 extra = every reading 3x: reaches the target exactly
     reach = hi
+    start = system.base
     while hi - lo > 1:
         mid = (lo + hi) // 2
-        r = _decide(system, mid, target, system.base, max_iter)
+        r = _decide(system, mid, target, start, max_iter)
+        start = r.weights  # warm start the next budget (rescaled onto it)
         if r.bound > target:
             lo = mid
         else:
@@ -338,7 +340,7 @@ def certified_budgets(system: PairSystem, target: float, max_iter: int = 500) ->
         lo_r, hi_r = hi - 1, reach
         while hi_r - lo_r > 1:
             mid = (lo_r + hi_r) // 2
-            if _decide(system, mid, target, system.base, max_iter).value <= target:
+            if _decide(system, mid, target, start, max_iter).value <= target:
                 hi_r = mid
             else:
                 lo_r = mid
