@@ -256,7 +256,8 @@ class RepeatBound:
     def gain_ratio(self) -> float:
         """Gain achieved / best possible gain, ``(before - achieved) / (before - bound)``: a lower bound on the
         share of the best plan's improvement this plan reaches (1 = provably optimal)."""
-        return (self.before - self.achieved) / (self.before - self.bound)
+        best = self.before - self.bound
+        return 1.0 if best <= 0 else (self.before - self.achieved) / best
 
 
 def counts_of(model: RepeatModel, readings: list[tuple[str, str]]) -> FloatArray:
