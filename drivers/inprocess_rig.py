@@ -16,6 +16,13 @@ camera pipeline's rendering (``rendered``, :class:`RenderedFrames`: textured
 background, a few static bright lights, sensor noise) with the LED spot at the
 same apparent bearing. Heads quantize moves to 1/14.4 degree (the EVI-D100's count).
 
+Head errors (``simulation.head_errors``, :mod:`fgloc.core.head_model`): a camera with
+errors is an imperfect head. The pair's apparent bearing becomes a point at the node's
+range along it, and every frame is drawn where the imperfect head at the current
+encoder readings sees that point (:mod:`fgloc.drivers.imperfect_head`), so the head's
+encoders read the imperfect head's (pan, tilt) when the LED is centred, in the
+in-process heads and through the VISCA twins' bytes alike.
+
 Faults: each head command may raise :class:`SimulatedLinkError` (a dropped or
 a garbled reply, at the configured rates), and one camera's link goes down
 after ``disconnect_after`` commands: every call raises ``ConnectionError`` until
@@ -38,6 +45,7 @@ from fgloc.camera.led_search import PinholePixelModel
 from fgloc.core.errors import FglocError
 from fgloc.core.geometry import FloatArray, pan_tilt_bearing, project_pan_tilt
 from fgloc.core.model import CameraPose, NodeMode, Truth
+from fgloc.drivers.imperfect_head import head_view, ideal_equivalent_directions
 from fgloc.drivers.rendered_camera import LedScene, RenderedCamera, RenderSettings
 from fgloc.files.rig_config import RigConfig
 from fgloc.sim.scenes import random_base_rotation
@@ -70,10 +78,34 @@ class SimScene:
     apparent: np.ndarray  # (n_cam, N, 2) pan, tilt in radians, noise included
     dead: set[str]
     lights: FloatArray = field(default_factory=lambda: np.zeros((0, 3)))  # (K, 3) static lights (rendered frames)
+    heads: FloatArray | None = None  # (n_cam, 7) head errors (fgloc.core.head_model order); None: ideal heads
 
     def __post_init__(self) -> None:
         self.lit: set[str] = set()
         self.lock = threading.Lock()
+
+    def has_head_errors(self, index: int) -> bool:
+        return self.heads is not None and bool(np.any(self.heads[index]))
+
+    def led_directions(self, index: int, nodes: list[int], pan: float, tilt: float) -> FloatArray:
+        """Base-frame directions (K, 3) at which an ideal head at encoder readings (pan, tilt)
+        shows the LEDs of ``nodes`` as camera ``index``'s head shows them (unit length for an
+        ideal head: the pairs' apparent bearings)."""
+        bearings = pan_tilt_bearing(self.apparent[index, nodes, 0], self.apparent[index, nodes, 1]).reshape(-1, 3)
+        if not self.has_head_errors(index):
+            return bearings
+        assert self.heads is not None
+        cam = self.cameras[index]
+        ranges = np.linalg.norm(self.nodes[nodes] - cam.position, axis=-1)
+        return ideal_equivalent_directions(self.heads[index], pan, tilt, bearings * ranges[:, None])
+
+    def view_correction(self, index: int, pan: float, tilt: float) -> FloatArray | None:
+        """Camera ``index``'s real camera frame relative to the ideal head's at (pan, tilt)
+        (``M`` of :func:`fgloc.drivers.imperfect_head.head_view`), None for an ideal head."""
+        if not self.has_head_errors(index):
+            return None
+        assert self.heads is not None
+        return head_view(self.heads[index], pan, tilt)[0]
 
     @property
     def truth(self) -> Truth:
@@ -113,7 +145,11 @@ def build_scene(rig: RigConfig) -> SimScene:
         lrng = np.random.default_rng(_stable_seed(sim.seed, "static-lights"))
         lights = np.column_stack([lrng.uniform(-0.2, 1.2, size=(STATIC_LIGHTS, 2)),
                                   lrng.uniform(0.0, 0.05, size=STATIC_LIGHTS)])
-    return SimScene(list(ids), cameras, list(rig.node_ids), nodes, visible, apparent, set(sim.dead_nodes), lights)
+    heads = None
+    if sim.head_errors:
+        heads = np.array([sim.head_errors.get(c, (0.0,) * 7) for c in ids], dtype=float)
+    return SimScene(list(ids), cameras, list(rig.node_ids), nodes, visible, apparent, set(sim.dead_nodes), lights,
+                    heads)
 
 
 def render_frame(scene: SimScene, index: int, pixels: PinholePixelModel, pan: float, tilt: float) -> np.ndarray:
@@ -122,11 +158,9 @@ def render_frame(scene: SimScene, index: int, pixels: PinholePixelModel, pan: fl
     frame = np.zeros((k.height, k.width), dtype=np.uint8)
     with scene.lock:
         lit = [scene.node_ids.index(n) for n in scene.lit]
-    for j in lit:
-        if not scene.visible[index, j]:
-            continue
-        led_pan, led_tilt = scene.apparent[index, j]
-        px = pixels.bearing_to_pixel(pan, tilt, pan_tilt_bearing(led_pan, led_tilt))
+    shown = [j for j in lit if scene.visible[index, j]]
+    for direction in scene.led_directions(index, shown, pan, tilt) if shown else ():
+        px = pixels.bearing_to_pixel(pan, tilt, direction)
         if px is None:
             continue
         x, y = px
@@ -170,9 +204,10 @@ class RenderedFrames:
             lit = sorted(scene.lit)
         shown = [scene.node_ids.index(n) for n in lit]
         shown = [j for j in shown if scene.visible[self.index, j]]
-        directions = np.array([pan_tilt_bearing(*scene.apparent[self.index, j]) for j in shown]).reshape(-1, 3)
+        directions = scene.led_directions(self.index, shown, pan, tilt) if shown else np.zeros((0, 3))
         rng = np.random.default_rng(_stable_seed(self.seed, self.camera_id, repr(float(pan)), repr(float(tilt)), *lit))
-        return self.camera.render_directions(self.intrinsics, pan, tilt, rng, directions)
+        return self.camera.render_directions(self.intrinsics, pan, tilt, rng, directions,
+                                             correction=scene.view_correction(self.index, pan, tilt))
 
 
 def frame_renderer(scene: SimScene, index: int, rig: RigConfig) -> FrameRenderer:
