@@ -24,6 +24,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="false-alarm probability of the drift test per look (default 0.001)")
     p.add_argument("--with-calibration-uncertainty", action="store_true",
                    help="add the calibration's marginal uncertainty to the test (conservative; docs/survey.md)")
+    p.add_argument("--rerun", metavar="FILE.rrd",
+                   help="also write a Rerun recording of the drift check and the calibrations (docs/head-calibration.md)")
     p.add_argument("--simulate", action="store_true", help="check the rig's simulated twin")
     p.add_argument("--resume", action="store_true", help="continue the check's journal in the directory")
     p.set_defaults(run=run)
@@ -42,4 +44,10 @@ def run(args: argparse.Namespace) -> int:
                             calibration_uncertainty=args.with_calibration_uncertainty)
     print(report.summary())
     print(f"wrote {args.output}/{REPORT_NAME}")
+    if args.rerun:
+        from fgloc.survey.head_check import read_head_block
+        from fgloc.viz import write_head_check_rrd  # rerun is imported only when asked for
+
+        write_head_check_rrd(args.rerun, report.to_json(), read_head_block(args.result))
+        print(f"wrote {args.rerun} (open it with `rerun {args.rerun}`)")
     return DRIFT_EXIT if report.drifted else 0

@@ -138,31 +138,41 @@ def _block_camera(cal: HeadCalibration, estimated: tuple[str, ...]) -> dict[str,
     return {"estimated": list(estimated), "values": [float(v) for v in cal.values], "std": [float(s) for s in std]}
 
 
-def read_head_calibrations(path: str | os.PathLike[str], cameras: list[str]) -> dict[str, tuple[HeadCalibration,
-                                                                                                   tuple[str, ...]]]:
-    """Per camera of ``cameras``: the calibration of a result.json's ``head_calibration`` block
-    (values; the ``std`` as a diagonal covariance) and the names it estimated. A camera the
-    block does not list, or a result without the block, has the ideal head, known exactly."""
+def read_head_block(path: str | os.PathLike[str]) -> dict[str, Any] | None:
+    """A result.json's ``head_calibration`` block, checked (None when the result has none):
+    per camera ``values`` and ``std`` of 7 finite numbers (std >= 0) and ``estimated`` names."""
     where = str(path)
     data = load_json(path, FglocError)
     block = data.get("head_calibration") if isinstance(data, dict) else None
-    out = {c: (HeadCalibration.ideal(), ()) for c in cameras}
     if block is None:
-        return out
+        return None
     cams = block.get("cameras") if isinstance(block, dict) else None
     if not isinstance(cams, dict):
         raise FglocError(f"{where}: head_calibration.cameras: expected an object, got {show_value(cams)}")
     for cid, entry in cams.items():
-        if cid not in out:
-            continue
-        values, std = _vector(entry, "values", where, cid), _vector(entry, "std", where, cid)
+        _vector(entry, "values", where, cid)
+        std = _vector(entry, "std", where, cid)
         if np.any(std < 0):
             raise FglocError(f"{where}: head_calibration.cameras.{cid}.std: must be >= 0, got {show_value(list(std))}")
         estimated = entry.get("estimated", [])
         if not isinstance(estimated, list) or any(n not in HEAD_PARAMETERS for n in estimated):
             raise FglocError(f"{where}: head_calibration.cameras.{cid}.estimated: expected parameter names, "
                              f"got {show_value(estimated)}")
-        out[cid] = (HeadCalibration(values, np.diag(std**2)), tuple(estimated))
+    return block
+
+
+def read_head_calibrations(path: str | os.PathLike[str], cameras: list[str]) -> dict[str, tuple[HeadCalibration,
+                                                                                                   tuple[str, ...]]]:
+    """Per camera of ``cameras``: the calibration of a result.json's ``head_calibration`` block
+    (values; the ``std`` as a diagonal covariance) and the names it estimated. A camera the
+    block does not list, or a result without the block, has the ideal head, known exactly."""
+    block = read_head_block(path)
+    out = {c: (HeadCalibration.ideal(), ()) for c in cameras}
+    for cid, entry in (block or {}).get("cameras", {}).items():
+        if cid in out:
+            std = np.array(entry["std"], dtype=float)
+            out[cid] = (HeadCalibration(np.array(entry["values"], dtype=float), np.diag(std**2)),
+                        tuple(entry.get("estimated", [])))
     return out
 
 

@@ -3,6 +3,8 @@ the optimizer's error curve and the worst-nodes table."""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 import rerun.blueprint as rrb
 
@@ -12,10 +14,32 @@ from fgloc.viz.style import VizOptions
 from fgloc.viz.worst_nodes import worst_nodes
 
 
+def head_views(cameras: Sequence[str], drift: bool = False) -> list[rrb.Container]:
+    """One tab per camera: its head-error table and bar charts (fgloc.viz.head_view), and with
+    ``drift`` the running drift test (``head_check`` timeline)."""
+    tabs = []
+    for cid in cameras:
+        base = f"cameras/{cid}/head"
+        views: list[rrb.View] = [
+            rrb.TextDocumentView(origin=f"{base}/summary", name=f"{cid}: head errors ±1σ"),
+            rrb.BarChartView(origin=f"{base}/angles_deg", name=f"{cid}: index, collimation, trunnion (°)"),
+            rrb.BarChartView(origin=f"{base}/scales_percent", name=f"{cid}: pan, tilt scale (%)"),
+        ]
+        if drift:
+            views += [rrb.TimeSeriesView(origin=f"{base}/drift", name=f"{cid}: drift check per reading",
+                                         contents=["+ $origin/tilt_index_change_deg", "+ $origin/chi2",
+                                                   "+ $origin/threshold", "+ $origin/drifted"]),
+                      rrb.TextLogView(origin=f"{base}/drift/log", name=f"{cid}: drift check log"),
+                      rrb.TextDocumentView(origin=f"{base}/updated/summary", name=f"{cid}: after the check")]
+        tabs.append(rrb.Vertical(*views, name=f"{cid} head"))
+    return tabs
+
+
 def default_blueprint(result: Result | None = None, survey: Survey | None = None,
-                      options: VizOptions = VizOptions()) -> rrb.Blueprint:
+                      options: VizOptions = VizOptions(), head_cameras: Sequence[str] = ()) -> rrb.Blueprint:
     """3D scene large on the left; on the right a close-up of the worst node (true scale),
-    the optimizer error over iterations and the worst-nodes table."""
+    the optimizer error over iterations and the worst-nodes table (with ``head_cameras``, a
+    tab per camera with its head calibration next to it)."""
     overview_eye = None
     zoom_eye = None
     zoom_name = "close-up"
@@ -42,6 +66,8 @@ def default_blueprint(result: Result | None = None, survey: Survey | None = None
                 rrb.Spatial3DView(origin="world", name=zoom_name, eye_controls=zoom_eye,
                                   contents=["+ world/**", "- world/ground/**"]),
                 rrb.TimeSeriesView(origin="optimizer/log10_error", name="optimizer: log10 total error per iteration"),
+                rrb.Tabs(rrb.TextDocumentView(origin="report/worst_nodes", name="worst nodes"),
+                         *head_views(head_cameras)) if head_cameras else
                 rrb.TextDocumentView(origin="report/worst_nodes", name="worst nodes"),
                 row_shares=[2, 1, 2],
             ),
