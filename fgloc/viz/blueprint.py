@@ -15,23 +15,33 @@ from fgloc.viz.worst_nodes import worst_nodes
 
 
 def head_views(cameras: Sequence[str], drift: bool = False) -> list[rrb.Container]:
-    """One tab per camera: its head-error table and bar charts (fgloc.viz.head_view), and with
-    ``drift`` the running drift test (``head_check`` timeline)."""
-    tabs = []
+    """One tab per camera: its head-error table and bar charts (value and 1-sigma side by side,
+    fgloc.viz.head_view), and with ``drift`` the running drift test (``head_check`` timeline)."""
+    tabs: list[rrb.Container] = []
     for cid in cameras:
         base = f"cameras/{cid}/head"
-        views: list[rrb.View] = [
+
+        def bars(group: str, name: str, base: str = base) -> rrb.BarChartView:
+            return rrb.BarChartView(origin=base, name=name, contents=[f"+ $origin/{group}", f"+ $origin/{group}_sigma"])
+
+        calibration = rrb.Vertical(
             rrb.TextDocumentView(origin=f"{base}/summary", name=f"{cid}: head errors ±1σ"),
-            rrb.BarChartView(origin=f"{base}/angles_deg", name=f"{cid}: index, collimation, trunnion (°)"),
-            rrb.BarChartView(origin=f"{base}/scales_percent", name=f"{cid}: pan, tilt scale (%)"),
-        ]
-        if drift:
-            views += [rrb.TimeSeriesView(origin=f"{base}/drift", name=f"{cid}: drift check per reading",
-                                         contents=["+ $origin/tilt_index_change_deg", "+ $origin/chi2",
-                                                   "+ $origin/threshold", "+ $origin/drifted"]),
-                      rrb.TextLogView(origin=f"{base}/drift/log", name=f"{cid}: drift check log"),
-                      rrb.TextDocumentView(origin=f"{base}/updated/summary", name=f"{cid}: after the check")]
-        tabs.append(rrb.Vertical(*views, name=f"{cid} head"))
+            bars("angles_deg", f"{cid}: index, collimation, trunnion (°): estimate | 1σ"),
+            bars("scales_percent", f"{cid}: pan, tilt encoder scale (%): estimate | 1σ"),
+            row_shares=[2, 1, 1],
+        )
+        if not drift:
+            tabs.append(rrb.Vertical(calibration, name=f"{cid} head"))
+            continue
+        check = rrb.Vertical(
+            rrb.TimeSeriesView(origin=f"{base}/drift", name=f"{cid}: tilt index change ±1σ (°) per reading",
+                               contents=["+ $origin/tilt_index_change_deg", "+ $origin/tilt_index_change_sigma_deg"]),
+            rrb.TimeSeriesView(origin=f"{base}/drift", name=f"{cid}: drift test chi2, threshold, flag",
+                               contents=["+ $origin/chi2", "+ $origin/threshold", "+ $origin/drifted"]),
+            rrb.TextLogView(origin=f"{base}/drift/log", name=f"{cid}: drift check log"),
+            rrb.TextDocumentView(origin=f"{base}/updated/summary", name=f"{cid}: after the check"),
+        )
+        tabs.append(rrb.Horizontal(calibration, check, name=f"{cid} head"))
     return tabs
 
 

@@ -11,7 +11,8 @@ for the lever arm. Entity paths (``<id>`` a camera id):
 ``cameras/<id>/head/summary``               markdown table: parameter, estimate, 1-sigma,
                                             unit, estimated or pinned (static)
 ``cameras/<id>/head/angles_deg``            bar chart: tilt index, collimation, trunnion
-                                            (degrees); ``..._sigma`` their 1-sigma (static)
+                                            (degrees) at x = 0, 1, 2; ``..._sigma`` their
+                                            1-sigma beside them at x + 0.4 (static)
 ``cameras/<id>/head/scales_percent``        bar chart: pan scale, tilt scale (%), and sigma
 ``cameras/<id>/head/lever_arm_baseline``    bar chart: lever y, lever z (baseline units)
 ``cameras/<id>/head/drift/<series>``        drift check on the ``head_check`` timeline (one
@@ -49,6 +50,8 @@ DRIFT_SERIES: tuple[tuple[str, str], ...] = (
     ("chi2", "chi2"), ("threshold", "threshold"),
 )
 TIMELINE = "head_check"
+ESTIMATE_BAR = (230, 120, 40, 255)  #: bar colour of the estimates
+SIGMA_BAR = (150, 150, 150, 255)  #: bar colour of their 1-sigma
 
 
 def head_entity(camera: str) -> str:
@@ -86,9 +89,13 @@ def log_head_calibration(rec: rr.RecordingStream, block: Mapping[str, Any], titl
         rec.log(f"{base}/summary", rr.TextDocument(head_markdown(cid, camera, title), media_type=rr.MediaType.MARKDOWN),
                 static=True)
         rows = {r[0]: r for r in display_rows(camera)}
-        for group, names, _, _ in HEAD_GROUPS_DISPLAY:
-            rec.log(f"{base}/{group}", rr.BarChart(np.array([rows[n][1] for n in names])), static=True)
-            rec.log(f"{base}/{group}_sigma", rr.BarChart(np.array([rows[n][2] for n in names])), static=True)
+        for group, names, _, _ in HEAD_GROUPS_DISPLAY:  # estimate at x = k, its 1-sigma beside it at k + 0.4
+            k = np.arange(len(names), dtype=float)
+            rec.log(f"{base}/{group}", rr.BarChart(np.array([rows[n][1] for n in names]), abscissa=k,
+                                                   widths=np.full(len(names), 0.4), color=ESTIMATE_BAR), static=True)
+            rec.log(f"{base}/{group}_sigma", rr.BarChart(np.array([rows[n][2] for n in names]), abscissa=k + 0.4,
+                                                         widths=np.full(len(names), 0.4), color=SIGMA_BAR),
+                    static=True)
 
 
 def log_drift_check(rec: rr.RecordingStream, report: Mapping[str, Any]) -> None:
