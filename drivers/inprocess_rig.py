@@ -43,7 +43,8 @@ import numpy as np
 
 from fgloc.camera.led_search import PinholePixelModel
 from fgloc.core.errors import FglocError
-from fgloc.core.geometry import FloatArray, pan_tilt_bearing, project_pan_tilt
+from fgloc.core.geometry import FloatArray, pan_tilt_bearing, project_pan_tilt, wrap_angle
+from fgloc.core.head_model import head_pan_tilt
 from fgloc.core.model import CameraPose, NodeMode, Truth
 from fgloc.drivers.imperfect_head import head_view, ideal_equivalent_directions
 from fgloc.drivers.rendered_camera import LedScene, RenderedCamera, RenderSettings
@@ -83,6 +84,19 @@ class SimScene:
     def __post_init__(self) -> None:
         self.lit: set[str] = set()
         self.lock = threading.Lock()
+        #: (n_cam, N) pan the imperfect head reads for each pair (fgloc.core.head_model), NaN for ideal heads
+        self.head_pan = np.full(self.visible.shape, np.nan)
+        for i in range(len(self.cameras)):
+            if self.has_head_errors(i):
+                assert self.heads is not None
+                self.head_pan[i] = head_pan_tilt(self._apparent_points(i, list(range(len(self.node_ids)))),
+                                                 self.heads[i], jacobians=False)[0]
+
+    def _apparent_points(self, index: int, nodes: list[int]) -> FloatArray:
+        """Base-frame points at the nodes' ranges along the pairs' apparent bearings (K, 3)."""
+        bearings = pan_tilt_bearing(self.apparent[index, nodes, 0], self.apparent[index, nodes, 1]).reshape(-1, 3)
+        ranges = np.linalg.norm(self.nodes[nodes] - self.cameras[index].position, axis=-1)
+        return np.asarray(bearings * ranges[:, None], dtype=float)
 
     def has_head_errors(self, index: int) -> bool:
         return self.heads is not None and bool(np.any(self.heads[index]))
@@ -90,14 +104,25 @@ class SimScene:
     def led_directions(self, index: int, nodes: list[int], pan: float, tilt: float) -> FloatArray:
         """Base-frame directions (K, 3) at which an ideal head at encoder readings (pan, tilt)
         shows the LEDs of ``nodes`` as camera ``index``'s head shows them (unit length for an
-        ideal head: the pairs' apparent bearings)."""
-        bearings = pan_tilt_bearing(self.apparent[index, nodes, 0], self.apparent[index, nodes, 1]).reshape(-1, 3)
+        ideal head: the pairs' apparent bearings).
+
+        The pan scale error acts on the wrapped pan (fgloc.core.head_model), so the model's
+        reading jumps at the encoder's +-180 degrees; each LED is drawn as seen with the head
+        at the encoder pan equivalent to ``pan`` (mod 360 degrees) nearest the LED's model
+        reading, so a head looking across the cut reads the LED as the model does (mod 360
+        degrees) instead of 360 x pan scale degrees off."""
         if not self.has_head_errors(index):
-            return bearings
+            return pan_tilt_bearing(self.apparent[index, nodes, 0], self.apparent[index, nodes, 1]).reshape(-1, 3)
         assert self.heads is not None
-        cam = self.cameras[index]
-        ranges = np.linalg.norm(self.nodes[nodes] - cam.position, axis=-1)
-        return ideal_equivalent_directions(self.heads[index], pan, tilt, bearings * ranges[:, None])
+        if not nodes:
+            return np.zeros((0, 3))
+        points = self._apparent_points(index, nodes)
+        out = np.empty((len(nodes), 3))
+        for k, j in enumerate(nodes):
+            model_pan = float(self.head_pan[index, j])
+            branch_pan = model_pan + float(wrap_angle(pan - model_pan))  # = pan (mod 2 pi), nearest the LED's reading
+            out[k] = ideal_equivalent_directions(self.heads[index], branch_pan, tilt, points[k:k + 1])[0]
+        return out
 
     def view_correction(self, index: int, pan: float, tilt: float) -> FloatArray | None:
         """Camera ``index``'s real camera frame relative to the ideal head's at (pan, tilt)
@@ -159,7 +184,7 @@ def render_frame(scene: SimScene, index: int, pixels: PinholePixelModel, pan: fl
     with scene.lock:
         lit = [scene.node_ids.index(n) for n in scene.lit]
     shown = [j for j in lit if scene.visible[index, j]]
-    for direction in scene.led_directions(index, shown, pan, tilt) if shown else ():
+    for direction in scene.led_directions(index, shown, pan, tilt):
         px = pixels.bearing_to_pixel(pan, tilt, direction)
         if px is None:
             continue
@@ -204,7 +229,7 @@ class RenderedFrames:
             lit = sorted(scene.lit)
         shown = [scene.node_ids.index(n) for n in lit]
         shown = [j for j in shown if scene.visible[self.index, j]]
-        directions = scene.led_directions(self.index, shown, pan, tilt) if shown else np.zeros((0, 3))
+        directions = scene.led_directions(self.index, shown, pan, tilt)
         rng = np.random.default_rng(_stable_seed(self.seed, self.camera_id, repr(float(pan)), repr(float(tilt)), *lit))
         return self.camera.render_directions(self.intrinsics, pan, tilt, rng, directions,
                                              correction=scene.view_correction(self.index, pan, tilt))

@@ -171,9 +171,7 @@ def test_survey_readings_are_the_imperfect_heads(tmp_path, twin):
         i, j = rig.camera_ids.index(o.camera), rig.node_ids.index(o.node)
         pan, tilt = expected_reading(scene, i, j)
         if abs(pan) > math.radians(168.0):
-            # near the encoder's branch cut (within pan scale x 180 degree) a head with a pan scale
-            # error sees a direction at two readings and the model takes one; beyond an EVI-D70's
-            # +-170 degree range the LED is read far off the image centre (see below)
+            # beyond an EVI-D70's +-170 degree range the LED is read far off the image centre (see below)
             continue
         checked += 1
         worst = max(worst, abs(float(wrap_angle(o.pan - pan))), abs(o.tilt - tilt))

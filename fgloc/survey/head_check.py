@@ -167,7 +167,7 @@ def read_head_calibrations(path: str | os.PathLike[str], cameras: list[str]) -> 
     (values; the ``std`` as a diagonal covariance) and the names it estimated. A camera the
     block does not list, or a result without the block, has the ideal head, known exactly."""
     block = read_head_block(path)
-    out = {c: (HeadCalibration.ideal(), ()) for c in cameras}
+    out: dict[str, tuple[HeadCalibration, tuple[str, ...]]] = {c: (HeadCalibration.ideal(), ()) for c in cameras}
     for cid, entry in (block or {}).get("cameras", {}).items():
         if cid in out:
             std = np.array(entry["std"], dtype=float)
