@@ -224,3 +224,16 @@ def test_visca_twin_survey_solved_with_the_full_head_model_recovers_the_tilt_ind
     ideal_anees = _anees(read_result(tmp_path / "ideal.json"), truth)
     full_anees = _anees(read_result(tmp_path / "full.json"), truth)
     assert ideal_anees > 20 and full_anees < 1.5, (ideal_anees, full_anees)
+
+
+def test_resuming_a_simulated_survey_with_other_head_errors_is_refused(tmp_path):
+    """Head errors fix what a simulated survey's readings mean: the journal records them."""
+    from fgloc.survey.session import run_survey
+
+    rig = head_rig(tmp_path, n_nodes=4, cameras=2)
+    run_survey(rig, tmp_path / "s", simulate=True)
+    data = head_rig_data(n_nodes=4, cameras=2)
+    data["simulation"]["head_errors"]["cam0"]["tilt_index_deg"] = 0.4
+    (tmp_path / "rig.json").write_text(json.dumps(data))
+    with pytest.raises(FglocError, match="simulation.head_errors"):
+        run_survey(load_rig(tmp_path / "rig.json"), tmp_path / "s", simulate=True, resume=True)
