@@ -237,3 +237,34 @@ def test_resuming_a_simulated_survey_with_other_head_errors_is_refused(tmp_path)
     (tmp_path / "rig.json").write_text(json.dumps(data))
     with pytest.raises(FglocError, match="simulation.head_errors"):
         run_survey(load_rig(tmp_path / "rig.json"), tmp_path / "s", simulate=True, resume=True)
+
+
+def test_sony_cgi_twin_reads_an_imperfect_heads_encoders():
+    """The Sony CGI twin (HTTP) with the scene's frames: the real sony-cgi driver's read-back
+    position plus the LED's pixel offset (ideal pinhole conversion) is the imperfect head's
+    reading, not the ideal head's."""
+    from fgloc.camera.led_search import PinholePixelModel
+    from fgloc.drivers.inprocess_rig import build_scene, frame_renderer
+    from fgloc.drivers.twins.rig import TwinCamera, TwinRig
+
+    rig = parse_rig(head_rig_data(n_nodes=12, cameras=2), str(EXAMPLE), EXAMPLE.parent)
+    scene = build_scene(rig)
+    frames = frame_renderer(scene, 0, rig)
+    pixels = PinholePixelModel(rig.cameras[0].intrinsics)
+    j = next(j for j in range(12) if abs(scene.apparent[0, j, 0]) < math.radians(150))
+    model_pan, model_tilt = expected_reading(scene, 0, j)
+    scene.lit.add(rig.node_ids[j])
+    with TwinRig([TwinCamera("cam0", "http", "SNC-RZ25N", "desk")],
+                 render=lambda cid, pan, tilt, zoom: frames(pan, tilt)) as twins:
+        head = twins.open_head("cam0")
+        head.move_to(model_pan + math.radians(0.3), model_tilt - math.radians(0.2))  # LED off centre
+        pan, tilt = head.position()
+        frame = np.asarray(head.grab_frame(), dtype=float)
+    ys, xs = np.nonzero(frame > 20)
+    w = frame[ys, xs]
+    read_pan, read_tilt = pixels.pixel_to_pan_tilt(pan, tilt, float(xs @ w / w.sum()), float(ys @ w / w.sum()))
+    sigma = rig.sigma
+    # (the ideal conversion of the offset misses ~1 % of it: the head's scale error and image roll)
+    assert abs(read_pan - model_pan) < 0.1 * sigma and abs(read_tilt - model_tilt) < 0.1 * sigma
+    ideal_pan, ideal_tilt = scene.apparent[0, j]
+    assert math.hypot(read_pan - ideal_pan, read_tilt - ideal_tilt) > 5 * sigma
