@@ -16,6 +16,13 @@ camera pipeline's rendering (``rendered``, :class:`RenderedFrames`: textured
 background, a few static bright lights, sensor noise) with the LED spot at the
 same apparent bearing. Heads quantize moves to 1/14.4 degree (the EVI-D100's count).
 
+Head errors (``simulation.head_errors``, :mod:`fgloc.core.head_model`): a camera with
+errors is an imperfect head. The pair's apparent bearing becomes a point at the node's
+range along it, and every frame is drawn where the imperfect head at the current
+encoder readings sees that point (:mod:`fgloc.drivers.imperfect_head`), so the head's
+encoders read the imperfect head's (pan, tilt) when the LED is centred, in the
+in-process heads and through the VISCA twins' bytes alike.
+
 Faults: each head command may raise :class:`SimulatedLinkError` (a dropped or
 a garbled reply, at the configured rates), and one camera's link goes down
 after ``disconnect_after`` commands: every call raises ``ConnectionError`` until
@@ -36,8 +43,10 @@ import numpy as np
 
 from fgloc.camera.led_search import PinholePixelModel
 from fgloc.core.errors import FglocError
-from fgloc.core.geometry import FloatArray, pan_tilt_bearing, project_pan_tilt
+from fgloc.core.geometry import FloatArray, pan_tilt_bearing, project_pan_tilt, wrap_angle
+from fgloc.core.head_model import head_pan_tilt
 from fgloc.core.model import CameraPose, NodeMode, Truth
+from fgloc.drivers.imperfect_head import head_view, ideal_equivalent_directions
 from fgloc.drivers.rendered_camera import LedScene, RenderedCamera, RenderSettings
 from fgloc.files.rig_config import RigConfig
 from fgloc.sim.scenes import random_base_rotation
@@ -70,10 +79,58 @@ class SimScene:
     apparent: np.ndarray  # (n_cam, N, 2) pan, tilt in radians, noise included
     dead: set[str]
     lights: FloatArray = field(default_factory=lambda: np.zeros((0, 3)))  # (K, 3) static lights (rendered frames)
+    heads: FloatArray | None = None  # (n_cam, 7) head errors (fgloc.core.head_model order); None: ideal heads
 
     def __post_init__(self) -> None:
         self.lit: set[str] = set()
         self.lock = threading.Lock()
+        #: (n_cam, N) pan the imperfect head reads for each pair (fgloc.core.head_model), NaN for ideal heads
+        self.head_pan = np.full(self.visible.shape, np.nan)
+        for i in range(len(self.cameras)):
+            if self.has_head_errors(i):
+                assert self.heads is not None
+                self.head_pan[i] = head_pan_tilt(self._apparent_points(i, list(range(len(self.node_ids)))),
+                                                 self.heads[i], jacobians=False)[0]
+
+    def _apparent_points(self, index: int, nodes: list[int]) -> FloatArray:
+        """Base-frame points at the nodes' ranges along the pairs' apparent bearings (K, 3)."""
+        bearings = pan_tilt_bearing(self.apparent[index, nodes, 0], self.apparent[index, nodes, 1]).reshape(-1, 3)
+        ranges = np.linalg.norm(self.nodes[nodes] - self.cameras[index].position, axis=-1)
+        return np.asarray(bearings * ranges[:, None], dtype=float)
+
+    def has_head_errors(self, index: int) -> bool:
+        return self.heads is not None and bool(np.any(self.heads[index]))
+
+    def led_directions(self, index: int, nodes: list[int], pan: float, tilt: float) -> FloatArray:
+        """Base-frame directions (K, 3) at which an ideal head at encoder readings (pan, tilt)
+        shows the LEDs of ``nodes`` as camera ``index``'s head shows them (unit length for an
+        ideal head: the pairs' apparent bearings).
+
+        The pan scale error acts on the wrapped pan (fgloc.core.head_model), so the model's
+        reading jumps at the encoder's +-180 degrees; each LED is drawn as seen with the head
+        at the encoder pan equivalent to ``pan`` (mod 360 degrees) nearest the LED's model
+        reading, so a head looking across the cut reads the LED as the model does (mod 360
+        degrees) instead of 360 x pan scale degrees off."""
+        if not self.has_head_errors(index):
+            return pan_tilt_bearing(self.apparent[index, nodes, 0], self.apparent[index, nodes, 1]).reshape(-1, 3)
+        assert self.heads is not None
+        if not nodes:
+            return np.zeros((0, 3))
+        points = self._apparent_points(index, nodes)
+        out = np.empty((len(nodes), 3))
+        for k, j in enumerate(nodes):
+            model_pan = float(self.head_pan[index, j])
+            branch_pan = model_pan + float(wrap_angle(pan - model_pan))  # = pan (mod 2 pi), nearest the LED's reading
+            out[k] = ideal_equivalent_directions(self.heads[index], branch_pan, tilt, points[k:k + 1])[0]
+        return out
+
+    def view_correction(self, index: int, pan: float, tilt: float) -> FloatArray | None:
+        """Camera ``index``'s real camera frame relative to the ideal head's at (pan, tilt)
+        (``M`` of :func:`fgloc.drivers.imperfect_head.head_view`), None for an ideal head."""
+        if not self.has_head_errors(index):
+            return None
+        assert self.heads is not None
+        return head_view(self.heads[index], pan, tilt)[0]
 
     @property
     def truth(self) -> Truth:
@@ -113,7 +170,11 @@ def build_scene(rig: RigConfig) -> SimScene:
         lrng = np.random.default_rng(_stable_seed(sim.seed, "static-lights"))
         lights = np.column_stack([lrng.uniform(-0.2, 1.2, size=(STATIC_LIGHTS, 2)),
                                   lrng.uniform(0.0, 0.05, size=STATIC_LIGHTS)])
-    return SimScene(list(ids), cameras, list(rig.node_ids), nodes, visible, apparent, set(sim.dead_nodes), lights)
+    heads = None
+    if sim.head_errors:
+        heads = np.array([sim.head_errors.get(c, (0.0,) * 7) for c in ids], dtype=float)
+    return SimScene(list(ids), cameras, list(rig.node_ids), nodes, visible, apparent, set(sim.dead_nodes), lights,
+                    heads)
 
 
 def render_frame(scene: SimScene, index: int, pixels: PinholePixelModel, pan: float, tilt: float) -> np.ndarray:
@@ -122,11 +183,9 @@ def render_frame(scene: SimScene, index: int, pixels: PinholePixelModel, pan: fl
     frame = np.zeros((k.height, k.width), dtype=np.uint8)
     with scene.lock:
         lit = [scene.node_ids.index(n) for n in scene.lit]
-    for j in lit:
-        if not scene.visible[index, j]:
-            continue
-        led_pan, led_tilt = scene.apparent[index, j]
-        px = pixels.bearing_to_pixel(pan, tilt, pan_tilt_bearing(led_pan, led_tilt))
+    shown = [j for j in lit if scene.visible[index, j]]
+    for direction in scene.led_directions(index, shown, pan, tilt):
+        px = pixels.bearing_to_pixel(pan, tilt, direction)
         if px is None:
             continue
         x, y = px
@@ -170,9 +229,10 @@ class RenderedFrames:
             lit = sorted(scene.lit)
         shown = [scene.node_ids.index(n) for n in lit]
         shown = [j for j in shown if scene.visible[self.index, j]]
-        directions = np.array([pan_tilt_bearing(*scene.apparent[self.index, j]) for j in shown]).reshape(-1, 3)
+        directions = scene.led_directions(self.index, shown, pan, tilt)
         rng = np.random.default_rng(_stable_seed(self.seed, self.camera_id, repr(float(pan)), repr(float(tilt)), *lit))
-        return self.camera.render_directions(self.intrinsics, pan, tilt, rng, directions)
+        return self.camera.render_directions(self.intrinsics, pan, tilt, rng, directions,
+                                             correction=scene.view_correction(self.index, pan, tilt))
 
 
 def frame_renderer(scene: SimScene, index: int, rig: RigConfig) -> FrameRenderer:

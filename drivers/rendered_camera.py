@@ -15,6 +15,10 @@ The truth source for tests and ``fgloc survey --simulate``. Model:
   projection, so the centroid truth is exact.
 * Sensor noise: Gaussian, variance ``read_noise^2 + shot_gain * signal`` (DN),
   seeded; then rounding and clipping to uint8.
+* Head errors (optional, :mod:`fgloc.core.head_model`): an imperfect head at encoder
+  readings (pan, tilt) looks where :mod:`fgloc.drivers.imperfect_head` says; frames show
+  LEDs, background and static lights through the real camera frame and optical centre, so
+  the encoders read the imperfect head's angles when an LED is centred.
 
 Grayscale uint8 frames. Everything is numpy; the background of a view is
 cached, and each frame only renders small patches around spots.
@@ -31,8 +35,9 @@ import numpy as np
 
 from fgloc.camera.intrinsics import CameraIntrinsics
 from fgloc.camera.pixel_angles import base_to_pixel, in_image, optical_to_base, pixel_to_ray
-from fgloc.core.geometry import pan_tilt_bearing, world_to_base
+from fgloc.core.geometry import FloatArray, pan_tilt_bearing, world_to_base
 from fgloc.core.model import CameraPose
+from fgloc.drivers.imperfect_head import head_view, ideal_equivalent_directions
 
 _erf = np.frompyfunc(math.erf, 1, 1)
 
@@ -163,22 +168,30 @@ class RenderedCamera:
     def _pixel_rays(self, intr: CameraIntrinsics) -> np.ndarray:
         return _pixel_rays(intr)
 
-    def background(self, intr: CameraIntrinsics, pan: float, tilt: float) -> np.ndarray:
-        """Noise-free background (float32 DN, distractors included) for a view; cached."""
-        key = (intr, round(pan, 12), round(tilt, 12))
+    def background(self, intr: CameraIntrinsics, pan: float, tilt: float,
+                   correction: FloatArray | None = None) -> np.ndarray:
+        """Noise-free background (float32 DN, distractors included) for a view; cached.
+
+        ``correction`` (3x3): the real camera frame is ``correction @ optical_to_base(pan, tilt)``
+        (a head with errors, :func:`fgloc.drivers.imperfect_head.head_view`); None: the ideal head."""
+        key = (intr, round(pan, 12), round(tilt, 12), None if correction is None else np.round(correction, 15).tobytes())
         with self._lock:
             bg = self._backgrounds.get(key)
             if bg is not None:
                 self._backgrounds.move_to_end(key)
                 return bg
         s = self.settings
-        d = self._pixel_rays(intr) @ optical_to_base(pan, tilt).T.astype(np.float32)
+        view = optical_to_base(pan, tilt) if correction is None else correction @ optical_to_base(pan, tilt)
+        d = self._pixel_rays(intr) @ view.T.astype(np.float32)
         phase = d @ self._waves.T.astype(np.float32) + self._phases.astype(np.float32)
         tex = np.sin(phase).sum(axis=-1) * (s.background_contrast / 2.0)
         bg = (s.background_mean + tex).astype(np.float32)
         np.maximum(bg, s.black_level, out=bg)
         if len(self.scene.distractors):
-            uv, front = base_to_pixel(intr, self.base_directions(self.scene.distractors), pan, tilt)
+            lights = self.base_directions(self.scene.distractors)
+            if correction is not None:
+                lights = lights @ correction
+            uv, front = base_to_pixel(intr, lights, pan, tilt)
             for k in np.flatnonzero(front & in_image(intr, uv, -10.0)):
                 add_spot(bg, float(uv[k, 0]), float(uv[k, 1]), s.distractor_flux, s.distractor_sigma_px)
         with self._lock:
@@ -200,13 +213,16 @@ class RenderedCamera:
         return self.render_directions(intr, pan, tilt, rng, directions)
 
     def render_directions(
-        self, intr: CameraIntrinsics, pan: float, tilt: float, rng: np.random.Generator, directions: np.ndarray
+        self, intr: CameraIntrinsics, pan: float, tilt: float, rng: np.random.Generator, directions: np.ndarray,
+        correction: FloatArray | None = None,
     ) -> np.ndarray:
         """A noisy uint8 (H, W) frame with the head at (pan, tilt) radians through ``intr``, with a
         lit LED spot along each base-frame direction of ``directions`` (K, 3) (any length), on
-        this camera's background and static lights (``scene.distractors``)."""
+        this camera's background and static lights (``scene.distractors``). With a head's
+        ``correction`` (see :meth:`background`) ``directions`` are already those the ideal head
+        would show (:func:`fgloc.drivers.imperfect_head.ideal_equivalent_directions`)."""
         s = self.settings
-        img = self.background(intr, pan, tilt).copy()
+        img = self.background(intr, pan, tilt, correction).copy()
         if len(directions):
             uv, front = base_to_pixel(intr, np.asarray(directions, dtype=float), pan, tilt)
             for k in np.flatnonzero(front & in_image(intr, uv, -10.0)):
@@ -224,6 +240,9 @@ class SimulatedHead:
     The frame is rendered through ``intrinsics.at_zoom(zoom())``. ``pupil_shift_at_tele``
     (survey units) moves the optical centre forward along the optical axis in proportion to
     zoom, 0 at the widest zoom: the effect that makes only the widest zoom trustworthy.
+    ``head_errors`` (7,) makes it an imperfect head (:mod:`fgloc.core.head_model` order and
+    units): ``position()`` then reads the encoders of a head that looks where
+    :mod:`fgloc.drivers.imperfect_head` says.
     """
 
     def __init__(
@@ -235,8 +254,10 @@ class SimulatedHead:
         angle_step: float | None = None,
         settings: RenderSettings | None = None,
         pupil_shift_at_tele: float = 0.0,
+        head_errors: FloatArray | None = None,
     ) -> None:
         self.camera = RenderedCamera(pose, scene, settings)
+        self.head_errors = None if head_errors is None or not np.any(head_errors) else np.asarray(head_errors, float)
         self.pupil_shift_at_tele = pupil_shift_at_tele
         self.intrinsics = intrinsics
         self.angle_step = angle_step
@@ -280,12 +301,32 @@ class SimulatedHead:
             return self.intrinsics
         return self.intrinsics.at_zoom(self._zoom)
 
+    def _imperfect_directions(self, ids: list[str]) -> np.ndarray:
+        """What the ideal head shows where this imperfect head sees the LEDs ``ids``."""
+        assert self.head_errors is not None
+        if not ids:
+            return np.zeros((0, 3))
+        pts = np.array([self.scene.positions[i] for i in ids], dtype=float)
+        q = world_to_base(self.camera.pose.rotation, self.camera.pose.position, pts)
+        return ideal_equivalent_directions(self.head_errors, self._pan, self._tilt, q, self.pupil_shift())
+
     def grab_frame(self) -> np.ndarray:
-        return self.camera.render(self.current_intrinsics(), self._pan, self._tilt, self.rng, self.pupil_shift())
+        if self.head_errors is None:
+            return self.camera.render(self.current_intrinsics(), self._pan, self._tilt, self.rng, self.pupil_shift())
+        lit = [i for i in sorted(set(self.scene.lit)) if i in self.scene.positions]
+        return self.camera.render_directions(self.current_intrinsics(), self._pan, self._tilt, self.rng,
+                                             self._imperfect_directions(lit),
+                                             correction=head_view(self.head_errors, self._pan, self._tilt)[0])
 
     def visible_leds(self, margin: float = 0.0) -> dict[str, tuple[float, float]]:
         """Truth: pixel of every node LED in the current view (lit or not)."""
-        return self.camera.led_pixels(self.current_intrinsics(), self._pan, self._tilt, margin, self.pupil_shift())
+        intr = self.current_intrinsics()
+        if self.head_errors is None:
+            return self.camera.led_pixels(intr, self._pan, self._tilt, margin, self.pupil_shift())
+        ids = list(self.scene.positions)
+        uv, front = base_to_pixel(intr, self._imperfect_directions(ids), self._pan, self._tilt)
+        ok = front & in_image(intr, uv, margin)
+        return {i: (float(uv[k, 0]), float(uv[k, 1])) for k, i in enumerate(ids) if ok[k]}
 
     def pupil_shift(self) -> float:
         """Current optical-centre offset along the optical axis (survey units), 0 at the widest zoom."""
@@ -300,9 +341,11 @@ def simulated_rig(
     angle_step: float | None = None,
     settings: RenderSettings | None = None,
     distractors: np.ndarray | None = None,
+    head_errors: dict[str, FloatArray] | None = None,
 ) -> tuple[dict[str, SimulatedHead], SimulatedLedController]:
     """Heads for every camera pose (camera i seeded ``seed + i``) looking at one shared
-    :class:`LedScene` of ``nodes``, and the LED controller that switches them.
+    :class:`LedScene` of ``nodes``, and the LED controller that switches them;
+    ``head_errors`` (camera id -> (7,), :mod:`fgloc.core.head_model`) makes heads imperfect.
 
     E.g. ``simulated_rig(survey.truth.cameras, survey.truth.nodes, intrinsics)``.
     """
@@ -311,7 +354,8 @@ def simulated_rig(
         distractors=np.zeros((0, 3)) if distractors is None else np.asarray(distractors, dtype=float),
     )
     heads = {
-        cam_id: SimulatedHead(pose, scene, intrinsics, seed=seed + i, angle_step=angle_step, settings=settings)
+        cam_id: SimulatedHead(pose, scene, intrinsics, seed=seed + i, angle_step=angle_step, settings=settings,
+                              head_errors=(head_errors or {}).get(cam_id))
         for i, (cam_id, pose) in enumerate(cameras.items())
     }
     return heads, SimulatedLedController(scene)

@@ -26,6 +26,7 @@ from fgloc.cli import (  # noqa: E402
     bench,
     calibrate,
     demo,
+    head_check,
     motes,
     plan,
     ptz,
@@ -39,7 +40,8 @@ from fgloc.cli import (  # noqa: E402
 from fgloc.core.errors import FglocError  # noqa: E402
 from fgloc.core.redact import redact_urls  # noqa: E402
 
-COMMANDS: list[ModuleType] = [simulate, solve, score, demo, view, report, survey, calibrate, ptz, motes, bench, plan]
+COMMANDS: list[ModuleType] = [simulate, solve, score, demo, view, report, survey, calibrate, ptz, motes, bench, plan,
+                               head_check]
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -116,7 +116,8 @@ def run(args: argparse.Namespace) -> int:
         from fgloc.viz import camera_covariances_or_none, write_rrd
 
         write_rrd(args.rerun, result, survey, recorder=recorder, subsets=subsets,
-                  camera_covariances=camera_covariances_or_none(survey, result) if subsets is None else None)
+                  camera_covariances=camera_covariances_or_none(survey, result) if subsets is None else None,
+                  head_calibration=head_report.to_json() if head_report is not None else None)
         print(f"wrote {args.rerun} (open it with `rerun {args.rerun}`)")
     if status:
         logging.getLogger(__name__).warning(f"{args.output}: the solution is implausible (see IMPLAUSIBLE above)")

@@ -26,6 +26,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     import fgloc.viz as viz  # rerun is imported only by this command
     from fgloc.files.survey_result import check_against_survey, read_result, read_survey
+    from fgloc.survey.head_check import read_head_block
 
     result = read_result(args.result)
     survey = read_survey(args.survey) if args.survey else None
@@ -35,13 +36,15 @@ def run(args: argparse.Namespace) -> int:
         raise FglocError(f"{args.result}: no display to show the viewer on (DISPLAY is unset); "
                          "use --save FILE.rrd and open that file where there is a screen (`rerun FILE.rrd`)")
     cam_cov = viz.camera_covariances_or_none(survey, result)
+    head = read_head_block(args.result)  # the head calibration of --head-model auto|full, if any
     if args.save:
-        viz.write_rrd(args.save, result, survey, camera_covariances=cam_cov)
+        viz.write_rrd(args.save, result, survey, camera_covariances=cam_cov, head_calibration=head)
         print(f"wrote {args.save} (open it with `rerun {args.save}`)")
     if args.screenshot:
         with tempfile.TemporaryDirectory(prefix="fgloc-view-") as tmp:
             rrd = Path(args.save) if args.save else viz.write_rrd(Path(tmp) / "view.rrd", result, survey,
-                                                                        camera_covariances=cam_cov)
+                                                                        camera_covariances=cam_cov,
+                                                                        head_calibration=head)
             try:
                 report = viz.render_headless(rrd, args.screenshot, window_size=args.size)
             except (RuntimeError, TimeoutError) as exc:
@@ -53,5 +56,5 @@ def run(args: argparse.Namespace) -> int:
         return 0
     with tempfile.TemporaryDirectory(prefix="fgloc-view-") as tmp:
         path = Path(tmp) / "view.rrd"
-        viz.write_rrd(path, result, survey, camera_covariances=cam_cov)
+        viz.write_rrd(path, result, survey, camera_covariances=cam_cov, head_calibration=head)
         return viz.view_rrd(path, bind=args.bind)

@@ -10,9 +10,12 @@ from __future__ import annotations
 
 import math
 import os
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from fgloc.camera.intrinsics import CameraIntrinsics
 from fgloc.camera.led_search import SearchConfig
@@ -22,6 +25,7 @@ from fgloc.core.redact import redact_urls
 from fgloc.files.camera_file import read_intrinsics
 from fgloc.files.journal import rig_hash
 from fgloc.files.json_io import check, load_json, show_value
+from fgloc.sim.head_errors import parse_head_errors
 
 RIG_FORMAT = "fgloc-rig"
 CAMERA_DRIVERS = ("visca-serial", "visca-ip", "sony-cgi", "simulated")
@@ -31,6 +35,13 @@ MEASURE_METHODS = ("centre", "pixel-offset")
 DETECTIONS = ("single", "on-off")
 SIMULATION_TWINS = ("inprocess", "visca")
 SIMULATION_FRAMES = ("spot", "rendered")
+#: rig.json names of the head errors (``simulation.head_errors``): fgloc.core.head_model's
+#: parameters with their rig.json unit (degrees, percent, baseline units).
+HEAD_ERROR_FIELDS: dict[str, str] = {
+    "tilt_index_deg": "tilt_index", "collimation_deg": "collimation", "trunnion_deg": "trunnion",
+    "pan_scale_percent": "pan_scale", "tilt_scale_percent": "tilt_scale",
+    "lever_y_baseline": "lever_y", "lever_z_baseline": "lever_z",
+}
 
 
 class RigConfigError(FglocError):
@@ -100,6 +111,9 @@ class SimulationConfig:
     ``frames`` picks what the simulated cameras see, for either twin: ``spot`` (a clean
     Gaussian spot per lit LED on black) or ``rendered`` (the camera pipeline's renderer,
     drivers/rendered_camera.py: textured background, static bright lights, sensor noise).
+    ``head_errors`` maps a camera id to its simulated head's errors, a 7-tuple in
+    :data:`fgloc.core.head_model.HEAD_PARAMETERS` order and units (radians, unit-less
+    scales, survey units); cameras not listed have ideal heads.
     """
 
     seed: int = 0
@@ -113,6 +127,7 @@ class SimulationConfig:
     time_scale: float = 0.0
     twin: str = "inprocess"
     frames: str = "spot"
+    head_errors: dict[str, tuple[float, ...]] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -163,6 +178,28 @@ def _intrinsics(value: str | dict, name: str, path: str, base: Path) -> CameraIn
 
 _PORT_SCHEMES = {"visca-serial": ("", "a serial device path"), "visca-ip": ("udp://", "udp://HOST[:PORT]"),
                  "sony-cgi": ("http", "http://HOST")}
+
+
+def _head_errors(section: dict[str, Any], ids: list[str], seed: int, path: str) -> dict[str, tuple[float, ...]]:
+    """``simulation.head_errors`` (schema-checked): camera id -> ``"typical"`` or ``{name_unit: value}``.
+
+    Parsed by :func:`fgloc.sim.head_errors.parse_head_errors` (the parser of ``fgloc simulate
+    --head-errors``): degrees, percent, baseline units in, model units out. ``"typical"``
+    draws the typical sizes with random signs, seeded by the rig seed and the camera id.
+    """
+    out: dict[str, tuple[float, ...]] = {}
+    for cid, spec in section.items():
+        if cid not in ids:
+            raise _fail(path, f"simulation.head_errors.{cid}", f"camera {cid!r} is not in cameras")
+        text = spec if isinstance(spec, str) else ",".join(
+            f"{HEAD_ERROR_FIELDS[k]}={float(v)!r}" for k, v in spec.items())
+        rng = np.random.default_rng(zlib.crc32(f"{seed}/head-errors/{cid}".encode()))
+        try:
+            values = parse_head_errors(text, [cid], rng)[cid]
+        except FglocError as exc:  # the schema admits only what the parser accepts; kept for safety
+            raise _fail(path, f"simulation.head_errors.{cid}", str(exc)) from None
+        out[cid] = tuple(float(v) for v in values)
+    return out
 
 
 def parse_rig(data: Any, path: str = "rig.json", base: Path | None = None) -> RigConfig:
@@ -277,6 +314,7 @@ def parse_rig(data: Any, path: str = "rig.json", base: Path | None = None) -> Ri
         time_scale=float(sim.get("time_scale", 0.0)),
         twin=sim.get("twin", "inprocess"),
         frames=sim.get("frames", "spot"),
+        head_errors=_head_errors(sim.get("head_errors", {}), ids, int(sim.get("seed", 0)), path),
     )
     repeat_budget = int(top.get("repeat_budget", 0))
     if repeat_budget and top.get("nodes", "planar") != "planar":
@@ -308,7 +346,7 @@ def parse_rig(data: Any, path: str = "rig.json", base: Path | None = None) -> Ri
 # same list, and every reading already journaled stays valid.
 _MEANING_TOP = ("format", "nodes", "sigma_deg", "gauge", "repeats", "node_ids")
 _MEANING_CAMERA = ("id", "model", "mounting", "zoom")
-_SCENE = ("seed", "heights", "occlusion", "dead_nodes")
+_SCENE = ("seed", "heights", "occlusion", "dead_nodes", "head_errors")
 _INTRINSICS = ("fx", "fy", "cx", "cy", "width", "height", "k1", "k2", "p1", "p2", "k3")
 
 
@@ -318,7 +356,9 @@ def rig_meaning(rig: RigConfig, simulated: bool = False) -> dict[str, Any]:
     Cameras (ids in order; model, mounting, zoom and the intrinsics' values, wherever
     they come from), nodes (mode, ids in order, mote addresses), gauge, ``sigma_deg``,
     ``repeats`` and ``search.method``; for a ``simulated`` survey also the scene
-    (``simulation.seed``, ``heights``, ``occlusion``, ``dead_nodes``), which fixes its truth.
+    (``simulation.seed``, ``heights``, ``occlusion``, ``dead_nodes``), which fixes its truth,
+    and ``simulation.head_errors`` when the rig has any (absent otherwise, so journals of
+    rigs without it compare as before).
     A journal recorded with other values cannot be continued. Never holds credentials.
     """
     m: dict[str, Any] = {
@@ -334,6 +374,8 @@ def rig_meaning(rig: RigConfig, simulated: bool = False) -> dict[str, Any]:
         sim = rig.simulation
         m |= {"simulation.seed": sim.seed, "simulation.heights": list(sim.heights),
               "simulation.occlusion": sim.occlusion, "simulation.dead_nodes": list(sim.dead_nodes)}
+        if sim.head_errors:
+            m["simulation.head_errors"] = {c: list(v) for c, v in sim.head_errors.items()}
     return m
 
 

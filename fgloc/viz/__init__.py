@@ -29,6 +29,8 @@ z up, baseline = 1, nodes of planar surveys on z = 0). Entity paths:
 ``optimizer/error``             total graph error per iteration (``iteration`` timeline)
 ``report/worst_nodes``          markdown table of the worst nodes
 ``survey/log``                  one text line per live observation (``survey`` timeline)
+``cameras/<id>/head/...``       head calibration (each error with its 1-sigma) and the
+                                drift check (``head_check`` timeline), :mod:`~fgloc.viz.head_view`
 ==============================  ==================================================
 
 Final results are logged *static* (visible whatever the time cursor), so
@@ -67,6 +69,11 @@ from fgloc.viz.entities import (
     log_nodes,
     log_rays,
     log_result,
+)
+from fgloc.viz.head_view import (
+    log_drift_check,
+    log_head_calibration,
+    write_head_check_rrd,
 )
 from fgloc.viz.iterations import (
     IterationRecorder,
@@ -152,6 +159,8 @@ __all__ = [
     "has_display",
     "log_baseline",
     "log_cameras",
+    "log_drift_check",
+    "log_head_calibration",
     "log_error_history",
     "log_ground",
     "log_nodes",
@@ -168,5 +177,6 @@ __all__ = [
     "viewer_binary",
     "worst_nodes",
     "worst_nodes_markdown",
+    "write_head_check_rrd",
     "write_rrd",
 ]

@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 import os
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import rerun as rr
@@ -15,6 +16,7 @@ from fgloc.core.geometry import FloatArray
 from fgloc.core.model import Result, Survey
 from fgloc.viz.blueprint import default_blueprint
 from fgloc.viz.entities import log_result
+from fgloc.viz.head_view import log_head_calibration
 from fgloc.viz.iterations import IterationRecorder, log_subset_solutions
 from fgloc.viz.style import VizOptions
 
@@ -72,14 +74,20 @@ def write_rrd(
     camera_covariances: dict[str, FloatArray] | None = None,
     options: VizOptions = VizOptions(),
     recording_id: str | None = None,
+    head_calibration: Mapping[str, Any] | None = None,
 ) -> Path:
-    """Write a complete .rrd of a result (and optionally its survey, iterates and the
-    subset-Newton baseline as ``(node_ids, positions, node_index, mean)``) with the
-    default blueprint. Returns the path."""
+    """Write a complete .rrd of a result (and optionally its survey, iterates, the
+    subset-Newton baseline as ``(node_ids, positions, node_index, mean)`` and the result's
+    ``head_calibration`` block, :mod:`fgloc.viz.head_view`) with the default blueprint.
+    Returns the path."""
     path = Path(path)
-    rec = open_recording(path, recording_id=recording_id, blueprint=default_blueprint(result, survey, options))
+    heads = list(head_calibration["cameras"]) if head_calibration else []
+    rec = open_recording(path, recording_id=recording_id,
+                         blueprint=default_blueprint(result, survey, options, head_cameras=heads))
     try:
         log_result(rec, result, survey, camera_covariances=camera_covariances, options=options)
+        if head_calibration:
+            log_head_calibration(rec, head_calibration)
         if recorder is not None:
             has_history = result.stats is not None and bool(result.stats.error_history)
             recorder.log(rec, errors=not has_history)
