@@ -27,6 +27,7 @@ import gtsam
 import numpy as np
 
 from fgloc.core.errors import FglocError
+from fgloc.core.geometry import FloatArray
 from fgloc.core.model import CameraPose, NodeEstimate, NodeMode, Result, SolveStats, Survey
 from fgloc.factors.baseline_prior import BaselinePrior
 from fgloc.factors.pan_tilt_batch import PanTiltFactorSet
@@ -41,6 +42,8 @@ logger = logging.getLogger(__name__)
 
 camera_key = gtsam.symbol_shorthand.C
 node_key = gtsam.symbol_shorthand.L
+#: Key of a view's (pan, tilt) head offset, ``Vector2`` radians (index in ``Survey.view_ids``).
+view_key = gtsam.symbol_shorthand.V
 
 
 class SolveError(FglocError):
@@ -120,6 +123,8 @@ class LocalizationProblem:
     #: Index in ``survey.observations`` of each pan-tilt factor, in factor order.
     observation_index: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     unlocalized: dict[str, str] = field(default_factory=dict)
+    #: View id -> key of its ``Vector2`` head offset (readings with a view, see :func:`view_offsets`).
+    view_keys: dict[str, int] = field(default_factory=dict)
 
     def prepare(self, values: gtsam.Values) -> None:
         """Evaluate the pan-tilt factors at ``values`` in one vectorized pass.
@@ -183,6 +188,9 @@ def build_problem(
     ``exclude`` lists observation indices to leave out (flagged outliers).
     Nodes left without observations get no variable. The kernel is
     ``options.robust`` (AUTO counts as NONE here; :func:`solve_survey` resolves it).
+    Readings with a view (``Observation.view``) get the view's offset as a third key
+    and the independent part of their sigma as noise; each view offset starts at zero
+    with a zero-mean prior of ``view_sigma`` (:func:`view_offsets`).
     """
     planar = survey.mode is NodeMode.PLANAR
     graph = gtsam.NonlinearFactorGraph()
@@ -207,17 +215,27 @@ def build_problem(
     obs_node_keys = node_key_of[table.node_index]
     used = (obs_cam_keys >= 0) & (obs_node_keys >= 0) & kept
     kernel = RobustKernel.NONE if options.robust is RobustKernel.AUTO else options.robust
-    noise_cache = {float(s): _noise_model(float(s), kernel, options.robust_scale) for s in np.unique(table.sigma[used])}
+    offsets = view_offsets(survey, used)
+    sigma = offsets.reading_sigma[used]
+    noise_cache = {float(s): _noise_model(float(s), kernel, options.robust_scale) for s in np.unique(sigma)}
+    view_keys = {survey.view_ids[v]: view_key(v) for v in offsets.views}
+    obs_view_keys = np.where(table.view_index[used] >= 0, view_key(0) + table.view_index[used], -1) if len(
+        view_keys) else None
     pan_tilt = PanTiltFactorSet(
         obs_cam_keys[used],
         obs_node_keys[used],
         table.pan[used],
         table.tilt[used],
-        [noise_cache[float(s)] for s in table.sigma[used]],
+        [noise_cache[float(s)] for s in sigma],
         planar=planar,
+        view_keys=obs_view_keys,
+        view_pans=table.view_pan[used],
     )
     for f in pan_tilt.factors:
         graph.add(f)
+    for v, s_v in zip(offsets.views, offsets.prior_sigma):
+        values.insert(view_key(int(v)), np.zeros(2))
+        graph.add(gtsam.PriorFactorVector(view_key(int(v)), np.zeros(2), gtsam.noiseModel.Isotropic.Sigma(2, s_v)))
     gauge_sigma = options.gauge_sigma if options.gauge_sigma is not None else auto_gauge_sigma(survey, initial)
     gauge = BaselinePrior(survey.mode, camera_keys[survey.gauge.origin], camera_keys[survey.gauge.baseline], gauge_sigma)
     for gauge_factor in gauge.factors():
@@ -231,7 +249,40 @@ def build_problem(
         pan_tilt=pan_tilt,
         observation_index=np.flatnonzero(used),
         unlocalized=dict(initial.unlocalized),
+        view_keys=view_keys,
     )
+
+
+@dataclass(frozen=True)
+class ViewOffsets:
+    """The view-offset variables of a problem.
+
+    ``views``: indices into ``Survey.view_ids`` of the views with a used reading;
+    ``prior_sigma``: their prior standard deviation (radians, per axis; the largest
+    ``view_sigma`` among the view's readings); ``reading_sigma`` (M,): every reading's
+    noise in the problem (the independent part for readings with a view).
+    """
+
+    views: np.ndarray
+    prior_sigma: FloatArray
+    reading_sigma: FloatArray
+
+
+def view_offsets(survey: Survey, used: np.ndarray) -> ViewOffsets:
+    """The view offsets the readings ``used`` (mask over the observations) need.
+
+    Raises :class:`SolveError` when a reading's ``view_sigma`` is not below its sigma.
+    """
+    table = survey.observation_table
+    has = (table.view_index >= 0) & used
+    if np.any(table.view_sigma[has] >= table.sigma[has]):
+        k = int(np.flatnonzero(has & (table.view_sigma >= table.sigma))[0])
+        raise SolveError(f"observation {k}: view_sigma must be below the reading's sigma "
+                         f"({table.view_sigma[k]} >= {table.sigma[k]})")
+    views = np.unique(table.view_index[has])
+    prior = np.zeros(len(survey.view_ids))
+    np.maximum.at(prior, table.view_index[has], table.view_sigma[has])
+    return ViewOffsets(views, prior[views], table.reading_sigma)
 
 
 def initialize(survey: Survey) -> InitialEstimate:
@@ -398,7 +449,7 @@ def solve_survey(
     and marginals); if that meets a numerically singular system, this reference
     graph runs instead (it names the undetermined variable).
     """
-    if options.eliminate_nodes:
+    if options.eliminate_nodes and not np.any(survey.observation_table.view_index >= 0):
         from fgloc.solve.eliminated import EliminationFailed, solve_survey_eliminated
 
         try:
