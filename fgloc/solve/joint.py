@@ -449,7 +449,7 @@ def solve_survey(
     and marginals); if that meets a numerically singular system, this reference
     graph runs instead (it names the undetermined variable).
     """
-    if options.eliminate_nodes and not np.any(survey.observation_table.view_index >= 0):
+    if options.eliminate_nodes:
         from fgloc.solve.eliminated import EliminationFailed, solve_survey_eliminated
 
         try:

@@ -125,7 +125,6 @@ def coded_observations(
             hp, ht, z = view
             zi = intr.at_zoom(z)
             dec = field_intrinsics(zi) if noise.field_rows else zi
-            mag = zi.fx / intr.fx
             uv, _ = pan_tilt_to_pixel(dec, pt[j:j + 1, 0], pt[j:j + 1, 1], hp, ht)
             # the centroid error is a pixel error (the same in a zoomed view's pixels)
             sigma_px = np.array([noise.decoder_sigma_pan * intr.fx, noise.decoder_sigma_tilt * wide_fy])
