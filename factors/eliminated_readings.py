@@ -287,6 +287,36 @@ class EliminatedReadings:
         loss, _ = loss_and_weight(s2, self.kernel, self.scale)
         return np.asarray(np.bincount(self.node[rows], weights=loss, minlength=len(nodes)), dtype=float)
 
+    def _halve_batched(self, rot: FloatArray, pos: FloatArray, p: _Pass, step: FloatArray, worse: np.ndarray,
+                       slack: FloatArray) -> np.ndarray:
+        """The step-halving loop of :meth:`_solve_nodes` (scales 1/2 .. 1/2^30, the first that does not
+        raise the node's cost wins) in one evaluation of all candidates: a head model's prediction
+        costs a Newton solve per call, so 30 small calls would dominate. Scales ``step`` in place;
+        returns the nodes no scale helped."""
+        assert self.side is not None and self._state is not None
+        T = 30
+        scales = 0.5 ** np.arange(1, T + 1)
+        rows = np.flatnonzero(worse[self.node])
+        node_r = self.node[rows]
+        x = (p.nodes[node_r][None] + scales[:, None, None] * step[node_r][None]).reshape(-1, self.dim)
+        rows_t = np.tile(rows, T)
+        if self.dim == 2:
+            x = np.column_stack([x, np.zeros(len(x))])
+        cam = self.camera[rows_t]
+        q = np.einsum("mji,mj->mi", rot[cam], x - pos[cam])
+        pred_pan, pred_tilt, _, _ = self.side.predict(q, rows_t, self._state, jacobians=False)
+        e0 = wrap_angle(self.pan[rows_t] - pred_pan)
+        e1 = self.tilt[rows_t] - pred_tilt
+        loss, _ = loss_and_weight((e0 * e0 + e1 * e1) * self.inv_sigma[rows_t] ** 2, self.kernel, self.scale)
+        n = len(p.nodes)
+        group = np.repeat(np.arange(T), len(rows)) * n + np.tile(node_r, T)
+        costs = np.bincount(group, weights=loss, minlength=T * n).reshape(T, n)
+        ok = (costs <= (p.node_cost + slack)[None, :]) & worse[None, :]
+        helped = ok.any(axis=0)
+        first = np.argmax(ok, axis=0)
+        step[helped] *= scales[first[helped]][:, None]
+        return np.asarray(worse & ~helped)
+
     def _node_blocks(self, p: _Pass) -> tuple[FloatArray, FloatArray]:
         """A_j (n, d, d) and g_j (n, d) from a pass."""
         d, n = self.dim, len(p.nodes)
@@ -336,7 +366,12 @@ class EliminatedReadings:
             slack = 1e-13 * np.maximum(p.node_cost, 1.0)  # rounding of a node's cost
             trial = self._evaluate(rot, pos, p.nodes + step, p, active)
             worse = active & (trial.node_cost > p.node_cost + slack)
-            if worse.any():
+            if worse.any() and self.side is not None:
+                worse = self._halve_batched(rot, pos, p, step, worse, slack)
+                step[worse] = 0.0
+                active &= ~worse
+                trial = self._evaluate(rot, pos, p.nodes + step, p, active)
+            elif worse.any():
                 # Halve the steps of those few nodes, evaluating only their readings.
                 for _ in range(30):
                     step[worse] *= 0.5
