@@ -21,7 +21,13 @@ from fgloc.core.geometry import FloatArray
 from fgloc.core.head_model import HEAD_DIM
 from fgloc.core.model import Survey
 from fgloc.init.start import InitialEstimate
-from fgloc.solve.eliminated import HeadSpec, build_eliminated, camera_covariance, collect_eliminated, optimize_eliminated
+from fgloc.solve.eliminated import (
+    HeadSpec,
+    build_eliminated,
+    camera_covariance,
+    collect_eliminated,
+    optimize_eliminated,
+)
 from fgloc.solve.joint import RobustKernel, SolverOptions
 
 
