@@ -41,6 +41,7 @@ from fgloc.solve.joint import (
     RobustKernel,
     SolverOptions,
     SolveSteps,
+    ViewOffsets,
     auto_gauge_sigma,
     camera_key,
     node_key,
@@ -138,6 +139,9 @@ def build_eliminated(
     start = np.array([np.asarray(initial.nodes[n], dtype=float)[:dim] for n in node_ids]).reshape(-1, dim)
     kernel = _KERNELS[options.robust]
     offsets = view_offsets(survey, used)
+    if heads is not None:
+        # The reference self-calibration graph takes readings as independent (total sigma, no views).
+        offsets = ViewOffsets(np.zeros(0, dtype=np.int64), np.zeros(0), table.sigma)
     views = [int(v) for v in offsets.views]
     view_slot = np.full(len(survey.view_ids), -1, dtype=np.int64)
     view_slot[views] = np.arange(len(views))
