@@ -113,7 +113,7 @@ class EliminatedReadings:
     Args:
         camera_keys: GTSAM keys of the cameras (slot order of the reduced system).
         camera: (m,) each reading's camera slot; node: (m,) its node row (0..n-1).
-        pan, tilt, sigma: (m,) radians.
+        pan, tilt: (m,) radians; sigma: (m,) radians, or (m, 2) pan's and tilt's.
         nodes: (n, d) starting node positions (d = 2: planar, (x, y) on z = 0; d = 3).
         kernel, scale: loss on the whitened residual norm (scale in sigmas).
         side: extra camera-side variables (head vectors or view offsets,
@@ -151,7 +151,13 @@ class EliminatedReadings:
         self.node = np.asarray(node, dtype=np.int64)[order]
         self.pan = np.asarray(pan, dtype=float)[order]
         self.tilt = np.asarray(tilt, dtype=float)[order]
-        self.inv_sigma = 1.0 / np.asarray(sigma, dtype=float)[order]
+        sig = np.asarray(sigma, dtype=float)
+        # One sigma per reading, or pan's and tilt's (m, 2); inv_tilt is inv_sigma itself when isotropic.
+        self.inv_sigma = 1.0 / (sig[:, 0] if sig.ndim == 2 else sig)[order]
+        self.inv_tilt = self.inv_sigma
+        if sig.ndim == 2 and not np.array_equal(sig[:, 0], sig[:, 1]):
+            self.inv_tilt = 1.0 / sig[:, 1][order]
+        self._aniso = self.inv_tilt is not self.inv_sigma
         self.nodes = np.array(nodes, dtype=float)
         self.dim = self.nodes.shape[1]
         self.kernel, self.scale = kernel, float(scale)
@@ -195,8 +201,10 @@ class EliminatedReadings:
                 rows = None
         if rows is None:
             node, pan, tilt, inv_sigma, slices = self.node, self.pan, self.tilt, self.inv_sigma, self._slices
+            inv_tilt = self.inv_tilt
         else:
             node, pan, tilt, inv_sigma = self.node[rows], self.pan[rows], self.tilt[rows], self.inv_sigma[rows]
+            inv_tilt = self.inv_tilt[rows] if self._aniso else inv_sigma
             bounds = np.searchsorted(self.camera[rows], np.arange(len(self.camera_keys) + 1))
             slices = [slice(int(bounds[i]), int(bounds[i + 1])) for i in range(len(self.camera_keys))]
         m, d = len(pan), self.dim
@@ -222,10 +230,15 @@ class EliminatedReadings:
         else:
             e[:, 0] = wrap_angle(pan - np.arctan2(qy, qx))
             e[:, 1] = tilt - np.arctan2(qz, rxy)
-        e *= inv_sigma[:, None]
+        if self._aniso:
+            e[:, 0] *= inv_sigma
+            e[:, 1] *= inv_tilt
+        else:
+            e *= inv_sigma[:, None]
         s2 = e[:, 0] ** 2 + e[:, 1] ** 2
         loss, weight = loss_and_weight(s2, self.kernel, self.scale)
         f = inv_sigma * np.sqrt(weight) if self.kernel is not Kernel.GAUSSIAN else inv_sigma
+        ft = (inv_tilt * np.sqrt(weight) if self.kernel is not Kernel.GAUSSIAN else inv_tilt) if self._aniso else f
         if self.kernel is not Kernel.GAUSSIAN:
             e *= np.sqrt(weight)[:, None]
         # de/dq = -d(pan, tilt)/dq (geometry.pan_tilt_jacobian), whitened and weighted.
@@ -234,16 +247,17 @@ class EliminatedReadings:
         np.multiply(qy, f_rr, out=dq[:, 0, 0])
         np.multiply(qx, -f_rr, out=dq[:, 0, 1])
         dq[:, 0, 2] = 0.0
-        f_rn = f / (r * n2)
+        f_rn = ft / (r * n2)
         np.multiply(qz, f_rn, out=rxy)  # rxy no longer needed: reuse as qz f / (r n2)
         np.multiply(qx, rxy, out=dq[:, 1, 0])
         np.multiply(qy, rxy, out=dq[:, 1, 1])
-        np.multiply(r, -f / n2, out=dq[:, 1, 2])
+        np.multiply(r, -ft / n2, out=dq[:, 1, 2])
         dx = None
         if generic is not None:
             assert generic[2] is not None and generic[3] is not None
-            dq = -f[:, None, None] * generic[2]
-            dx = -f[:, None, None] * generic[3]
+            fa = np.column_stack([f, ft])[:, :, None]
+            dq = -fa * generic[2]
+            dx = -fa * generic[3]
         jn = np.empty((m, 2, d))
         for i, sl in enumerate(slices):
             # de/dx = de/dq R^T: one (2 m_i x 3) @ (3 x d) GEMM per camera, not m_i tiny ones.
@@ -283,7 +297,7 @@ class EliminatedReadings:
         else:
             e0 = wrap_angle(self.pan[rows] - np.arctan2(q[:, 1], q[:, 0]))
             e1 = self.tilt[rows] - np.arctan2(q[:, 2], np.hypot(q[:, 0], q[:, 1]))
-        s2 = (e0 * e0 + e1 * e1) * self.inv_sigma[rows] ** 2
+        s2 = (e0 * self.inv_sigma[rows]) ** 2 + (e1 * self.inv_tilt[rows]) ** 2
         loss, _ = loss_and_weight(s2, self.kernel, self.scale)
         return np.asarray(np.bincount(self.node[rows], weights=loss, minlength=len(nodes)), dtype=float)
 
@@ -307,7 +321,8 @@ class EliminatedReadings:
         pred_pan, pred_tilt, _, _ = self.side.predict(q, rows_t, self._state, jacobians=False)
         e0 = wrap_angle(self.pan[rows_t] - pred_pan)
         e1 = self.tilt[rows_t] - pred_tilt
-        loss, _ = loss_and_weight((e0 * e0 + e1 * e1) * self.inv_sigma[rows_t] ** 2, self.kernel, self.scale)
+        s2 = (e0 * self.inv_sigma[rows_t]) ** 2 + (e1 * self.inv_tilt[rows_t]) ** 2
+        loss, _ = loss_and_weight(s2, self.kernel, self.scale)
         n = len(p.nodes)
         group = np.repeat(np.arange(T), len(rows)) * n + np.tile(node_r, T)
         costs = np.bincount(group, weights=loss, minlength=T * n).reshape(T, n)

@@ -39,9 +39,9 @@ HEAD_SIGMA = math.radians(0.1)
 
 
 def _viewed(survey: Survey, views_per_camera: int, seed: int) -> Survey:
-    """``survey`` with its readings grouped into views (pan sectors per camera, overlapping by
-    reading twice where a sector boundary is near), each view's head error applied as the head
-    would (a rotation at the view's head pan); sigma = hypot(head, the reading's own)."""
+    """``survey`` with its readings grouped into views (pan sectors per camera), each view's head
+    error applied as the head would (a rotation at the view's head pan); sigma = hypot(head, the
+    reading's own), and every third reading with its own tilt sigma (``sigma_axes``, 2.5x pan's)."""
     rng = np.random.default_rng(seed)
     t = survey.observation_table
     out = []
@@ -55,8 +55,9 @@ def _viewed(survey: Survey, views_per_camera: int, seed: int) -> Survey:
         q = pan_tilt_bearing(np.array([o.pan]), np.array([o.tilt]))
         qp, _, _ = rotate_by_view(q, errors[vid][None], np.array([head_pan]))
         pan, tilt = bearing_pan_tilt(qp)
+        axes = (math.hypot(HEAD_SIGMA, t.sigma[k]), math.hypot(HEAD_SIGMA, 2.5 * t.sigma[k])) if k % 3 == 0 else None
         out.append(replace(o, pan=float(pan[0]), tilt=float(tilt[0]), sigma=math.hypot(HEAD_SIGMA, t.sigma[k]),
-                           view=vid, view_sigma=HEAD_SIGMA, view_pan=head_pan))
+                           view=vid, view_sigma=HEAD_SIGMA, view_pan=head_pan, sigma_axes=axes))
     viewed = replace(survey, observations=out)
     for cached in ("observation_table", "view_ids"):
         viewed.__dict__.pop(cached, None)
@@ -201,3 +202,25 @@ def test_reduced_gradient_with_head_vectors_is_the_derivative_of_the_eliminated_
     for key in problem.head_keys.values():
         values.update(key, rng.normal(0.0, 1.0, 7) * np.array([3e-3, 3e-3, 3e-3, 0.0, 5e-3, 1e-3, 1e-3]))
     _reduced_gradient_check(problem, values)
+
+
+@pytest.mark.parametrize("name", ["planar", "3d"])
+def test_pan_and_tilt_sigmas_same_optimum_and_marginals_without_views(name: str) -> None:
+    # readings with their own tilt sigma (Observation.sigma_axes) on the plain fast path (no camera-side extras)
+    base = _scene(name, 0.1)
+    obs = [replace(o, sigma_axes=(base.sigma, 3.0 * base.sigma)) if k % 2 else o
+           for k, o in enumerate(base.observations)]
+    survey = replace(base, observations=obs)
+    init = initialize(survey)
+    options = SolverOptions(lm=TIGHT, gauge_sigma=auto_gauge_sigma(survey, init))
+    ref = build_problem(survey, init, options)
+    ref_solution = solve_problem(ref, options)
+    fast = build_eliminated(survey, init, options)
+    assert fast.readings.side is None
+    outcome = optimize_eliminated(fast, options)
+    result = collect_eliminated(fast, outcome, options)
+    ref_cost = ref_solution.result.stats.final_error
+    assert abs(result.stats.final_error - ref_cost) <= 1e-9 * ref_cost
+    for nid, est in ref_solution.result.nodes.items():
+        np.testing.assert_allclose(result.nodes[nid].position, est.position, atol=1e-7)
+        assert _rel(result.nodes[nid].covariance, est.covariance) <= 1e-8

@@ -122,6 +122,7 @@ def _viewed_survey() -> dict:
     s = paper_scenario(PaperScenario(n_nodes=12, seed=4))
     obs = [replace(o, sigma=0.002, view=f"{o.camera}/v{k % 3}", view_sigma=0.0017, view_pan=0.1 * (k % 3))
            if k % 2 == 0 else o for k, o in enumerate(s.observations)]
+    obs[1] = replace(obs[1], sigma_axes=(0.0015, 0.0025))
     return survey_to_json(replace(s, observations=obs))
 
 
@@ -136,7 +137,10 @@ def test_survey_views_round_trip(tmp_path: Path) -> None:
     viewed = t.view_index >= 0
     assert viewed.sum() == (len(t) + 1) // 2
     assert np.allclose(t.reading_sigma[viewed], math.sqrt(0.002**2 - 0.0017**2))
-    assert np.array_equal(t.reading_sigma[~viewed], t.sigma[~viewed])
+    assert np.array_equal(t.sigma_axes[1], [0.0015, 0.0025]) and np.array_equal(t.reading_sigma[1], [0.0015, 0.0025])
+    plain = ~viewed
+    plain[1] = False  # the reading with its own pan and tilt sigma
+    assert np.array_equal(t.reading_sigma[plain], np.column_stack([t.sigma, t.sigma])[plain])
 
 
 @pytest.mark.parametrize("edit, message", [
@@ -144,6 +148,8 @@ def test_survey_views_round_trip(tmp_path: Path) -> None:
     (lambda d: d["views"]["cam0/v0"].update(camera="cam1"), "belongs to camera \"cam1\""),
     (lambda d: d["views"]["cam0/v0"].update(sigma=0.003), "views.cam0/v0.sigma: the shared head part must be below"),
     (lambda d: d["views"]["cam0/v0"].update(camera="cam9"), "views.cam0/v0.camera: unknown camera \"cam9\""),
+    (lambda d: d["observations"][0].update(sigma_axes=[0.0016, 0.003]), "sigma: the shared head part must be below"),
+    (lambda d: d["observations"][1].update(sigma_axes=[0.001]), "observations[1].sigma_axes"),
 ])
 def test_survey_view_errors_are_one_line(tmp_path: Path, edit, message: str) -> None:  # type: ignore[no-untyped-def]
     data = _viewed_survey()

@@ -63,6 +63,10 @@ class Observation:
     ``sigma``. ``view_pan`` (radians, optional) is the head pan the view was read at:
     a head tilt error turns an off-centre bearing about the tilt axis at that pan
     (:mod:`fgloc.factors.view_offset`); without it the reading's own pan is used.
+
+    ``sigma_axes`` (optional, radians) gives pan's and tilt's total standard deviations
+    where they differ (e.g. a decoder's pixel error maps to angles differently per axis);
+    ``sigma`` then stays one value for both (e.g. their RMS) for readers that know no more.
     """
 
     camera: str
@@ -74,6 +78,7 @@ class Observation:
     view: str | None = None
     view_sigma: float | None = None
     view_pan: float | None = None
+    sigma_axes: tuple[float, float] | None = None
 
 
 @dataclass(frozen=True)
@@ -91,13 +96,17 @@ class ObservationTable:
     view_sigma: FloatArray = field(default_factory=lambda: np.zeros(0))
     #: (M,) radians, the head pan of each reading's view (the reading's own pan where not given).
     view_pan: FloatArray = field(default_factory=lambda: np.zeros(0))
+    #: (M, 2) radians, pan's and tilt's total sigma (``sigma`` twice where not given).
+    sigma_axes: FloatArray = field(default_factory=lambda: np.zeros((0, 2)))
 
     @property
     def reading_sigma(self) -> FloatArray:
-        """(M,) radians: the independent part of each reading's noise, ``sqrt(sigma^2 - view_sigma^2)``."""
-        if not len(self.view_sigma):
-            return self.sigma
-        return np.sqrt(np.maximum(self.sigma**2 - self.view_sigma**2, 0.0))
+        """(M, 2) radians: the independent part of each reading's pan and tilt noise,
+        ``sqrt(sigma_axes^2 - view_sigma^2)``."""
+        axes = self.sigma_axes if len(self.sigma_axes) == len(self.sigma) else np.column_stack([self.sigma] * 2)
+        if len(self.view_sigma) != len(self.sigma):
+            return axes
+        return np.sqrt(np.maximum(axes**2 - self.view_sigma[:, None] ** 2, 0.0))
 
     def __len__(self) -> int:
         return int(self.pan.shape[0])
@@ -141,6 +150,8 @@ class Survey:
             view_sigma=np.array([0.0 if o.view is None or o.view_sigma is None else o.view_sigma for o in obs],
                                 dtype=float),
             view_pan=np.array([o.pan if o.view_pan is None else o.view_pan for o in obs], dtype=float),
+            sigma_axes=np.array([(self.sigma if o.sigma is None else o.sigma,) * 2 if o.sigma_axes is None
+                                 else o.sigma_axes for o in obs], dtype=float).reshape(-1, 2),
         )
 
     @cached_property

@@ -75,7 +75,7 @@ def _plain_observation(o: Any) -> bool:
     tilt: Any = o.get("tilt")
     return (_is_id(o.get("camera")) and _is_id(o.get("node")) and is_number(o.get("pan"))
             and is_number(tilt) and -_TILT_LIMIT <= tilt <= _TILT_LIMIT and "sigma" not in o and "subset" not in o
-            and "view" not in o)
+            and "view" not in o and "sigma_axes" not in o)
 
 
 def _plain_node(v: Any) -> bool:
@@ -190,11 +190,14 @@ def read_survey(path: str | os.PathLike[str]) -> Survey:
         if o["node"] not in known_nodes:
             raise _fail(where, f"observations[{i}].node", f"unknown node {show_value(o['node'])}")
         sigma = o.get("sigma")
-        view = _observation_view(o, i, views, float(data["sigma"]) if sigma is None else float(sigma), where)
+        axes = o.get("sigma_axes")
+        total = float(data["sigma"]) if sigma is None else float(sigma)
+        view = _observation_view(o, i, views, total if axes is None else min(total, *axes), where)
         observations.append(Observation(camera=o["camera"], node=o["node"], pan=float(o["pan"]), tilt=float(o["tilt"]),
                                         sigma=None if sigma is None else float(sigma), subset=o.get("subset"),
                                         view=o.get("view"), view_sigma=None if view is None else float(view["sigma"]),
-                                        view_pan=None if view is None or "pan" not in view else float(view["pan"])))
+                                        view_pan=None if view is None or "pan" not in view else float(view["pan"]),
+                                        sigma_axes=None if axes is None else (float(axes[0]), float(axes[1]))))
 
     truth = None
     if "truth" in data:
@@ -257,6 +260,7 @@ def survey_to_json(survey: Survey) -> dict:
             | ({} if o.sigma is None else {"sigma": o.sigma})
             | ({} if o.subset is None else {"subset": o.subset})
             | ({} if o.view is None or o.view_sigma is None else {"view": o.view})
+            | ({} if o.sigma_axes is None else {"sigma_axes": list(o.sigma_axes)})
             for o in survey.observations
         ],
     }

@@ -141,7 +141,7 @@ def build_eliminated(
     offsets = view_offsets(survey, used)
     if heads is not None:
         # The reference self-calibration graph takes readings as independent (total sigma, no views).
-        offsets = ViewOffsets(np.zeros(0, dtype=np.int64), np.zeros(0), table.sigma)
+        offsets = ViewOffsets(np.zeros(0, dtype=np.int64), np.zeros(0), np.column_stack([table.sigma] * 2))
     views = [int(v) for v in offsets.views]
     view_slot = np.full(len(survey.view_ids), -1, dtype=np.int64)
     view_slot[views] = np.arange(len(views))

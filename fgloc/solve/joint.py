@@ -168,8 +168,12 @@ def _pose3(cam: CameraPose) -> gtsam.Pose3:
     return gtsam.Pose3(gtsam.Rot3(cam.rotation), np.asarray(cam.position, dtype=float))
 
 
-def _noise_model(sigma: float, kernel: RobustKernel, scale: float) -> gtsam.noiseModel.Base:
-    base = gtsam.noiseModel.Isotropic.Sigma(2, sigma)
+def _noise_model(sigma: float | tuple[float, float], kernel: RobustKernel, scale: float) -> gtsam.noiseModel.Base:
+    """Pan-tilt noise of sigma (radians; one value, or pan's and tilt's), robust if asked."""
+    if isinstance(sigma, tuple) and sigma[0] != sigma[1]:
+        base = gtsam.noiseModel.Diagonal.Sigmas(np.array(sigma, dtype=float))
+    else:
+        base = gtsam.noiseModel.Isotropic.Sigma(2, float(sigma[0] if isinstance(sigma, tuple) else sigma))
     if kernel is RobustKernel.HUBER:
         return gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(scale), base)
     if kernel is RobustKernel.CAUCHY:
@@ -216,8 +220,8 @@ def build_problem(
     used = (obs_cam_keys >= 0) & (obs_node_keys >= 0) & kept
     kernel = RobustKernel.NONE if options.robust is RobustKernel.AUTO else options.robust
     offsets = view_offsets(survey, used)
-    sigma = offsets.reading_sigma[used]
-    noise_cache = {float(s): _noise_model(float(s), kernel, options.robust_scale) for s in np.unique(sigma)}
+    sigma = [(float(a), float(b)) for a, b in offsets.reading_sigma[used]]
+    noise_cache = {s: _noise_model(s, kernel, options.robust_scale) for s in set(sigma)}
     view_keys = {survey.view_ids[v]: view_key(v) for v in offsets.views}
     obs_view_keys = np.where(table.view_index[used] >= 0, view_key(0) + table.view_index[used], -1) if len(
         view_keys) else None
@@ -226,7 +230,7 @@ def build_problem(
         obs_node_keys[used],
         table.pan[used],
         table.tilt[used],
-        [noise_cache[float(s)] for s in sigma],
+        [noise_cache[s] for s in sigma],
         planar=planar,
         view_keys=obs_view_keys,
         view_pans=table.view_pan[used],
@@ -259,8 +263,8 @@ class ViewOffsets:
 
     ``views``: indices into ``Survey.view_ids`` of the views with a used reading;
     ``prior_sigma``: their prior standard deviation (radians, per axis; the largest
-    ``view_sigma`` among the view's readings); ``reading_sigma`` (M,): every reading's
-    noise in the problem (the independent part for readings with a view).
+    ``view_sigma`` among the view's readings); ``reading_sigma`` (M, 2): every reading's
+    pan and tilt noise in the problem (the independent part for readings with a view).
     """
 
     views: np.ndarray
@@ -275,10 +279,11 @@ def view_offsets(survey: Survey, used: np.ndarray) -> ViewOffsets:
     """
     table = survey.observation_table
     has = (table.view_index >= 0) & used
-    if np.any(table.view_sigma[has] >= table.sigma[has]):
-        k = int(np.flatnonzero(has & (table.view_sigma >= table.sigma))[0])
+    low = np.minimum(table.sigma, np.min(table.sigma_axes, axis=1))
+    if np.any(table.view_sigma[has] >= low[has]):
+        k = int(np.flatnonzero(has & (table.view_sigma >= low))[0])
         raise SolveError(f"observation {k}: view_sigma must be below the reading's sigma "
-                         f"({table.view_sigma[k]} >= {table.sigma[k]})")
+                         f"({table.view_sigma[k]} >= {low[k]})")
     views = np.unique(table.view_index[has])
     prior = np.zeros(len(survey.view_ids))
     np.maximum.at(prior, table.view_index[has], table.view_sigma[has])

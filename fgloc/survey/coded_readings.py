@@ -27,7 +27,7 @@ the decoder misses twice (``miss_rate`` per recording, one retry), are missing
 
 Each reading carries ``sigma = sqrt(head_sigma^2 + decoder^2)`` as its total noise, with
 ``decoder`` the centroid error mapped to angles at that pixel
-(:func:`decoder_angle_sigma`, RMS over pan and tilt), and names its view
+(:func:`decoder_angle_sigmas`; ``sigma`` with their RMS, ``sigma_axes`` per axis), and names its view
 (``view = "<camera>/v<k>"``, k the view's index in the camera's recording order) with
 ``view_sigma = head_sigma``, the part of ``sigma`` the view's readings share, and
 ``view_pan``, the head pan the view was read at: the solver estimates one (pan, tilt)
@@ -132,11 +132,13 @@ def coded_observations(
             assumed = replace(dec, fx=dec.fx * (1.0 + noise.fx_error), fy=dec.fy * (1.0 + noise.fx_error))
             e = head_err[view]
             p, t = pixel_to_pan_tilt(assumed, uv, hp + e[0], ht + e[1])
-            sig = math.hypot(noise.head_sigma, decoder_angle_sigma(dec, uv[0], sigma_px, hp, ht))
+            sd_pan, sd_tilt = decoder_angle_sigmas(dec, uv[0], sigma_px, hp, ht)
+            sig = math.hypot(noise.head_sigma, math.sqrt(0.5 * (sd_pan**2 + sd_tilt**2)))
+            axes = (math.hypot(noise.head_sigma, sd_pan), math.hypot(noise.head_sigma, sd_tilt))
             out.append(Observation(cid, node_ids[j], float(np.remainder(p[0] + math.pi, 2 * math.pi) - math.pi),
                                    float(t[0]), sigma=sig, view=view_name[view] if named else None,
                                    view_sigma=noise.head_sigma if named else None,
-                                   view_pan=hp if named else None))
+                                   view_pan=hp if named else None, sigma_axes=axes if noise.views else None))
         n_views[cid] = len(wide) + sum(len(rp.views) for rp in passes)
         refined[cid] = int(sum(rp.targets for rp in passes))
         unresolved[cid] = n_unres
@@ -144,22 +146,22 @@ def coded_observations(
     return CodedReadings(out, n_views, refined, unresolved, missed)
 
 
-def decoder_angle_sigma(intr: CameraIntrinsics, uv: FloatArray, sigma_px: FloatArray, head_pan: float,
-                        head_tilt: float) -> float:
-    """Isotropic angle sigma (radians) of a centroid at pixel ``uv`` with pixel sigmas ``sigma_px`` (u, v).
+def decoder_angle_sigmas(intr: CameraIntrinsics, uv: FloatArray, sigma_px: FloatArray, head_pan: float,
+                         head_tilt: float) -> tuple[float, float]:
+    """Pan and tilt sigma (radians) of a centroid at pixel ``uv`` with pixel sigmas ``sigma_px`` (u, v).
 
     The pixel error maps to (pan, tilt) through the local Jacobian of
     :func:`pixel_to_pan_tilt` (central differences, half a pixel): smaller off-centre
-    (cos^2 of the off-axis angle), larger in pan at steep tilt. A reading carries one
-    sigma for both axes, so this is the RMS over the two: sqrt((var_pan + var_tilt) / 2).
+    (cos^2 of the off-axis angle), larger in pan at steep tilt. (Their small correlation
+    is left out: a reading carries one sigma per axis.)
     """
     h = 0.5
     uv4 = np.asarray(uv, dtype=float) + np.array([[h, 0.0], [-h, 0.0], [0.0, h], [0.0, -h]])
     p, t = pixel_to_pan_tilt(intr, uv4, head_pan, head_tilt)
     dp = np.remainder(np.array([p[0] - p[1], p[2] - p[3]]) + math.pi, 2 * math.pi) - math.pi
     jac = np.array([dp, [t[0] - t[1], t[2] - t[3]]]) / (2 * h)  # rows pan, tilt; columns u, v
-    var = (jac * np.asarray(sigma_px, dtype=float)[None, :]) ** 2
-    return math.sqrt(0.5 * float(var.sum()))
+    var = ((jac * np.asarray(sigma_px, dtype=float)[None, :]) ** 2).sum(axis=1)
+    return math.sqrt(float(var[0])), math.sqrt(float(var[1]))
 
 
 def field_intrinsics(intr: CameraIntrinsics) -> CameraIntrinsics:
