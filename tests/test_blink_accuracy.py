@@ -61,7 +61,7 @@ def test_coded_accuracy_against_sequential() -> None:
 
 def test_view_offsets_make_shared_head_errors_honest() -> None:
     # 960 node-trials of chi-square(2) have mean 2; nodes of one scene share camera errors, so the
-    # band is wider than the independent 95 % bounds [1.88, 2.13]. These 16 scenes give 1.74
+    # band is wider than the independent 95 % bounds [1.88, 2.13]. These 16 scenes give 1.73
     # (scripts/blink_accuracy.py: 2.12 over 200 scenes, docs/blink-codes.md): covariances 1.5x too
     # large (1.16) or too small (2.6) fail the band. With one head error per reading the reading
     # sigmas are honest without views; with one per view, ignoring the views (readings taken as

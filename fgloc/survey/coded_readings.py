@@ -32,9 +32,10 @@ Each reading carries ``sigma = sqrt(head_sigma^2 + decoder^2)`` as its total noi
 ``view_sigma = head_sigma``, the part of ``sigma`` the view's readings share, and
 ``view_pan``, the head pan the view was read at: the solver estimates one (pan, tilt)
 head error per view (:func:`fgloc.solve.joint.view_offsets`,
-:mod:`fgloc.factors.view_offset`) and takes only the decoder part as independent. ``shared_head=False`` (one head error per
-reading, a diagnostic) and ``views=False`` (the readings as independent, as before
-view offsets existed) name no views.
+:mod:`fgloc.factors.view_offset`) and takes only the decoder part as independent.
+``shared_head=False`` (one head error per reading, a diagnostic) names no views;
+``views=False`` (the readings as independent with one sigma, as before view offsets
+existed) names no views and gives no ``sigma_axes``.
 
 Angles radians; pixels OpenCV convention.
 """
