@@ -42,6 +42,7 @@ import gtsam
 import numpy as np
 
 from fgloc.core.geometry import PAN_SINGULARITY_EPS, FloatArray, wrap_angle
+from fgloc.factors.camera_side import CameraSide, SideState
 
 
 class Kernel(str, enum.Enum):
@@ -90,6 +91,8 @@ class _Pass:
     #: Kernel curvature term of the exact Hessian per reading: d^2 loss/de^2 = w I + c e e^T
     #: (whitened e); this is c / w^2, so that the term is coef * (jn^T e)(jn^T e)^T in weighted units.
     newton_coef: FloatArray | None = None
+    #: (m, 2, w) sqrt(w) * de/d(extra camera-side variables) / sigma (see :mod:`fgloc.factors.camera_side`).
+    dx: FloatArray | None = None
 
 
 @dataclass
@@ -110,9 +113,12 @@ class EliminatedReadings:
     Args:
         camera_keys: GTSAM keys of the cameras (slot order of the reduced system).
         camera: (m,) each reading's camera slot; node: (m,) its node row (0..n-1).
-        pan, tilt, sigma: (m,) radians.
+        pan, tilt: (m,) radians; sigma: (m,) radians, or (m, 2) pan's and tilt's.
         nodes: (n, d) starting node positions (d = 2: planar, (x, y) on z = 0; d = 3).
         kernel, scale: loss on the whitened residual norm (scale in sigmas).
+        side: extra camera-side variables (head vectors or view offsets,
+            :class:`~fgloc.factors.camera_side.CameraSide`, readings in the order given
+            here); the reduced system then has ``6k + side.size`` unknowns, poses first.
     """
 
     #: Node Gauss-Newton stops when every node's predicted decrease is below this
@@ -131,15 +137,27 @@ class EliminatedReadings:
         nodes: FloatArray,
         kernel: Kernel = Kernel.GAUSSIAN,
         scale: float = 3.0,
+        side: CameraSide | None = None,
     ) -> None:
         self.camera_keys = [int(k) for k in camera_keys]
         order = np.argsort(camera, kind="stable")  # readings grouped by camera: one GEMM per camera
         self.order = order
+        self.side = side if side is not None and side.size > 0 else None
+        if self.side is not None:
+            self.side.reorder(order)
+        self._state: SideState | None = None
+        self._lin_state: SideState | None = None
         self.camera = np.asarray(camera, dtype=np.int64)[order]
         self.node = np.asarray(node, dtype=np.int64)[order]
         self.pan = np.asarray(pan, dtype=float)[order]
         self.tilt = np.asarray(tilt, dtype=float)[order]
-        self.inv_sigma = 1.0 / np.asarray(sigma, dtype=float)[order]
+        sig = np.asarray(sigma, dtype=float)
+        # One sigma per reading, or pan's and tilt's (m, 2); inv_tilt is inv_sigma itself when isotropic.
+        self.inv_sigma = 1.0 / (sig[:, 0] if sig.ndim == 2 else sig)[order]
+        self.inv_tilt = self.inv_sigma
+        if sig.ndim == 2 and not np.array_equal(sig[:, 0], sig[:, 1]):
+            self.inv_tilt = 1.0 / sig[:, 1][order]
+        self._aniso = self.inv_tilt is not self.inv_sigma
         self.nodes = np.array(nodes, dtype=float)
         self.dim = self.nodes.shape[1]
         self.kernel, self.scale = kernel, float(scale)
@@ -151,6 +169,7 @@ class EliminatedReadings:
         # No repeated readings of a (node, camera) pair (a bincount: np.unique's hashing is slow).
         self._unique_pairs = bool(len(pair) == 0 or np.bincount(pair, minlength=n_nodes * k).max() <= 1)
         self._b_index: np.ndarray | None = None
+        self._cols: np.ndarray | None = None
         self._cache_key: bytes | None = None
         self._pass: _Pass | None = None
         self._system: ReducedSystem | None = None
@@ -182,8 +201,10 @@ class EliminatedReadings:
                 rows = None
         if rows is None:
             node, pan, tilt, inv_sigma, slices = self.node, self.pan, self.tilt, self.inv_sigma, self._slices
+            inv_tilt = self.inv_tilt
         else:
             node, pan, tilt, inv_sigma = self.node[rows], self.pan[rows], self.tilt[rows], self.inv_sigma[rows]
+            inv_tilt = self.inv_tilt[rows] if self._aniso else inv_sigma
             bounds = np.searchsorted(self.camera[rows], np.arange(len(self.camera_keys) + 1))
             slices = [slice(int(bounds[i]), int(bounds[i + 1])) for i in range(len(self.camera_keys))]
         m, d = len(pan), self.dim
@@ -201,12 +222,23 @@ class EliminatedReadings:
         rr = r * r
         n2 = np.maximum(n2, rr)
         e = np.empty((m, 2))
-        e[:, 0] = wrap_angle(pan - np.arctan2(qy, qx))
-        e[:, 1] = tilt - np.arctan2(qz, rxy)
-        e *= inv_sigma[:, None]
+        generic = None
+        if self.side is not None and self._state is not None:
+            generic = self.side.predict(qt.T, rows, self._state)
+            e[:, 0] = wrap_angle(pan - generic[0])
+            e[:, 1] = tilt - generic[1]
+        else:
+            e[:, 0] = wrap_angle(pan - np.arctan2(qy, qx))
+            e[:, 1] = tilt - np.arctan2(qz, rxy)
+        if self._aniso:
+            e[:, 0] *= inv_sigma
+            e[:, 1] *= inv_tilt
+        else:
+            e *= inv_sigma[:, None]
         s2 = e[:, 0] ** 2 + e[:, 1] ** 2
         loss, weight = loss_and_weight(s2, self.kernel, self.scale)
         f = inv_sigma * np.sqrt(weight) if self.kernel is not Kernel.GAUSSIAN else inv_sigma
+        ft = (inv_tilt * np.sqrt(weight) if self.kernel is not Kernel.GAUSSIAN else inv_tilt) if self._aniso else f
         if self.kernel is not Kernel.GAUSSIAN:
             e *= np.sqrt(weight)[:, None]
         # de/dq = -d(pan, tilt)/dq (geometry.pan_tilt_jacobian), whitened and weighted.
@@ -215,11 +247,17 @@ class EliminatedReadings:
         np.multiply(qy, f_rr, out=dq[:, 0, 0])
         np.multiply(qx, -f_rr, out=dq[:, 0, 1])
         dq[:, 0, 2] = 0.0
-        f_rn = f / (r * n2)
+        f_rn = ft / (r * n2)
         np.multiply(qz, f_rn, out=rxy)  # rxy no longer needed: reuse as qz f / (r n2)
         np.multiply(qx, rxy, out=dq[:, 1, 0])
         np.multiply(qy, rxy, out=dq[:, 1, 1])
-        np.multiply(r, -f / n2, out=dq[:, 1, 2])
+        np.multiply(r, -ft / n2, out=dq[:, 1, 2])
+        dx = None
+        if generic is not None:
+            assert generic[2] is not None and generic[3] is not None
+            fa = np.column_stack([f, ft])[:, :, None]
+            dq = -fa * generic[2]
+            dx = -fa * generic[3]
         jn = np.empty((m, 2, d))
         for i, sl in enumerate(slices):
             # de/dx = de/dq R^T: one (2 m_i x 3) @ (3 x d) GEMM per camera, not m_i tiny ones.
@@ -233,10 +271,13 @@ class EliminatedReadings:
             sn = np.sqrt(s2)
             coef = np.where(sn > self.scale, -1.0 / (self.scale * np.maximum(sn, 1e-300)), 0.0)
         if rows is None or base is None or moved is None:
-            return _Pass(nodes, e, jn, dq, q, loss, node_cost, coef)
+            return _Pass(nodes, e, jn, dq, q, loss, node_cost, coef, dx)
         out = _Pass(nodes, base.e.copy(), base.jn.copy(), base.dq.copy(), np.array(base.q), base.loss.copy(),
-                    base.node_cost.copy(), None if base.newton_coef is None else base.newton_coef.copy())
+                    base.node_cost.copy(), None if base.newton_coef is None else base.newton_coef.copy(),
+                    None if base.dx is None else base.dx.copy())
         out.e[rows], out.jn[rows], out.dq[rows], out.q[rows], out.loss[rows] = e, jn, dq, q, loss
+        if out.dx is not None and dx is not None:
+            out.dx[rows] = dx
         out.node_cost[moved] = node_cost[moved]  # every reading of a moved node is in rows
         if out.newton_coef is not None and coef is not None:
             out.newton_coef[rows] = coef
@@ -249,11 +290,47 @@ class EliminatedReadings:
             x = np.column_stack([x, np.zeros(len(rows))])
         cam = self.camera[rows]
         q = np.einsum("mji,mj->mi", rot[cam], x - pos[cam])
-        e0 = wrap_angle(self.pan[rows] - np.arctan2(q[:, 1], q[:, 0]))
-        e1 = self.tilt[rows] - np.arctan2(q[:, 2], np.hypot(q[:, 0], q[:, 1]))
-        s2 = (e0 * e0 + e1 * e1) * self.inv_sigma[rows] ** 2
+        if self.side is not None and self._state is not None:
+            pred_pan, pred_tilt, _, _ = self.side.predict(q, rows, self._state, jacobians=False)
+            e0 = wrap_angle(self.pan[rows] - pred_pan)
+            e1 = self.tilt[rows] - pred_tilt
+        else:
+            e0 = wrap_angle(self.pan[rows] - np.arctan2(q[:, 1], q[:, 0]))
+            e1 = self.tilt[rows] - np.arctan2(q[:, 2], np.hypot(q[:, 0], q[:, 1]))
+        s2 = (e0 * self.inv_sigma[rows]) ** 2 + (e1 * self.inv_tilt[rows]) ** 2
         loss, _ = loss_and_weight(s2, self.kernel, self.scale)
         return np.asarray(np.bincount(self.node[rows], weights=loss, minlength=len(nodes)), dtype=float)
+
+    def _halve_batched(self, rot: FloatArray, pos: FloatArray, p: _Pass, step: FloatArray, worse: np.ndarray,
+                       slack: FloatArray) -> np.ndarray:
+        """The step-halving loop of :meth:`_solve_nodes` (scales 1/2 .. 1/2^30, the first that does not
+        raise the node's cost wins) in one evaluation of all candidates: a head model's prediction
+        costs a Newton solve per call, so 30 small calls would dominate. Scales ``step`` in place;
+        returns the nodes no scale helped."""
+        assert self.side is not None and self._state is not None
+        T = 30
+        scales = 0.5 ** np.arange(1, T + 1)
+        rows = np.flatnonzero(worse[self.node])
+        node_r = self.node[rows]
+        x = (p.nodes[node_r][None] + scales[:, None, None] * step[node_r][None]).reshape(-1, self.dim)
+        rows_t = np.tile(rows, T)
+        if self.dim == 2:
+            x = np.column_stack([x, np.zeros(len(x))])
+        cam = self.camera[rows_t]
+        q = np.einsum("mji,mj->mi", rot[cam], x - pos[cam])
+        pred_pan, pred_tilt, _, _ = self.side.predict(q, rows_t, self._state, jacobians=False)
+        e0 = wrap_angle(self.pan[rows_t] - pred_pan)
+        e1 = self.tilt[rows_t] - pred_tilt
+        s2 = (e0 * self.inv_sigma[rows_t]) ** 2 + (e1 * self.inv_tilt[rows_t]) ** 2
+        loss, _ = loss_and_weight(s2, self.kernel, self.scale)
+        n = len(p.nodes)
+        group = np.repeat(np.arange(T), len(rows)) * n + np.tile(node_r, T)
+        costs = np.bincount(group, weights=loss, minlength=T * n).reshape(T, n)
+        ok = (costs <= (p.node_cost + slack)[None, :]) & worse[None, :]
+        helped = ok.any(axis=0)
+        first = np.argmax(ok, axis=0)
+        step[helped] *= scales[first[helped]][:, None]
+        return np.asarray(worse & ~helped)
 
     def _node_blocks(self, p: _Pass) -> tuple[FloatArray, FloatArray]:
         """A_j (n, d, d) and g_j (n, d) from a pass."""
@@ -304,7 +381,12 @@ class EliminatedReadings:
             slack = 1e-13 * np.maximum(p.node_cost, 1.0)  # rounding of a node's cost
             trial = self._evaluate(rot, pos, p.nodes + step, p, active)
             worse = active & (trial.node_cost > p.node_cost + slack)
-            if worse.any():
+            if worse.any() and self.side is not None:
+                worse = self._halve_batched(rot, pos, p, step, worse, slack)
+                step[worse] = 0.0
+                active &= ~worse
+                trial = self._evaluate(rot, pos, p.nodes + step, p, active)
+            elif worse.any():
                 # Halve the steps of those few nodes, evaluating only their readings.
                 for _ in range(30):
                     step[worse] *= 0.5
@@ -327,13 +409,17 @@ class EliminatedReadings:
     def at(self, values: gtsam.Values) -> _Pass:
         """The readings with every node at its optimum for the cameras in ``values`` (cached)."""
         poses, rot, pos = self._poses(values, self.camera_keys)
-        key = rot.tobytes() + pos.tobytes()
+        state = self.side.state(values) if self.side is not None else None
+        key = rot.tobytes() + pos.tobytes() + (b"" if state is None else state.vector.tobytes())
         if key == self._cache_key and self._pass is not None:
             return self._pass
+        self._state = state
         start = self.nodes
         if self._lin_cameras is not None and self._lin_gain is not None and self._lin_nodes is not None:
             # First-order prediction of the node optima: dx_j = -A_j^-1 B_j dc.
             dc = np.concatenate([p0.localCoordinates(p1) for p0, p1 in zip(self._lin_cameras, poses)])
+            if state is not None and self._lin_state is not None:
+                dc = np.concatenate([dc, state.vector - self._lin_state.vector])
             start = self._lin_nodes - self._lin_gain @ dc
         self._pass = self._solve_nodes(rot, pos, start)
         self._system = None
@@ -360,6 +446,8 @@ class EliminatedReadings:
             jc[:, :, a] -= dq[:, :, c] * q[:, None, b]
         jc[:, :, 3:6] = -dq
         A, g = self._node_blocks(p)
+        if self.side is not None:
+            return self._reduced_general(p, poses, jc, A, g)
         # Node-camera coupling B_j = sum over the pair's readings of jn^T jc, stored (n, d, k, 6).
         prod = np.matmul(p.jn.transpose(0, 2, 1), jc)  # (m, d, 6) jn^T jc per reading
         if self._b_index is None:  # flat index of each product entry in B (n, d, k, 6), once per problem
@@ -387,11 +475,62 @@ class EliminatedReadings:
         self._lin_cameras, self._lin_nodes, self._lin_gain = poses, p.nodes.copy(), gain
         return self._system
 
+    def _reduced_general(self, p: _Pass, poses: list[gtsam.Pose3], jc: FloatArray, A: FloatArray,
+                         g: FloatArray) -> ReducedSystem:
+        """:meth:`reduced` with extra camera-side columns: every reading's Jacobian row block
+        ``[jc | dx]`` scattered into the ``6k + size`` columns (one padding column, dropped)."""
+        assert self.side is not None and p.dx is not None
+        k, d, n = len(self.camera_keys), self.dim, len(p.nodes)
+        P = 6 * k + self.side.size
+        if self._cols is None:
+            pose_cols = 6 * self.camera[:, None] + np.arange(6)[None, :]
+            self._cols = np.concatenate([pose_cols, self.side.columns()], axis=1)
+        cols = self._cols
+        w = cols.shape[1]
+        J = np.concatenate([jc, p.dx], axis=2)  # (m, 2, w)
+        H = np.bincount((cols[:, :, None] * (P + 1) + cols[:, None, :]).ravel(),
+                        weights=np.einsum("mka,mkb->mab", J, J).ravel(), minlength=(P + 1) ** 2)
+        H = H.reshape(P + 1, P + 1)[:P, :P]
+        gc = np.bincount(cols.ravel(), weights=np.einsum("mka,mk->ma", J, p.e).ravel(), minlength=P + 1)[:P]
+        prod = np.matmul(p.jn.transpose(0, 2, 1), J)  # (m, d, w)
+        index = ((self.node[:, None, None] * d + np.arange(d)[None, :, None]) * (P + 1) + cols[:, None, :]).ravel()
+        B = np.bincount(index, weights=prod.ravel(), minlength=n * d * (P + 1)).reshape(n, d, P + 1)[:, :, :P]
+        del w
+        A_inv = _inv_small(A)
+        gain = A_inv @ B  # (n, d, P)
+        flat_b = B.reshape(n * d, P)
+        S = H - flat_b.T @ gain.reshape(n * d, P)
+        S = 0.5 * (S + S.T)
+        grad = gc - flat_b.T @ np.einsum("nij,nj->ni", A_inv, g).reshape(-1)
+        # A variable whose readings' information the nodes absorb entirely (e.g. a view whose only
+        # readings are of nodes read once, planar) has Schur curvature zero up to rounding of the
+        # cancelled terms; that rounding, Jacobi-scaled, would swamp factor_rows: exact zero.
+        absorbed = np.diagonal(S) <= 1e-10 * np.maximum(np.diagonal(H), 1e-300)
+        if absorbed.any():
+            S[absorbed, :] = 0.0
+            S[:, absorbed] = 0.0
+            grad[absorbed] = 0.0
+        self._system = ReducedSystem(float(np.sum(p.loss)), grad, S, A, gain, g)
+        self._lin_cameras, self._lin_nodes, self._lin_gain = poses, p.nodes.copy(), gain
+        self._lin_state = self._state
+        return self._system
+
+    @property
+    def keys(self) -> list[int]:
+        """Keys of the reduced system's unknowns: the cameras, then the extra camera-side variables."""
+        return self.camera_keys + ([] if self.side is None else self.side.keys)
+
+    @property
+    def dims(self) -> list[int]:
+        return [6] * len(self.camera_keys) + ([] if self.side is None else self.side.dims)
+
     # -- the GTSAM factor ---------------------------------------------------------
     def factor(self) -> gtsam.CustomFactor:
         """A ``CustomFactor`` on :attr:`camera_keys` (6k + 1 rows, unit noise): see module docstring."""
-        k = len(self.camera_keys)
-        rows = 6 * k + 1
+        dims = self.dims
+        P = sum(dims)
+        rows = P + 1
+        offsets = np.concatenate([[0], np.cumsum(dims)]).astype(int)
         cache = self
 
         def error(this: gtsam.CustomFactor, values: gtsam.Values, H: list[np.ndarray] | None) -> np.ndarray:
@@ -404,12 +543,12 @@ class EliminatedReadings:
             out = np.zeros(rows)
             out[:-1] = e_red
             out[-1] = np.sqrt(max(2.0 * system.cost - float(e_red @ e_red), 0.0))
-            jac = np.vstack([root, np.zeros((1, 6 * k))])
-            for i in range(k):
-                H[i] = np.ascontiguousarray(jac[:, 6 * i : 6 * i + 6])
+            jac = np.vstack([root, np.zeros((1, P))])
+            for i in range(len(dims)):
+                H[i] = np.ascontiguousarray(jac[:, offsets[i] : offsets[i + 1]])
             return out
 
-        return gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(rows), self.camera_keys, error)
+        return gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(rows), self.keys, error)
 
     # -- back-substitution --------------------------------------------------------
     def node_covariances(self, camera_covariance: FloatArray, values: gtsam.Values) -> FloatArray:

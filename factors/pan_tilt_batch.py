@@ -12,6 +12,12 @@ so the callback recognizes a prepared linearization point by identity.
 A callback that sees any other ``Values`` (for example inside GTSAM's own C++
 optimizer, which passes copies) falls back to the per-reading reference
 computation: slower, same numbers.
+
+View offsets (optional ``view_keys``): a reading taken in a view whose head reading
+is shared by several readings gets a third key, the view's ``Vector2`` head error
+``v = (pan, tilt)`` in radians, which turns the predicted bearing as the head would
+(:mod:`fgloc.factors.view_offset`; at the view centre it adds ``v`` to the predicted
+angles).
 """
 
 from __future__ import annotations
@@ -21,6 +27,7 @@ import numpy as np
 
 from fgloc.core.geometry import FloatArray, bearing_pan_tilt, pan_tilt_jacobian, pan_tilt_residual, skew
 from fgloc.factors.pan_tilt_factor import pan_tilt_error
+from fgloc.factors.view_offset import view_pan_tilt_error
 
 
 def batch_pan_tilt_error(
@@ -61,6 +68,9 @@ class PanTiltFactorSet:
             (``Pose3``) and node (``Point2`` on z = 0 if ``planar``, else ``Point3``).
         pan, tilt: (M,) measured angles in radians.
         noise_models: (M,) 2-D noise models (sigma in radians; may be robust).
+        view_keys: (M,) key of each reading's view offset (``Vector2``), -1 for none;
+            None: no reading has a view.
+        view_pans: (M,) head pan (radians) of each reading's view (used where it has one).
     """
 
     def __init__(
@@ -71,8 +81,15 @@ class PanTiltFactorSet:
         tilt: FloatArray,
         noise_models: list[gtsam.noiseModel.Base],
         planar: bool,
+        view_keys: np.ndarray | None = None,
+        view_pans: FloatArray | None = None,
     ) -> None:
         self.camera_keys = np.asarray(camera_keys, dtype=np.int64)
+        self.view_keys = (np.full(len(self.camera_keys), -1, dtype=np.int64) if view_keys is None
+                          else np.asarray(view_keys, dtype=np.int64))
+        self.view_pans = np.asarray(pan if view_pans is None else view_pans, dtype=float)
+        self._unique_views, self._view_index = np.unique(self.view_keys, return_inverse=True)
+        self._h_view = np.empty((0, 2, 2))
         self.node_keys = np.asarray(node_keys, dtype=np.int64)
         self.pan = np.asarray(pan, dtype=float)
         self.tilt = np.asarray(tilt, dtype=float)
@@ -92,12 +109,16 @@ class PanTiltFactorSet:
     def _make_factor(self, i: int, noise: gtsam.noiseModel.Base) -> gtsam.CustomFactor:
         cache = self
         pan, tilt, planar = float(self.pan[i]), float(self.tilt[i]), self.planar
+        view = int(self.view_keys[i])
+        view_pan = float(self.view_pans[i])
 
         def error(this: gtsam.CustomFactor, values: gtsam.Values, H: list[np.ndarray] | None) -> np.ndarray:
             if values is cache._values:
                 if H is not None:
                     H[0] = cache._h_pose[i]
                     H[1] = cache._h_point[i]
+                    if view >= 0:
+                        H[2] = cache._h_view[i]
                 return cache._errors[i]
             keys = this.keys()
             m = values.atPose3(keys[0]).matrix()
@@ -106,13 +127,22 @@ class PanTiltFactorSet:
                 point = np.array([xy[0], xy[1], 0.0])
             else:
                 point = np.asarray(values.atPoint3(keys[1]), dtype=float)
-            e, h_pose, h_point = pan_tilt_error(m[:3, :3], m[:3, 3], point, pan, tilt)
+            if view >= 0:
+                ev, hp, hx, hv = view_pan_tilt_error(m[None, :3, :3], m[None, :3, 3], point[None], np.array([pan]),
+                                                     np.array([tilt]), np.asarray(values.atVector(view))[None],
+                                                     np.array([view_pan]))
+                e, h_pose, h_point = ev[0], hp[0], hx[0]
+            else:
+                e, h_pose, h_point = pan_tilt_error(m[:3, :3], m[:3, 3], point, pan, tilt)
             if H is not None:
                 H[0] = h_pose
                 H[1] = np.ascontiguousarray(h_point[:, :2]) if planar else h_point
+                if view >= 0:
+                    H[2] = hv[0]
             return e
 
-        return gtsam.CustomFactor(noise, [int(self.camera_keys[i]), int(self.node_keys[i])], error)
+        keys = [int(self.camera_keys[i]), int(self.node_keys[i])] + ([view] if view >= 0 else [])
+        return gtsam.CustomFactor(noise, keys, error)
 
     def error(self, values: gtsam.Values) -> float | None:
         """Sum of the factors' errors (GTSAM's 0.5 * squared whitened norm) in one pass.
@@ -148,6 +178,16 @@ class PanTiltFactorSet:
         e, h_pose, h_point = batch_pan_tilt_error(
             rot[self._cam_index], pos[self._cam_index], points[self._node_index], self.pan, self.tilt
         )
+        if self._unique_views[-1] >= 0:
+            offsets = np.array([np.zeros(2) if k < 0 else np.asarray(values.atVector(int(k)), dtype=float)
+                                for k in self._unique_views])
+            rows = np.flatnonzero(self.view_keys >= 0)
+            ci = self._cam_index[rows]
+            ev, hp, hx, hv = view_pan_tilt_error(rot[ci], pos[ci], points[self._node_index[rows]], self.pan[rows],
+                                                 self.tilt[rows], offsets[self._view_index[rows]], self.view_pans[rows])
+            e[rows], h_pose[rows], h_point[rows] = ev, hp, hx
+            self._h_view = np.zeros((len(self.pan), 2, 2))
+            self._h_view[rows] = hv
         self._errors = e
         self._h_pose = h_pose
         self._h_point = np.ascontiguousarray(h_point[:, :, :2]) if self.planar else h_point

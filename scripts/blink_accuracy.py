@@ -5,8 +5,9 @@ uniform in the unit square, head sigma 0.1 deg). The sequential readings are the
 simulator's (one independent head error per reading); the coded readings come from
 :func:`fgloc.survey.coded_readings.coded_observations` (one head error per view shared by
 its motes, the decoder's centroid error measured by scripts/blink_montecarlo.py,
-refinement at the lowest separating zoom, misses and unresolved motes left out). Both
-are solved by ``fgloc.solve_survey``; RMS and ANEES are taken over the nodes both
+refinement at the lowest separating zoom, misses and unresolved motes left out; each
+reading names its view, so the solver estimates one head offset per view, unless
+``--no-views``). Both are solved by ``fgloc.solve_survey``; RMS and ANEES are taken over the nodes both
 localized. ANEES bounds: two-sided 95 % chi-square bounds for the mean of K NEES
 values with 2 dof each (K = node-trials; nodes of one scene are correlated through the
 cameras, so these bounds are tight).
@@ -40,11 +41,13 @@ def main() -> None:
     ap.add_argument("--fields", action="store_true", help="decode single fields (half vertical resolution)")
     ap.add_argument("--independent-head", action="store_true",
                     help="diagnostic: an independent head error per reading instead of one per view")
+    ap.add_argument("--no-views", action="store_true",
+                    help="readings do not name their views: the solver takes them as independent (total sigma)")
     args = ap.parse_args()
     noise = CodedNoise(decoder_sigma_pan=math.radians(args.decoder_pan),
                        decoder_sigma_tilt=math.radians(args.decoder_tilt), fx_error=args.fx_error,
                        miss_rate=args.miss_rate, field_rows=args.fields,
-                       shared_head=not args.independent_head)
+                       shared_head=not args.independent_head, views=not args.no_views)
     intr = CameraIntrinsics.from_fov(640, 480, 65.0)
     sq = {"seq": [], "coded": []}  # type: dict[str, list[np.ndarray]]
     ne = {"seq": [], "coded": []}  # type: dict[str, list[np.ndarray]]
@@ -66,7 +69,8 @@ def main() -> None:
     lo, hi = chi2.ppf(0.025, 2 * n) / n, chi2.ppf(0.975, 2 * n) / n
     print(f"{args.trials} scenes x {args.nodes} nodes, decoder {args.decoder_pan} / {args.decoder_tilt} deg, "
           f"fx error {args.fx_error}, miss rate {args.miss_rate}, {'fields' if args.fields else 'frames'}, "
-          f"head error {'per reading' if args.independent_head else 'per view'}, "
+          f"head error {'per reading' if args.independent_head else 'per view'}"
+          f"{', views not named' if args.no_views else ''}, "
           f"{dt:.0f} s")
     print(f"per scene: {views / args.trials:.1f} views (both cameras), {refined / args.trials:.1f} refined readings, "
           f"{unresolved / args.trials:.2f} unresolved, {missed / args.trials:.2f} missed, "

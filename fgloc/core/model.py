@@ -53,6 +53,20 @@ class Observation:
     ``subset`` (optional, >= 0) tags a reading taken for one subset of a
     re-measured survey (the subset-Newton baseline solves each tag on its own
     readings; every other solver ignores it).
+
+    ``view`` (optional) names the head reading the angle was composed from: readings
+    of one view (e.g. every mote decoded in one coded-survey view) share that view's
+    head error, a zero-mean (pan, tilt) error of the head with standard deviation
+    ``view_sigma`` (radians, per axis). ``sigma`` stays the reading's total standard
+    deviation, so ``sqrt(sigma^2 - view_sigma^2)`` is its independent part; a solver
+    that ignores views sees the same marginal noise. ``view_sigma`` must be below
+    ``sigma``. ``view_pan`` (radians, optional) is the head pan the view was read at:
+    a head tilt error turns an off-centre bearing about the tilt axis at that pan
+    (:mod:`fgloc.factors.view_offset`); without it the reading's own pan is used.
+
+    ``sigma_axes`` (optional, radians) gives pan's and tilt's total standard deviations
+    where they differ (e.g. a decoder's pixel error maps to angles differently per axis);
+    ``sigma`` then stays one value for both (e.g. their RMS) for readers that know no more.
     """
 
     camera: str
@@ -61,6 +75,10 @@ class Observation:
     tilt: float
     sigma: float | None = None
     subset: int | None = None
+    view: str | None = None
+    view_sigma: float | None = None
+    view_pan: float | None = None
+    sigma_axes: tuple[float, float] | None = None
 
 
 @dataclass(frozen=True)
@@ -71,7 +89,24 @@ class ObservationTable:
     node_index: np.ndarray  # (M,) int
     pan: FloatArray  # (M,) radians
     tilt: FloatArray  # (M,) radians
-    sigma: FloatArray  # (M,) radians, default already applied
+    sigma: FloatArray  # (M,) radians, default already applied (total: view part included)
+    #: (M,) index into ``Survey.view_ids`` of each reading's view, -1 for none.
+    view_index: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    #: (M,) radians, the shared (view) part of ``sigma``; 0 for readings without a view.
+    view_sigma: FloatArray = field(default_factory=lambda: np.zeros(0))
+    #: (M,) radians, the head pan of each reading's view (the reading's own pan where not given).
+    view_pan: FloatArray = field(default_factory=lambda: np.zeros(0))
+    #: (M, 2) radians, pan's and tilt's total sigma (``sigma`` twice where not given).
+    sigma_axes: FloatArray = field(default_factory=lambda: np.zeros((0, 2)))
+
+    @property
+    def reading_sigma(self) -> FloatArray:
+        """(M, 2) radians: the independent part of each reading's pan and tilt noise,
+        ``sqrt(sigma_axes^2 - view_sigma^2)``."""
+        axes = self.sigma_axes if len(self.sigma_axes) == len(self.sigma) else np.column_stack([self.sigma] * 2)
+        if len(self.view_sigma) != len(self.sigma):
+            return axes
+        return np.sqrt(np.maximum(axes**2 - self.view_sigma[:, None] ** 2, 0.0))
 
     def __len__(self) -> int:
         return int(self.pan.shape[0])
@@ -102,6 +137,7 @@ class Survey:
         """The observations as arrays; computed once (treat the survey as immutable)."""
         cam_index = {c: i for i, c in enumerate(self.camera_ids)}
         node_index = {n: i for i, n in enumerate(self.node_ids)}
+        view_index = {v: i for i, v in enumerate(self.view_ids)}
         obs = self.observations
         return ObservationTable(
             camera_index=np.array([cam_index[o.camera] for o in obs], dtype=np.int64),
@@ -109,7 +145,19 @@ class Survey:
             pan=np.array([o.pan for o in obs], dtype=float),
             tilt=np.array([o.tilt for o in obs], dtype=float),
             sigma=np.array([self.sigma if o.sigma is None else o.sigma for o in obs], dtype=float),
+            view_index=np.array([-1 if o.view is None or o.view_sigma is None else view_index[o.view] for o in obs],
+                                dtype=np.int64),
+            view_sigma=np.array([0.0 if o.view is None or o.view_sigma is None else o.view_sigma for o in obs],
+                                dtype=float),
+            view_pan=np.array([o.pan if o.view_pan is None else o.view_pan for o in obs], dtype=float),
+            sigma_axes=np.array([(self.sigma if o.sigma is None else o.sigma,) * 2 if o.sigma_axes is None
+                                 else o.sigma_axes for o in obs], dtype=float).reshape(-1, 2),
         )
+
+    @cached_property
+    def view_ids(self) -> list[str]:
+        """Ids of the views named by the observations (with a ``view_sigma``), in first-seen order."""
+        return list(dict.fromkeys(o.view for o in self.observations if o.view is not None and o.view_sigma is not None))
 
     def truth_node_array(self) -> FloatArray:
         """True node positions (N, 3) in ``node_ids`` order. Raises if there is no truth."""

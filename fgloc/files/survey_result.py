@@ -74,7 +74,8 @@ def _plain_observation(o: Any) -> bool:
         return False
     tilt: Any = o.get("tilt")
     return (_is_id(o.get("camera")) and _is_id(o.get("node")) and is_number(o.get("pan"))
-            and is_number(tilt) and -_TILT_LIMIT <= tilt <= _TILT_LIMIT and "sigma" not in o and "subset" not in o)
+            and is_number(tilt) and -_TILT_LIMIT <= tilt <= _TILT_LIMIT and "sigma" not in o and "subset" not in o
+            and "view" not in o and "sigma_axes" not in o)
 
 
 def _plain_node(v: Any) -> bool:
@@ -178,6 +179,10 @@ def read_survey(path: str | os.PathLike[str]) -> Survey:
     if origin == baseline:
         raise _fail(where, "gauge.baseline", f"must differ from gauge.origin, both are {show_value(origin)}")
 
+    views: dict[str, dict] = data.get("views", {})
+    for vid, v in views.items():
+        if v["camera"] not in known_cameras:
+            raise _fail(where, f"views.{vid}.camera", f"unknown camera {show_value(v['camera'])}")
     observations: list[Observation] = []
     for i, o in enumerate(data["observations"]):
         if o["camera"] not in known_cameras:
@@ -185,8 +190,14 @@ def read_survey(path: str | os.PathLike[str]) -> Survey:
         if o["node"] not in known_nodes:
             raise _fail(where, f"observations[{i}].node", f"unknown node {show_value(o['node'])}")
         sigma = o.get("sigma")
+        axes = o.get("sigma_axes")
+        total = float(data["sigma"]) if sigma is None else float(sigma)
+        view = _observation_view(o, i, views, total if axes is None else min(total, *axes), where)
         observations.append(Observation(camera=o["camera"], node=o["node"], pan=float(o["pan"]), tilt=float(o["tilt"]),
-                                        sigma=None if sigma is None else float(sigma), subset=o.get("subset")))
+                                        sigma=None if sigma is None else float(sigma), subset=o.get("subset"),
+                                        view=o.get("view"), view_sigma=None if view is None else float(view["sigma"]),
+                                        view_pan=None if view is None or "pan" not in view else float(view["pan"]),
+                                        sigma_axes=None if axes is None else (float(axes[0]), float(axes[1]))))
 
     truth = None
     if "truth" in data:
@@ -200,6 +211,34 @@ def read_survey(path: str | os.PathLike[str]) -> Survey:
         observations=observations,
         truth=truth,
     )
+
+
+def _observation_view(o: dict, i: int, views: dict[str, dict], sigma: float, path: str) -> dict | None:
+    """The ``views`` entry an observation names (None without ``view``): it must exist, belong to the
+    observation's camera, and its ``sigma`` (the shared head part) must be below the reading's sigma."""
+    vid = o.get("view")
+    if vid is None:
+        return None
+    if vid not in views:
+        raise _fail(path, f"observations[{i}].view", f"view {show_value(vid)} is not in views")
+    view = views[vid]
+    if view["camera"] != o["camera"]:
+        raise _fail(path, f"observations[{i}].view",
+                    f"view {show_value(vid)} belongs to camera {show_value(view['camera'])}, not {show_value(o['camera'])}")
+    if not view["sigma"] < sigma:
+        raise _fail(path, f"views.{vid}.sigma",
+                    f"the shared head part must be below the reading's sigma {sigma} (observations[{i}]), "
+                    f"got {show_value(view['sigma'])}")
+    return view
+
+
+def _views_json(survey: Survey) -> dict[str, dict]:
+    """The ``views`` block: each view's camera, shared sigma and (when known) head pan, from its readings."""
+    out: dict[str, dict] = {}
+    for o in survey.observations:
+        if o.view is not None and o.view_sigma is not None and o.view not in out:
+            out[o.view] = {"camera": o.camera, "sigma": o.view_sigma} | ({} if o.view_pan is None else {"pan": o.view_pan})
+    return out
 
 
 def _pose_json(pose: CameraPose) -> dict:
@@ -220,9 +259,14 @@ def survey_to_json(survey: Survey) -> dict:
             {"camera": o.camera, "node": o.node, "pan": o.pan, "tilt": o.tilt}
             | ({} if o.sigma is None else {"sigma": o.sigma})
             | ({} if o.subset is None else {"subset": o.subset})
+            | ({} if o.view is None or o.view_sigma is None else {"view": o.view})
+            | ({} if o.sigma_axes is None else {"sigma_axes": list(o.sigma_axes)})
             for o in survey.observations
         ],
     }
+    views = _views_json(survey)
+    if views:
+        data["views"] = views
     if survey.truth is not None:
         data["truth"] = {
             "cameras": {k: _pose_json(v) for k, v in survey.truth.cameras.items()},

@@ -29,20 +29,30 @@ from dataclasses import dataclass, field
 import gtsam
 import numpy as np
 
+from fgloc.core.geometry import FloatArray
+from fgloc.core.head_model import HEAD_DIM
 from fgloc.core.model import CameraPose, NodeEstimate, NodeMode, Result, SolveStats, Survey
 from fgloc.factors.baseline_prior import BaselinePrior
+from fgloc.factors.camera_side import CameraSide
 from fgloc.factors.eliminated_readings import EliminatedReadings, Kernel
+from fgloc.factors.pan_tilt_head_factor import head_prior_factor
 from fgloc.init.start import InitialEstimate
 from fgloc.solve.joint import (
     RobustKernel,
     SolverOptions,
     SolveSteps,
+    ViewOffsets,
     auto_gauge_sigma,
     camera_key,
     node_key,
     run_flagging_pipeline,
+    view_key,
+    view_offsets,
 )
 from fgloc.solve.levenberg_marquardt import IterationCallback, LMOutcome, levenberg_marquardt
+
+#: Key of a camera's head calibration Vector (as :mod:`fgloc.solve.self_calibration`).
+head_key = gtsam.symbol_shorthand.H
 
 
 class EliminationFailed(RuntimeError):
@@ -65,6 +75,11 @@ class EliminatedProblem:
     readings: EliminatedReadings
     observation_index: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     unlocalized: dict[str, str] = field(default_factory=dict)
+    #: View id -> key of its ``Vector2`` head offset (as the reference graph's ``view_keys``).
+    view_keys: dict[str, int] = field(default_factory=dict)
+    #: Camera id -> key of its head calibration Vector, and the 7-vector indices it holds.
+    head_keys: dict[str, int] = field(default_factory=dict)
+    active: dict[str, tuple[int, ...]] = field(default_factory=dict)
 
     def node_values(self, values: gtsam.Values) -> gtsam.Values:
         """``values`` plus every node at its optimum for those cameras (keys ``L(j)`` as the reference graph)."""
@@ -81,13 +96,33 @@ class EliminatedProblem:
         return out
 
 
+@dataclass(frozen=True)
+class HeadSpec:
+    """Head calibration vectors for :func:`build_eliminated` (as
+    :func:`fgloc.solve.self_calibration.build_self_calibration_problem`): ``active[cid]``
+    the 7-vector indices estimated for camera ``cid``, ``start[cid]`` (7,) the starting
+    (and, where not active, fixed) values, a zero-mean prior of ``prior_sigmas`` (7,) when
+    ``with_prior``."""
+
+    active: dict[str, tuple[int, ...]]
+    start: dict[str, FloatArray] | None
+    prior_sigmas: FloatArray
+    with_prior: bool = True
+
+
 def build_eliminated(
     survey: Survey,
     initial: InitialEstimate,
     options: SolverOptions = SolverOptions(),
     exclude: frozenset[int] = frozenset(),
+    heads: HeadSpec | None = None,
 ) -> EliminatedProblem:
-    """The camera graph of :func:`fgloc.solve.joint.build_problem`'s problem (same readings, gauge, kernel)."""
+    """The camera graph of :func:`fgloc.solve.joint.build_problem`'s problem (same readings, gauge, kernel).
+
+    Readings with a view get the view's head offset (a ``Vector2`` camera-side variable with
+    its zero-mean prior, as in the reference graph); with ``heads``, each camera's head
+    calibration vector (the reference graph of :mod:`fgloc.solve.self_calibration`).
+    """
     planar = survey.mode is NodeMode.PLANAR
     table = survey.observation_table
     kept = np.ones(len(table), dtype=bool)
@@ -103,16 +138,40 @@ def build_eliminated(
     dim = 2 if planar else 3
     start = np.array([np.asarray(initial.nodes[n], dtype=float)[:dim] for n in node_ids]).reshape(-1, dim)
     kernel = _KERNELS[options.robust]
+    offsets = view_offsets(survey, used)
+    if heads is not None:
+        # The reference self-calibration graph takes readings as independent (total sigma, no views).
+        offsets = ViewOffsets(np.zeros(0, dtype=np.int64), np.zeros(0), np.column_stack([table.sigma] * 2))
+    views = [int(v) for v in offsets.views]
+    view_slot = np.full(len(survey.view_ids), -1, dtype=np.int64)
+    view_slot[views] = np.arange(len(views))
+    obs_view = (np.where(table.view_index[used] >= 0, view_slot[np.maximum(table.view_index[used], 0)], -1)
+                if views else None)
+    head_keys: dict[str, int] = {}
+    active: dict[str, tuple[int, ...]] = {}
+    fixed = np.zeros((len(camera_keys), HEAD_DIM))
+    if heads is not None:
+        for slot, cid in enumerate(camera_keys):
+            idx = tuple(sorted(heads.active.get(cid, ())))
+            if heads.start is not None and cid in heads.start:
+                fixed[slot] = heads.start[cid]
+            if idx:
+                head_keys[cid], active[cid] = head_key(survey.camera_ids.index(cid)), idx
+    side = CameraSide(
+        len(camera_keys), cam_slot[table.camera_index[used]],
+        head_keys=[head_keys.get(c, -1) for c in camera_keys], head_active=[active.get(c, ()) for c in camera_keys],
+        head_fixed=fixed, view_keys=[view_key(v) for v in views], view=obs_view, view_pan=table.view_pan[used])
     readings = EliminatedReadings(
         list(camera_keys.values()),
         cam_slot[table.camera_index[used]],
         row_of[table.node_index[used]],
         table.pan[used],
         table.tilt[used],
-        table.sigma[used],
+        offsets.reading_sigma[used],
         start,
         kernel,
         options.robust_scale,
+        side,
     )
     graph = gtsam.NonlinearFactorGraph()
     graph.add(readings.factor())
@@ -124,8 +183,17 @@ def build_eliminated(
     for cid, key in camera_keys.items():
         cam = initial.cameras[cid]
         values.insert(key, gtsam.Pose3(gtsam.Rot3(cam.rotation), np.asarray(cam.position, dtype=float)))
+    for v, s_v in zip(views, offsets.prior_sigma):
+        values.insert(view_key(v), np.zeros(2))
+        graph.add(gtsam.PriorFactorVector(view_key(v), np.zeros(2), gtsam.noiseModel.Isotropic.Sigma(2, s_v)))
+    for cid, key in head_keys.items():
+        assert heads is not None
+        values.insert(key, fixed[list(camera_keys).index(cid)][list(active[cid])].copy())
+        if heads.with_prior:
+            graph.add(head_prior_factor(key, active[cid], None, heads.prior_sigmas))
     return EliminatedProblem(survey, graph, values, camera_keys, node_ids, readings, np.flatnonzero(used),
-                             dict(initial.unlocalized))
+                             dict(initial.unlocalized), {survey.view_ids[v]: view_key(v) for v in views},
+                             head_keys, active)
 
 
 def optimize_eliminated(
@@ -164,17 +232,18 @@ def estimate_eliminated(problem: EliminatedProblem, values: gtsam.Values) -> Ini
 
 
 def camera_covariance(problem: EliminatedProblem, values: gtsam.Values) -> np.ndarray:
-    """Joint marginal covariance (6k x 6k, camera slot order, [omega, v] blocks) of the cameras."""
-    keys = list(problem.camera_keys.values())
+    """Joint marginal covariance of the reduced system's unknowns (camera slot order, [omega, v]
+    blocks, then head vectors / view offsets: ``readings.keys``), 6k x 6k without extras."""
+    keys, dims = problem.readings.keys, problem.readings.dims
     try:
         joint = gtsam.Marginals(problem.graph, values).jointMarginalCovariance(keys)
     except RuntimeError as exc:
         raise EliminationFailed(str(exc)) from None
-    k = len(keys)
-    out = np.empty((6 * k, 6 * k))
+    off = np.concatenate([[0], np.cumsum(dims)]).astype(int)
+    out = np.empty((off[-1], off[-1]))
     for a, ka in enumerate(keys):
         for b, kb in enumerate(keys):
-            out[6 * a : 6 * a + 6, 6 * b : 6 * b + 6] = joint.at(ka, kb)
+            out[off[a] : off[a + 1], off[b] : off[b + 1]] = joint.at(ka, kb)
     return out
 
 

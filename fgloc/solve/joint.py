@@ -27,6 +27,7 @@ import gtsam
 import numpy as np
 
 from fgloc.core.errors import FglocError
+from fgloc.core.geometry import FloatArray
 from fgloc.core.model import CameraPose, NodeEstimate, NodeMode, Result, SolveStats, Survey
 from fgloc.factors.baseline_prior import BaselinePrior
 from fgloc.factors.pan_tilt_batch import PanTiltFactorSet
@@ -41,6 +42,8 @@ logger = logging.getLogger(__name__)
 
 camera_key = gtsam.symbol_shorthand.C
 node_key = gtsam.symbol_shorthand.L
+#: Key of a view's (pan, tilt) head offset, ``Vector2`` radians (index in ``Survey.view_ids``).
+view_key = gtsam.symbol_shorthand.V
 
 
 class SolveError(FglocError):
@@ -120,6 +123,8 @@ class LocalizationProblem:
     #: Index in ``survey.observations`` of each pan-tilt factor, in factor order.
     observation_index: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     unlocalized: dict[str, str] = field(default_factory=dict)
+    #: View id -> key of its ``Vector2`` head offset (readings with a view, see :func:`view_offsets`).
+    view_keys: dict[str, int] = field(default_factory=dict)
 
     def prepare(self, values: gtsam.Values) -> None:
         """Evaluate the pan-tilt factors at ``values`` in one vectorized pass.
@@ -163,8 +168,12 @@ def _pose3(cam: CameraPose) -> gtsam.Pose3:
     return gtsam.Pose3(gtsam.Rot3(cam.rotation), np.asarray(cam.position, dtype=float))
 
 
-def _noise_model(sigma: float, kernel: RobustKernel, scale: float) -> gtsam.noiseModel.Base:
-    base = gtsam.noiseModel.Isotropic.Sigma(2, sigma)
+def _noise_model(sigma: float | tuple[float, float], kernel: RobustKernel, scale: float) -> gtsam.noiseModel.Base:
+    """Pan-tilt noise of sigma (radians; one value, or pan's and tilt's), robust if asked."""
+    if isinstance(sigma, tuple) and sigma[0] != sigma[1]:
+        base = gtsam.noiseModel.Diagonal.Sigmas(np.array(sigma, dtype=float))
+    else:
+        base = gtsam.noiseModel.Isotropic.Sigma(2, float(sigma[0] if isinstance(sigma, tuple) else sigma))
     if kernel is RobustKernel.HUBER:
         return gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(scale), base)
     if kernel is RobustKernel.CAUCHY:
@@ -183,6 +192,9 @@ def build_problem(
     ``exclude`` lists observation indices to leave out (flagged outliers).
     Nodes left without observations get no variable. The kernel is
     ``options.robust`` (AUTO counts as NONE here; :func:`solve_survey` resolves it).
+    Readings with a view (``Observation.view``) get the view's offset as a third key
+    and the independent part of their sigma as noise; each view offset starts at zero
+    with a zero-mean prior of ``view_sigma`` (:func:`view_offsets`).
     """
     planar = survey.mode is NodeMode.PLANAR
     graph = gtsam.NonlinearFactorGraph()
@@ -207,17 +219,27 @@ def build_problem(
     obs_node_keys = node_key_of[table.node_index]
     used = (obs_cam_keys >= 0) & (obs_node_keys >= 0) & kept
     kernel = RobustKernel.NONE if options.robust is RobustKernel.AUTO else options.robust
-    noise_cache = {float(s): _noise_model(float(s), kernel, options.robust_scale) for s in np.unique(table.sigma[used])}
+    offsets = view_offsets(survey, used)
+    sigma = [(float(a), float(b)) for a, b in offsets.reading_sigma[used]]
+    noise_cache = {s: _noise_model(s, kernel, options.robust_scale) for s in set(sigma)}
+    view_keys = {survey.view_ids[v]: view_key(v) for v in offsets.views}
+    obs_view_keys = np.where(table.view_index[used] >= 0, view_key(0) + table.view_index[used], -1) if len(
+        view_keys) else None
     pan_tilt = PanTiltFactorSet(
         obs_cam_keys[used],
         obs_node_keys[used],
         table.pan[used],
         table.tilt[used],
-        [noise_cache[float(s)] for s in table.sigma[used]],
+        [noise_cache[s] for s in sigma],
         planar=planar,
+        view_keys=obs_view_keys,
+        view_pans=table.view_pan[used],
     )
     for f in pan_tilt.factors:
         graph.add(f)
+    for v, s_v in zip(offsets.views, offsets.prior_sigma):
+        values.insert(view_key(int(v)), np.zeros(2))
+        graph.add(gtsam.PriorFactorVector(view_key(int(v)), np.zeros(2), gtsam.noiseModel.Isotropic.Sigma(2, s_v)))
     gauge_sigma = options.gauge_sigma if options.gauge_sigma is not None else auto_gauge_sigma(survey, initial)
     gauge = BaselinePrior(survey.mode, camera_keys[survey.gauge.origin], camera_keys[survey.gauge.baseline], gauge_sigma)
     for gauge_factor in gauge.factors():
@@ -231,7 +253,41 @@ def build_problem(
         pan_tilt=pan_tilt,
         observation_index=np.flatnonzero(used),
         unlocalized=dict(initial.unlocalized),
+        view_keys=view_keys,
     )
+
+
+@dataclass(frozen=True)
+class ViewOffsets:
+    """The view-offset variables of a problem.
+
+    ``views``: indices into ``Survey.view_ids`` of the views with a used reading;
+    ``prior_sigma``: their prior standard deviation (radians, per axis; the largest
+    ``view_sigma`` among the view's readings); ``reading_sigma`` (M, 2): every reading's
+    pan and tilt noise in the problem (the independent part for readings with a view).
+    """
+
+    views: np.ndarray
+    prior_sigma: FloatArray
+    reading_sigma: FloatArray
+
+
+def view_offsets(survey: Survey, used: np.ndarray) -> ViewOffsets:
+    """The view offsets the readings ``used`` (mask over the observations) need.
+
+    Raises :class:`SolveError` when a reading's ``view_sigma`` is not below its sigma.
+    """
+    table = survey.observation_table
+    has = (table.view_index >= 0) & used
+    low = np.minimum(table.sigma, np.min(table.sigma_axes, axis=1))
+    if np.any(table.view_sigma[has] >= low[has]):
+        k = int(np.flatnonzero(has & (table.view_sigma >= low))[0])
+        raise SolveError(f"observation {k}: view_sigma must be below the reading's sigma "
+                         f"({table.view_sigma[k]} >= {low[k]})")
+    views = np.unique(table.view_index[has])
+    prior = np.zeros(len(survey.view_ids))
+    np.maximum.at(prior, table.view_index[has], table.view_sigma[has])
+    return ViewOffsets(views, prior[views], table.reading_sigma)
 
 
 def initialize(survey: Survey) -> InitialEstimate:

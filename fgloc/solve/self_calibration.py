@@ -373,7 +373,16 @@ def solve_self_calibrated(
     options: SolverOptions = SolverOptions(), exclude: frozenset[int] = frozenset(),
     prior_sigmas: FloatArray = DEFAULT_PRIOR_SIGMAS,
 ) -> SelfCalibratedSolve:
-    """Optimize the extended problem from ``start`` (ideal heads) and collect marginals."""
+    """Optimize the extended problem from ``start`` (ideal heads) and collect marginals.
+
+    With ``options.eliminate_nodes`` (default) on the node-eliminated fast path
+    (:mod:`fgloc.solve.eliminated_heads`; same optimum and marginals)."""
+    if options.eliminate_nodes:
+        from fgloc.solve.eliminated_heads import solve_self_calibrated_eliminated
+
+        fast: SelfCalibratedSolve = solve_self_calibrated_eliminated(survey, start, active, options, exclude,
+                                                                     prior_sigmas)
+        return fast
     problem = build_self_calibration_problem(survey, start, active, None, options, exclude, prior_sigmas)
     outcome = optimize(problem, options)
     result = collect_result(problem, outcome, options)

@@ -25,9 +25,17 @@ A mote gives a reading in **every** recorded view that contains it and separates
 the decoder misses twice (``miss_rate`` per recording, one retry), are missing
 (reported, never guessed).
 
-Each reading carries ``sigma = sqrt(head_sigma^2 + decoder_sigma^2)`` (the per-axis
-decoder sigma, the larger of the two) as its own noise: the solver sees independent
-readings, so the shared head error per view is exactly what the ANEES check tests.
+Each reading carries ``sigma = sqrt(head_sigma^2 + decoder^2)`` as its total noise, with
+``decoder`` the centroid error mapped to angles at that pixel
+(:func:`decoder_angle_sigmas`; ``sigma`` with their RMS, ``sigma_axes`` per axis), and names its view
+(``view = "<camera>/v<k>"``, k the view's index in the camera's recording order) with
+``view_sigma = head_sigma``, the part of ``sigma`` the view's readings share, and
+``view_pan``, the head pan the view was read at: the solver estimates one (pan, tilt)
+head error per view (:func:`fgloc.solve.joint.view_offsets`,
+:mod:`fgloc.factors.view_offset`) and takes only the decoder part as independent.
+``shared_head=False`` (one head error per reading, a diagnostic) names no views;
+``views=False`` (the readings as independent with one sigma, as before view offsets
+existed) names no views and gives no ``sigma_axes``.
 
 Angles radians; pixels OpenCV convention.
 """
@@ -60,6 +68,7 @@ class CodedNoise:
     every_view: bool = True  #: a reading from every view a mote is decodable in (False: its first only)
     shared_head: bool = True  #: one head error per view (False: per reading, a diagnostic)
     levels: tuple[float, ...] = (1 / 9, 3 / 9, 1.0)
+    views: bool = True  #: name each reading's view (with view_sigma = head_sigma) when the head error is shared
 
 
 @dataclass(frozen=True)
@@ -106,6 +115,8 @@ def coded_observations(
         wide_fy = field_intrinsics(intr).fy if noise.field_rows else intr.fy
         head_err: dict[tuple[float, float, float], np.ndarray] = {}
         n_missed = 0
+        view_name = {v: f"{cid}/v{k:03d}" for k, v in enumerate(dict.fromkeys(v for v, _ in pairs))}
+        named = noise.shared_head and noise.views and noise.head_sigma > 0
         for view, j in pairs:
             if rng.random() < noise.miss_rate**2:  # missed in the recording and in its retry
                 n_missed += 1
@@ -115,21 +126,43 @@ def coded_observations(
             hp, ht, z = view
             zi = intr.at_zoom(z)
             dec = field_intrinsics(zi) if noise.field_rows else zi
-            mag = zi.fx / intr.fx
             uv, _ = pan_tilt_to_pixel(dec, pt[j:j + 1, 0], pt[j:j + 1, 1], hp, ht)
             # the centroid error is a pixel error (the same in a zoomed view's pixels)
-            uv = uv + rng.normal(0.0, 1.0, 2) * [noise.decoder_sigma_pan * intr.fx, noise.decoder_sigma_tilt * wide_fy]
+            sigma_px = np.array([noise.decoder_sigma_pan * intr.fx, noise.decoder_sigma_tilt * wide_fy])
+            uv = uv + rng.normal(0.0, 1.0, 2) * sigma_px
             assumed = replace(dec, fx=dec.fx * (1.0 + noise.fx_error), fy=dec.fy * (1.0 + noise.fx_error))
             e = head_err[view]
             p, t = pixel_to_pan_tilt(assumed, uv, hp + e[0], ht + e[1])
-            sig = math.hypot(noise.head_sigma, max(noise.decoder_sigma_pan, noise.decoder_sigma_tilt) / mag)
+            sd_pan, sd_tilt = decoder_angle_sigmas(dec, uv[0], sigma_px, hp, ht)
+            sig = math.hypot(noise.head_sigma, math.sqrt(0.5 * (sd_pan**2 + sd_tilt**2)))
+            axes = (math.hypot(noise.head_sigma, sd_pan), math.hypot(noise.head_sigma, sd_tilt))
             out.append(Observation(cid, node_ids[j], float(np.remainder(p[0] + math.pi, 2 * math.pi) - math.pi),
-                                   float(t[0]), sigma=sig))
+                                   float(t[0]), sigma=sig, view=view_name[view] if named else None,
+                                   view_sigma=noise.head_sigma if named else None,
+                                   view_pan=hp if named else None, sigma_axes=axes if noise.views else None))
         n_views[cid] = len(wide) + sum(len(rp.views) for rp in passes)
         refined[cid] = int(sum(rp.targets for rp in passes))
         unresolved[cid] = n_unres
         missed[cid] = n_missed
     return CodedReadings(out, n_views, refined, unresolved, missed)
+
+
+def decoder_angle_sigmas(intr: CameraIntrinsics, uv: FloatArray, sigma_px: FloatArray, head_pan: float,
+                         head_tilt: float) -> tuple[float, float]:
+    """Pan and tilt sigma (radians) of a centroid at pixel ``uv`` with pixel sigmas ``sigma_px`` (u, v).
+
+    The pixel error maps to (pan, tilt) through the local Jacobian of
+    :func:`pixel_to_pan_tilt` (central differences, half a pixel): smaller off-centre
+    (cos^2 of the off-axis angle), larger in pan at steep tilt. (Their small correlation
+    is left out: a reading carries one sigma per axis.)
+    """
+    h = 0.5
+    uv4 = np.asarray(uv, dtype=float) + np.array([[h, 0.0], [-h, 0.0], [0.0, h], [0.0, -h]])
+    p, t = pixel_to_pan_tilt(intr, uv4, head_pan, head_tilt)
+    dp = np.remainder(np.array([p[0] - p[1], p[2] - p[3]]) + math.pi, 2 * math.pi) - math.pi
+    jac = np.array([dp, [t[0] - t[1], t[2] - t[3]]]) / (2 * h)  # rows pan, tilt; columns u, v
+    var = ((jac * np.asarray(sigma_px, dtype=float)[None, :]) ** 2).sum(axis=1)
+    return math.sqrt(float(var[0])), math.sqrt(float(var[1]))
 
 
 def field_intrinsics(intr: CameraIntrinsics) -> CameraIntrinsics:
@@ -169,7 +202,8 @@ def accuracy_trial(seed: int, n_nodes: int, intr: CameraIntrinsics, noise: Coded
     rng = np.random.default_rng([seed, 16])
     readings = coded_observations(seq.camera_ids, cams, seq.node_ids, seq.truth_node_array(), area, intr, noise, rng)
     coded = replace(seq, observations=readings.observations)
-    coded.__dict__.pop("observation_table", None)
+    for cached in ("observation_table", "view_ids"):
+        coded.__dict__.pop(cached, None)
     r_seq, r_cod = solve_survey(seq), solve_survey(coded)
     ids = [n for n in seq.node_ids if n in r_seq.nodes and n in r_cod.nodes]
     truth = np.array([seq.truth.nodes[n][:2] for n in ids])
