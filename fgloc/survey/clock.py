@@ -168,10 +168,13 @@ class Settle:
 
 @dataclass(frozen=True)
 class Frames:
-    """A burst of ``count`` consecutive frames."""
+    """A burst of ``count`` consecutive frames. ``continuous``: the frames continue a
+    recording already running (no wait for a frame start, no second grabber latency):
+    ``count`` frame periods."""
 
     count: int
     phase: str = "frames"
+    continuous: bool = False
 
 
 @dataclass(frozen=True)
@@ -239,7 +242,7 @@ def op_time(op: Op, timing: RigTiming) -> float:
     if isinstance(op, Settle):
         return timing.head.settle_s
     if isinstance(op, Frames):
-        return timing.camera.burst_time(op.count)
+        return op.count * timing.camera.frame_period_s if op.continuous else timing.camera.burst_time(op.count)
     if isinstance(op, PositionRead):
         return timing.head.position_s
     if isinstance(op, Zoom):
