@@ -65,10 +65,11 @@ class Variant:
     retry_refinement: bool = True  #: refinement views are retried like wide views
     zoom_out: bool = False  #: zoom back out after the last refinement pass
     need: int = 0  #: refine a mote only where fewer than this many other cameras resolve it (0: always)
+    share_tiles: bool = True  #: a higher-zoom refinement tile also serves lower-zoom targets it covers
 
 
 _SEQUENTIAL: dict[tuple[int, int, int, RigTiming], SequentialTime] = {}
-OLD = Variant(sync=False, continuous_retry=False, retry_refinement=False, zoom_out=True)
+OLD = Variant(sync=False, continuous_retry=False, retry_refinement=False, zoom_out=True, share_tiles=False)
 RESYNC_S = 10.0
 
 
@@ -110,7 +111,7 @@ def run(n_motes: int, n_cams: int, timing: RigTiming, miss_rate: float, seed: in
     n_refine = 0
     for c in cams:
         refine[c], lost = plan_refinement(intr, pts[c], SEPARATION_PX, levels, start=views[c][-1], field_rows=fields,
-                                          needed=needed[c])
+                                          needed=needed[c], share_tiles=variant.share_tiles)
         unresolved += lost
         for rp in refine[c]:
             refine_retry += _retry_fraction(intr.at_zoom(rp.zoom), pts[c], rp.views, miss_rate) * len(rp.views)
@@ -150,6 +151,7 @@ def main() -> None:
     ap.add_argument("--burst-retry", action="store_true", help="a retry records a new burst of K frames")
     ap.add_argument("--no-refine-retry", action="store_true", help="refinement views are never retried")
     ap.add_argument("--zoom-out", action="store_true", help="zoom back out after the last refinement pass")
+    ap.add_argument("--separate-tiles", action="store_true", help="each zoom level tiles only its own targets")
     ap.add_argument("--need", type=int, default=0,
                     help="refine a mote only where fewer than this many other cameras resolve it (0: always)")
     ap.add_argument("--old", action="store_true", help="the previous plan: rotation-free book, burst retries of "
@@ -162,7 +164,8 @@ def main() -> None:
     timing = RigTiming(head=HEAD_MODELS[args.head], camera=CameraTiming(frame_rate_hz=args.fps))
     variant = Variant(fields=not args.frames, broadcast=not args.unicast, sync=not args.rotation_free,
                       extend=args.extend, continuous_retry=not args.burst_retry,
-                      retry_refinement=not args.no_refine_retry, zoom_out=args.zoom_out, need=args.need)
+                      retry_refinement=not args.no_refine_retry, zoom_out=args.zoom_out, need=args.need,
+                      share_tiles=not args.separate_tiles)
     if args.old:
         variant = replace(OLD, fields=not args.frames, broadcast=not args.unicast)
     print(f"head {args.head}, {args.fps:.2f} frames/s, miss rate {args.miss_rate}, refinement zooms {levels}, {variant}")
