@@ -29,8 +29,14 @@ from fgloc.camera.intrinsics import CameraIntrinsics
 from fgloc.camera.led_search import SearchConfig
 from fgloc.core.geometry import bearing_pan_tilt, rot_z, world_to_base
 from fgloc.core.model import CameraPose
-from fgloc.survey.clock import HEAD_MODELS, CameraTiming, RigTiming
-from fgloc.survey.field_plans import SequentialTime, coded_survey_time, frames_for, sequential_survey_time
+from fgloc.survey.clock import HEAD_MODELS, CameraTiming, RigTiming, price
+from fgloc.survey.field_plans import (
+    SequentialTime,
+    coded_survey_time,
+    frames_for,
+    refinement_ops,
+    sequential_survey_time,
+)
 from fgloc.survey.view_planner import RefinePass, coverage, needed_from, neighbour_px, plan_refinement, plan_views
 
 SEPARATION_PX = 4.0
@@ -66,10 +72,14 @@ class Variant:
     zoom_out: bool = False  #: zoom back out after the last refinement pass
     need: int = 0  #: refine a mote only where fewer than this many other cameras resolve it (0: always)
     share_tiles: bool = True  #: a higher-zoom refinement tile also serves lower-zoom targets it covers
+    pick_ladder: bool = True  #: per camera, the zoom ladder of LADDERS whose refinement is cheapest on the clock
 
 
 _SEQUENTIAL: dict[tuple[int, int, int, RigTiming], SequentialTime] = {}
-OLD = Variant(sync=False, continuous_retry=False, retry_refinement=False, zoom_out=True, share_tiles=False)
+OLD = Variant(sync=False, continuous_retry=False, retry_refinement=False, zoom_out=True, share_tiles=False,
+              pick_ladder=False)
+#: candidate refinement zoom ladders (fractions of the optical range, 1x..10x): the old one first
+LADDERS = ((1 / 9, 3 / 9, 1.0), (1 / 9, 2 / 9, 4 / 9, 1.0), (0.2, 0.5, 1.0), (1 / 18, 1 / 9, 2 / 9, 1 / 3, 5 / 9, 1.0))
 RESYNC_S = 10.0
 
 
@@ -109,13 +119,23 @@ def run(n_motes: int, n_cams: int, timing: RigTiming, miss_rate: float, seed: in
     resolved = {c: neighbour_px(pts[c], intr, fields) >= SEPARATION_PX for c in cams}
     needed = needed_from(resolved, variant.need) if variant.need else {c: None for c in cams}
     n_refine = 0
+    extend = variant.extend * book.length
+    retry_frames = book.length if variant.continuous_retry else None
     for c in cams:
-        refine[c], lost = plan_refinement(intr, pts[c], SEPARATION_PX, levels, start=views[c][-1], field_rows=fields,
-                                          needed=needed[c], share_tiles=variant.share_tiles)
-        unresolved += lost
-        for rp in refine[c]:
-            refine_retry += _retry_fraction(intr.at_zoom(rp.zoom), pts[c], rp.views, miss_rate) * len(rp.views)
-            n_refine += len(rp.views)
+        best = math.inf
+        for ladder in (LADDERS if variant.pick_ladder else (levels,)):
+            passes, lost = plan_refinement(intr, pts[c], SEPARATION_PX, ladder, start=views[c][-1],
+                                           field_rows=fields, needed=needed[c], share_tiles=variant.share_tiles)
+            nv = sum(len(rp.views) for rp in passes)
+            q = sum(_retry_fraction(intr.at_zoom(rp.zoom), pts[c], rp.views, miss_rate) * len(rp.views)
+                    for rp in passes) / max(nv, 1)
+            cost = price(refinement_ops(passes, k, views[c][-1], q if variant.retry_refinement else 0.0, extend,
+                                        retry_frames, variant.zoom_out), coded_timing).total
+            if cost < best:  # the cheapest ladder on the clock (ties: the first)
+                best, refine[c], lost_c, q_c, nv_c = cost, passes, lost, q, nv
+        unresolved += lost_c
+        refine_retry += q_c * nv_c
+        n_refine += nv_c
     refine_retry /= max(n_refine, 1)
     key = (n_motes, n_cams, seed, timing)
     if key not in _SEQUENTIAL:  # the same in every variant
@@ -125,8 +145,7 @@ def run(n_motes: int, n_cams: int, timing: RigTiming, miss_rate: float, seed: in
     # missed all three is a miss, retried like the decoder's misses
     coded = coded_survey_time(
         views, n_motes, k, coded_timing, retry_fraction=retry_views, refine=refine,
-        broadcast_start=variant.broadcast, start_broadcasts=3, extend_frames=variant.extend * book.length,
-        retry_frames=book.length if variant.continuous_retry else None,
+        broadcast_start=variant.broadcast, start_broadcasts=3, extend_frames=extend, retry_frames=retry_frames,
         refine_retry_fraction=refine_retry if variant.retry_refinement else 0.0, zoom_out=variant.zoom_out,
         resync_s=RESYNC_S if variant.sync else None)
     return {
@@ -152,6 +171,7 @@ def main() -> None:
     ap.add_argument("--no-refine-retry", action="store_true", help="refinement views are never retried")
     ap.add_argument("--zoom-out", action="store_true", help="zoom back out after the last refinement pass")
     ap.add_argument("--separate-tiles", action="store_true", help="each zoom level tiles only its own targets")
+    ap.add_argument("--fixed-ladder", action="store_true", help="refine on --levels only, not the cheapest of LADDERS")
     ap.add_argument("--need", type=int, default=0,
                     help="refine a mote only where fewer than this many other cameras resolve it (0: always)")
     ap.add_argument("--old", action="store_true", help="the previous plan: rotation-free book, burst retries of "
@@ -165,7 +185,7 @@ def main() -> None:
     variant = Variant(fields=not args.frames, broadcast=not args.unicast, sync=not args.rotation_free,
                       extend=args.extend, continuous_retry=not args.burst_retry,
                       retry_refinement=not args.no_refine_retry, zoom_out=args.zoom_out, need=args.need,
-                      share_tiles=not args.separate_tiles)
+                      share_tiles=not args.separate_tiles, pick_ladder=not args.fixed_ladder)
     if args.old:
         variant = replace(OLD, fields=not args.frames, broadcast=not args.unicast)
     print(f"head {args.head}, {args.fps:.2f} frames/s, miss rate {args.miss_rate}, refinement zooms {levels}, {variant}")

@@ -204,16 +204,8 @@ def coded_survey_time(
         ops = coded_view_ops(vs, frames_per_view, retry_fraction, vs[0] if vs else (0.0, 0.0), extend_frames,
                              retry_frames)
         here = vs[-1] if vs else (0.0, 0.0)
-        zoom = 0.0
-        for rp in refine.get(cam, []):
-            if not rp.views:
-                continue
-            ops += [Zoom(rp.zoom - zoom, "centring")]
-            ops += [replace(o, phase="centring") for o in coded_view_ops(
-                rp.views, frames_per_view, refine_retry_fraction, here, extend_frames, retry_frames)]
-            here, zoom = rp.views[-1], rp.zoom
-        if zoom and zoom_out:
-            ops += [Zoom(zoom, "centring")]
+        ops += refinement_ops(refine.get(cam, []), frames_per_view, here, refine_retry_fraction, extend_frames,
+                              retry_frames, zoom_out)
         lanes.append(price(ops, timing))
     start = Radio(unicast=restarts, broadcast=start_broadcasts) if broadcast_start else Radio(unicast=n_motes)
     radio = price([start, Radio(broadcast=1)], timing)
@@ -223,6 +215,26 @@ def coded_survey_time(
         radio = radio + price([Radio(broadcast=resyncs * start_broadcasts)], timing)
     return CodedTime(radio + cameras, {c: len(v) for c, v in views.items()},
                      frames_per_view, sum(len(rp.views) for ps in refine.values() for rp in ps))
+
+
+def refinement_ops(passes: Sequence[RefinePass], frames_per_view: int, start: tuple[float, float],
+                   retry_fraction: float = 0.0, extend_frames: int = 0, retry_frames: int | None = None,
+                   zoom_out: bool = True) -> list[Op]:
+    """Clock operations (phase 'centring') of refinement ``passes`` in order from head position
+    ``start`` at the survey zoom: zoom to each pass's level, record its views
+    (:func:`coded_view_ops`), and, with ``zoom_out``, zoom back out after the last."""
+    ops: list[Op] = []
+    here, zoom = start, 0.0
+    for rp in passes:
+        if not rp.views:
+            continue
+        ops += [Zoom(rp.zoom - zoom, "centring")]
+        ops += [replace(o, phase="centring") for o in coded_view_ops(
+            rp.views, frames_per_view, retry_fraction, here, extend_frames, retry_frames)]
+        here, zoom = rp.views[-1], rp.zoom
+    if zoom and zoom_out:
+        ops += [Zoom(zoom, "centring")]
+    return ops
 
 
 def frames_for(code_length: int, periods: int = 3) -> int:
