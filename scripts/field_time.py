@@ -6,14 +6,29 @@ towards the square's centre. Both surveys search the same region: the pan-tilt b
 (sequential) or the directions (coded) of the square seen from each camera.
 Camera: 640 x 480, 65 deg horizontal field of view (EVI-D100 wide end).
 
-    OPENBLAS_NUM_THREADS=1 .venv/bin/python scripts/field_time.py [--miss-rate Q] [--head EVI-D100] \
-        [--frames] [--unicast] [--levels 0.111,0.333,1] [--periods 3]
+    OPENBLAS_NUM_THREADS=1 .venv/bin/python scripts/field_time.py --miss-rate Q [--frames] [--sync] [--need 2] \
+        [--old] [--unicast] [--head EVI-D100] [--sizes 100x2,1000x4]
 
 ``--miss-rate`` is the per-decode miss rate of isolated motes measured by
-scripts/blink_montecarlo.py (frames 0.0494, fields 0.1296); a view in which any of its
-motes is expected to be missed is recorded twice. The coded survey starts every mote by
-one broadcast (``--unicast``: one start per mote), decodes fields on interlaced heads
-(``--frames``: frames), and refines crowded motes on the zoom ladder ``--levels``.
+scripts/blink_montecarlo.py for the same video and book. The coded survey (``Variant``):
+
+* starts every mote by one broadcast sent three times (``--unicast``: one start per mote);
+  with ``--sync`` the synchronized book, its start repeated every 10 s (resync);
+* decodes fields on interlaced heads (``--frames``: frames);
+* records K = 3L + 2 samples per view (``--extend N``: N more code lengths, sliding windows);
+* retries a view in which any of its motes is expected to be missed by recording on for
+  one more code length without moving (``--burst-retry``: a new burst of K, the old
+  pricing); refinement views are retried the same way (``--no-refine-retry``: never);
+* refines crowded motes (neighbour within 4 px at the survey zoom) in tiles, a
+  higher-zoom tile also serving the lower-zoom targets it covers (``--separate-tiles``:
+  not), on the cheapest, per camera, of the zoom ladders ``LADDERS`` priced on the
+  clock (``--fixed-ladder``: ``--levels`` only); with ``--need 2``, only where fewer
+  than two other cameras resolve the mote;
+* ends at its last recording (``--zoom-out``: zooms back out first).
+
+``--old`` prices the previous plan (rotation-free book, burst retries of wide views only,
+separate tiles on the fixed ladder, zoom-out). The sequential column is the same in
+every variant.
 """
 
 from __future__ import annotations
@@ -65,7 +80,7 @@ class Variant:
 
     fields: bool = True  #: decode fields on interlaced heads
     broadcast: bool = True  #: one broadcast start, not one unicast per mote
-    sync: bool = True  #: synchronized book (epoch broadcast, resync every RESYNC_S)
+    sync: bool = False  #: synchronized book (epoch broadcast, resync every RESYNC_S)
     extend: int = 0  #: more code lengths recorded in every view (sliding windows)
     continuous_retry: bool = True  #: a retry goes on recording one code length, not a new burst
     retry_refinement: bool = True  #: refinement views are retried like wide views
@@ -76,7 +91,7 @@ class Variant:
 
 
 _SEQUENTIAL: dict[tuple[int, int, int, RigTiming], SequentialTime] = {}
-OLD = Variant(sync=False, continuous_retry=False, retry_refinement=False, zoom_out=True, share_tiles=False,
+OLD = Variant(continuous_retry=False, retry_refinement=False, zoom_out=True, share_tiles=False,
               pick_ladder=False)
 #: candidate refinement zoom ladders (fractions of the optical range, 1x..10x): the old one first
 LADDERS = ((1 / 9, 3 / 9, 1.0), (1 / 9, 2 / 9, 4 / 9, 1.0), (0.2, 0.5, 1.0), (1 / 18, 1 / 9, 2 / 9, 1 / 3, 5 / 9, 1.0))
@@ -165,7 +180,7 @@ def main() -> None:
     ap.add_argument("--fps", type=float, default=30000.0 / 1001.0)
     ap.add_argument("--frames", action="store_true", help="decode frames, not fields (interlaced heads)")
     ap.add_argument("--unicast", action="store_true", help="one unicast start per mote, not a broadcast")
-    ap.add_argument("--rotation-free", action="store_true", help="the rotation-free book (no synchronized start)")
+    ap.add_argument("--sync", action="store_true", help="the synchronized book (epoch broadcast, resync every 10 s)")
     ap.add_argument("--extend", type=int, default=0, help="code lengths recorded beyond K in every view")
     ap.add_argument("--burst-retry", action="store_true", help="a retry records a new burst of K frames")
     ap.add_argument("--no-refine-retry", action="store_true", help="refinement views are never retried")
@@ -182,7 +197,7 @@ def main() -> None:
     args = ap.parse_args()
     levels = tuple(float(x) for x in args.levels.split(","))
     timing = RigTiming(head=HEAD_MODELS[args.head], camera=CameraTiming(frame_rate_hz=args.fps))
-    variant = Variant(fields=not args.frames, broadcast=not args.unicast, sync=not args.rotation_free,
+    variant = Variant(fields=not args.frames, broadcast=not args.unicast, sync=args.sync,
                       extend=args.extend, continuous_retry=not args.burst_retry,
                       retry_refinement=not args.no_refine_retry, zoom_out=args.zoom_out, need=args.need,
                       share_tiles=not args.separate_tiles, pick_ladder=not args.fixed_ladder)
