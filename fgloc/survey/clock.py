@@ -39,7 +39,9 @@ Completion). Then the head settles (``settle_s``) before a frame is usable.
   vertical resolution). The SNC-RZ25N is read over the network as JPEG frames:
   **assumed** not field-decodable. A frame grabbed
   "now" is on average half a frame period away plus one period of grabber latency
-  (``CameraTiming.grab_latency_s``), paid once per burst of consecutive frames.
+  (``CameraTiming.grab_latency_s``), paid once per burst of consecutive frames; frames
+  that continue a running recording (``Frames(continuous=True)``: a retry or an
+  extension decoded in sliding windows) cost their frame periods only.
 * Radio (MicaZ base station, protocols.md 3): one command = serial frame at 57600
   bit/s (~3 ms) + serial ACK + CSMA radio transmit and the node's report back; we
   assume 0.03 s per acknowledged command and 0.01 s per broadcast (no report).

@@ -11,10 +11,13 @@ Cameras work in parallel, so a node costs the radio plus its slowest camera.
 word from the book by its address, ``drivers/tinyos/blink.py``; or, the old way, one
 unicast start per mote), then every camera records ``frames_per_view`` frames (or
 fields) in each view of its plan (:mod:`fgloc.survey.view_planner`), all cameras in
-parallel, then one stop broadcast. ``retry_fraction`` of the views are recorded a second
-time right away (motes missed in the first window); motes too close to separate at the
-survey zoom are recorded again in refinement passes at the lowest zoom that separates
-them (:func:`fgloc.survey.view_planner.plan_refinement`).
+parallel, then one stop broadcast. ``retry_fraction`` of the views are retried right away
+without moving (motes missed in the first window): a new burst (the default) or, with
+``retry_frames``, the recording continues for that many frames and is decoded in
+sliding windows (:func:`fgloc.camera.blink_decoder.decode_windows`). Motes too close to
+separate at the survey zoom are recorded again in refinement passes at the lowest zoom
+that separates them (:func:`fgloc.survey.view_planner.plan_refinement`,
+:func:`refinement_ops`), retried with ``refine_retry_fraction``.
 
 Angles radians, times seconds.
 """
