@@ -195,3 +195,14 @@ def test_sliding_windows_merge_never_guesses(monkeypatch: pytest.MonkeyPatch) ->
     assert (2, "duplicate") in kinds  # one code at two places
     assert (3, "ambiguous") in kinds and (5, "ambiguous") in kinds  # one blob, two codes
     assert (4, "duplicate") in kinds  # a duplicate in any window is refused
+
+
+def test_sliding_windows_report_each_refused_blob_once(monkeypatch: pytest.MonkeyPatch) -> None:
+    import fgloc.camera.blink_decoder as bd
+
+    glint = RefusedBlob(200.0, 30.0, "rejected", "word is no rotation of a book code")
+    windows = iter([ViewDecode((), (glint,), 50, 0), ViewDecode((), (RefusedBlob(200.3, 30.1, "rejected", "x"),), 50, 0)])
+    monkeypatch.setattr(bd, "decode_view", lambda *a, **k: next(windows))
+    frames = [(i / 30.0, np.zeros((2, 2), np.uint8)) for i in range(66)]
+    res = bd.decode_windows(frames, 1 / 30.0, BOOK, INTR, 0.0, 0.0, window=50)
+    assert res.readings == () and res.refused == (glint,)

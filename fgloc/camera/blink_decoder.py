@@ -331,5 +331,11 @@ def decode_windows(
         rd = kept.pop(code)
         refused.append(RefusedBlob(rd.u, rd.v, "ambiguous", f"code {code}: one blob read as two codes", code))
     readings = tuple(sorted(kept.values(), key=lambda r: r.index))
-    left = tuple(rf for rf in refused if not any(math.hypot(rf.u - r.u, rf.v - r.v) <= blob_px for r in readings))
-    return ViewDecode(readings, left, n, n - len(set(idx.tolist())))
+    left: list[RefusedBlob] = []  # one refusal per blob (windows repeat them), none where a code was read
+    for rf in refused:
+        read = any(math.hypot(rf.u - r.u, rf.v - r.v) <= blob_px for r in readings)
+        seen = any(math.hypot(rf.u - o.u, rf.v - o.v) <= blob_px and (rf.kind, rf.code) == (o.kind, o.code)
+                   for o in left)
+        if not read and not seen:
+            left.append(rf)
+    return ViewDecode(readings, tuple(left), n, n - len(set(idx.tolist())))
