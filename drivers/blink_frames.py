@@ -101,6 +101,23 @@ def motes_with_codes(
     return out
 
 
+def motes_synchronized(
+    positions: dict[str, np.ndarray], codes: dict[str, np.ndarray], bit_period_s: float,
+    rng: np.random.Generator, epoch_s: float = 0.0, offset_s: float = 0.002, ppm_sd: float = 50.0,
+) -> list[BlinkingMote]:
+    """Motes that started bit 0 of their word at a broadcast ``epoch_s`` (camera host clock),
+    each off by a uniform ``+-offset_s`` (radio and serial latency the host does not
+    know) and drifting by a Gaussian crystal error of ``ppm_sd`` parts per million from
+    then on: what a synchronized (re)start gives. Records long after the epoch see the
+    drift accumulate (``t_start`` of :func:`render_view`)."""
+    out = []
+    for node in positions:
+        ppm = rng.normal(0.0, ppm_sd)
+        out.append(BlinkingMote(node, np.asarray(positions[node], float), np.asarray(codes[node], np.uint8),
+                                bit_period_s * (1.0 + 1e-6 * ppm), epoch_s + rng.uniform(-offset_s, offset_s)))
+    return out
+
+
 def _flicker_mean(t: np.ndarray, exposure: float, freq: float, depth: float, phase: float) -> np.ndarray:
     """Mean of ``1 + depth cos(w t' + phase)`` over ``[t, t + exposure]``, w = 2 pi freq."""
     w = 2.0 * math.pi * freq

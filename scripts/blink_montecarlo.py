@@ -9,7 +9,13 @@ start) and drifting (50 ppm). A decode is one true mote in the view. A reading i
 *mislabelled* when its centroid is not within 2 px of the true pixel of the mote its
 code names. Misses and ambiguous reports are counted, never guessed.
 
-    OPENBLAS_NUM_THREADS=1 .venv/bin/python scripts/blink_montecarlo.py --trials 250
+``--sync``: the synchronized book (:func:`fgloc.camera.blink_codes.sync_code_book`);
+motes start at a broadcast epoch, each off by up to +-2 ms and drifting at 50 ppm
+(sd), and the view is recorded a uniform 0..``--resync`` s after the last (re)start.
+``--slide N``: the recording goes on for N more code lengths and is decoded in
+sliding windows (:func:`fgloc.camera.blink_decoder.decode_windows`, keys ``sl_*``).
+
+    OPENBLAS_NUM_THREADS=1 .venv/bin/python scripts/blink_montecarlo.py --trials 250 [--fields] [--sync] [--slide 1]
 """
 
 from __future__ import annotations
@@ -21,28 +27,31 @@ from dataclasses import replace
 
 import numpy as np
 
-from fgloc.camera.blink_codes import code_book
-from fgloc.camera.blink_decoder import decode_view
+from fgloc.camera.blink_codes import code_book, sync_code_book
+from fgloc.camera.blink_decoder import SyncTiming, decode_view, decode_windows
 from fgloc.camera.intrinsics import CameraIntrinsics
 from fgloc.camera.pixel_angles import pixel_to_pan_tilt
 from fgloc.core.geometry import pan_tilt_bearing
 from fgloc.core.model import CameraPose
-from fgloc.drivers.blink_frames import BlinkRenderConfig, motes_with_codes, render_view
+from fgloc.drivers.blink_frames import BlinkRenderConfig, motes_synchronized, motes_with_codes, render_view
 from fgloc.drivers.rendered_camera import LedScene, RenderedCamera
 from fgloc.survey.coded_readings import field_intrinsics
 from fgloc.survey.field_plans import frames_for
 
 
 def trial(seed: int, n_motes: int, book_size: int, glints: int, fields: bool = False,
-          frames: int | None = None, extend: int = 0) -> dict[str, float]:
+          frames: int | None = None, extend: int = 0, sync: bool = False, resync_s: float = 10.0,
+          slide: int = 0) -> dict[str, float]:
     """One view. ``frames`` recorded (default 3L + 2); with ``extend`` > 0 the recording
     goes on for ``extend`` more frames and the whole stack is decoded again (keys ``ext_*``):
-    the retry of a view whose motes were missed, without moving the head."""
+    the retry of a view whose motes were missed, without moving the head. ``slide``:
+    ``slide`` more code lengths decoded in sliding windows (keys ``sl_*``). ``sync``: the
+    synchronized book and a synchronized start (see the module docstring)."""
     rng = np.random.default_rng(seed)
     intr = CameraIntrinsics.from_fov(640, 480, 65.0)
     if fields:
         intr = field_intrinsics(intr)
-    book = code_book(book_size)
+    book = sync_code_book(book_size) if sync else code_book(book_size)
     head_pan, head_tilt = rng.uniform(-math.pi, math.pi), rng.uniform(-0.6, 0.2)
     uv = np.column_stack([rng.uniform(15, intr.width - 15, n_motes), rng.uniform(15, intr.height - 15, n_motes)])
     pans, tilts = pixel_to_pan_tilt(intr, uv, head_pan, head_tilt)
@@ -57,18 +66,34 @@ def trial(seed: int, n_motes: int, book_size: int, glints: int, fields: bool = F
                       static_flux=0.5 * cfg.static_flux,
                       glint_flux=(0.5 * cfg.glint_flux[0], 0.5 * cfg.glint_flux[1]))
     period = round(1.0 / cfg.frame_rate_hz, 5)  # what the motes are told (10 us resolution)
-    motes = motes_with_codes(pos, codes, period, rng)
+    t_start = 0.0
+    timing: SyncTiming | None = None
+    if sync:
+        t_start = float(rng.uniform(0.0, resync_s))  # since the last synchronized (re)start, epoch 0
+        motes = motes_synchronized(pos, codes, period, rng)
+        timing = SyncTiming(0.0, period, cfg.exposure_s)
+    else:
+        motes = motes_with_codes(pos, codes, period, rng)
     spp, stt = pixel_to_pan_tilt(intr, rng.uniform(20, 620, (3, 2)) * [1, intr.height / intr.width], head_pan, head_tilt)
     statics = pan_tilt_bearing(spp, stt) * 20.0
     cam = RenderedCamera(CameraPose(np.zeros(3), np.eye(3)), LedScene(positions={}))
     k0 = frames if frames is not None else frames_for(book.length)
-    stack = render_view(cam, intr, head_pan, head_tilt, motes, k0 + extend, rng, cfg, statics)
+    ext = max(extend, slide * book.length)
+    stack = render_view(cam, intr, head_pan, head_tilt, motes, k0 + ext, rng, cfg, statics, t_start)
     truth = {int(i): uv[k] for k, i in enumerate(ids)}
     dmin = np.sqrt(((uv[:, None, :] - uv[None, :, :]) ** 2).sum(-1)) + np.diag(np.full(n_motes, np.inf))
     isolated = dmin.min(axis=1) >= 4.0  # no other mote within 4 px: the field plan's criterion
     out: dict[str, float] = {"decodes": n_motes, "isolated": int(isolated.sum())}
-    for prefix, fr in [("", stack[:k0])] + ([("ext_", stack)] if extend else []):
-        res = decode_view(fr, 1.0 / cfg.frame_rate_hz, book, intr, head_pan, head_tilt)
+    def within(periods: int) -> list[tuple[float, np.ndarray]]:  # frames of the first periods (jitter << period)
+        return [f for f in stack if f[0] < t_start + (periods - 0.5) / cfg.frame_rate_hz]
+
+    runs = [""] + (["ext_"] if extend else []) + (["sl_"] if slide else [])
+    for prefix in runs:
+        if prefix == "sl_":
+            res = decode_windows(stack, 1.0 / cfg.frame_rate_hz, book, intr, head_pan, head_tilt, k0, sync=timing)
+        else:
+            res = decode_view(within(k0 + (extend if prefix else 0)), 1.0 / cfg.frame_rate_hz, book, intr,
+                              head_pan, head_tilt, sync=timing)
         correct = mislabelled = 0
         ex: list[float] = []
         ey: list[float] = []
@@ -85,7 +110,7 @@ def trial(seed: int, n_motes: int, book_size: int, glints: int, fields: bool = F
                 mislabelled += 1
         iso_missed = sum(1 for k, i in enumerate(ids) if isolated[k] and int(i) not in found)
         out.update({prefix + "correct": correct, prefix + "mislabelled": mislabelled,
-                    prefix + "isolated_missed": iso_missed, prefix + "ambiguous": len(res.ambiguous()),
+                    prefix + "isolated_missed": iso_missed, prefix + "views_missing": float(iso_missed > 0), prefix + "ambiguous": len(res.ambiguous()),
                     prefix + "erased": res.erased, prefix + "samples": res.samples,
                     prefix + "sq_err": float(np.sum(np.square(ex)) + np.sum(np.square(ey))),
                     prefix + "n_err": 2 * len(ex), prefix + "sq_x": float(np.sum(np.square(ex))),
@@ -103,28 +128,34 @@ def main() -> None:
     ap.add_argument("--fields", action="store_true", help="decode 59.94 Hz fields (640 x 240), not frames")
     ap.add_argument("--frames", type=int, default=None, help="frames per view (default 3L + 2)")
     ap.add_argument("--extend", type=int, default=0, help="also decode after this many more frames")
+    ap.add_argument("--sync", action="store_true", help="synchronized book and start (epoch broadcast)")
+    ap.add_argument("--resync", type=float, default=10.0, help="seconds between synchronized (re)starts")
+    ap.add_argument("--slide", type=int, default=0, help="record this many more code lengths, sliding windows")
     args = ap.parse_args()
     tot: dict[str, float] = {}
     t0 = time.perf_counter()
     for k in range(args.trials):
         for key, v in trial(args.seed + k, args.motes, args.book, args.glints, args.fields, args.frames,
-                             args.extend).items():
+                             args.extend, args.sync, args.resync, args.slide).items():
             tot[key] = tot.get(key, 0.0) + v
     dt = time.perf_counter() - t0
     d = tot["decodes"]
-    book = code_book(args.book)
+    book = sync_code_book(args.book) if args.sync else code_book(args.book)
     k0 = args.frames if args.frames is not None else frames_for(book.length)
     print(f"{'fields 640 x 240 at 59.94 Hz' if args.fields else 'frames 640 x 480 at 29.97 Hz'}: "
-          f"{args.trials} views x {args.motes} motes (book {args.book}, L = {book.length}), {args.glints} glints/view, "
+          f"{args.trials} views x {args.motes} motes ({'synchronized' if args.sync else 'rotation-free'} book "
+          f"{args.book}, L = {book.length}), {args.glints} glints/view, "
           f"{dt:.0f} s")
-    for prefix, k in [("", k0)] + ([("ext_", k0 + args.extend)] if args.extend else []):
+    for prefix, k in [("", k0)] + ([("ext_", k0 + args.extend)] if args.extend else []) + (
+            [("sl_", k0 + args.slide * book.length)] if args.slide else []):
         miss = d - tot[prefix + "correct"] - tot[prefix + "mislabelled"]
         print(f"{k} samples/view, {tot[prefix + 'erased'] / tot[prefix + 'samples']:.1%} erased (drops + duplicates): "
               f"decodes {d:.0f}: correct {tot[prefix + 'correct']:.0f} ({tot[prefix + 'correct'] / d:.2%}), "
               f"mislabelled {tot[prefix + 'mislabelled']:.0f}, missed {miss:.0f} ({miss / d:.2%}), "
               f"ambiguous reports {tot[prefix + 'ambiguous']:.0f}")
         print(f"  isolated motes (no other within 4 px) {tot['isolated']:.0f}: missed "
-              f"{tot[prefix + 'isolated_missed']:.0f} ({tot[prefix + 'isolated_missed'] / max(tot['isolated'], 1):.2%})")
+              f"{tot[prefix + 'isolated_missed']:.0f} ({tot[prefix + 'isolated_missed'] / max(tot['isolated'], 1):.2%}); "
+              f"views with an isolated miss {tot[prefix + 'views_missing'] / args.trials:.1%}")
         rms = math.sqrt(tot[prefix + "sq_err"] / max(tot[prefix + "n_err"], 1))
         n_xy = max(tot[prefix + "n_xy"], 1)
         print(f"  angle error RMS per axis of correct readings: {math.degrees(rms) * 3600:.1f} arcsec "

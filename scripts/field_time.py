@@ -6,32 +6,55 @@ towards the square's centre. Both surveys search the same region: the pan-tilt b
 (sequential) or the directions (coded) of the square seen from each camera.
 Camera: 640 x 480, 65 deg horizontal field of view (EVI-D100 wide end).
 
-    OPENBLAS_NUM_THREADS=1 .venv/bin/python scripts/field_time.py [--miss-rate Q] [--head EVI-D100] \
-        [--frames] [--unicast] [--levels 0.111,0.333,1] [--periods 3]
+    OPENBLAS_NUM_THREADS=1 .venv/bin/python scripts/field_time.py --miss-rate Q [--frames] [--sync] [--need 2] \
+        [--old] [--unicast] [--head EVI-D100] [--sizes 100x2,1000x4]
 
 ``--miss-rate`` is the per-decode miss rate of isolated motes measured by
-scripts/blink_montecarlo.py (frames 0.0494, fields 0.1296); a view in which any of its
-motes is expected to be missed is recorded twice. The coded survey starts every mote by
-one broadcast (``--unicast``: one start per mote), decodes fields on interlaced heads
-(``--frames``: frames), and refines crowded motes on the zoom ladder ``--levels``.
+scripts/blink_montecarlo.py for the same video and book. The coded survey (``Variant``):
+
+* starts every mote by one broadcast sent three times (``--unicast``: one start per mote);
+  with ``--sync`` the synchronized book, its start repeated every 10 s (resync);
+* decodes fields on interlaced heads (``--frames``: frames);
+* records K = 3L + 2 samples per view (``--extend N``: N more code lengths, sliding windows);
+* retries a view in which any of its motes is expected to be missed by recording on for
+  one more code length without moving (``--burst-retry``: a new burst of K, the old
+  pricing); refinement views are retried the same way (``--no-refine-retry``: never);
+* refines crowded motes (neighbour within 4 px at the survey zoom) in tiles, a
+  higher-zoom tile also serving the lower-zoom targets it covers (``--separate-tiles``:
+  not), on the cheapest, per camera, of the zoom ladders ``LADDERS`` priced on the
+  clock (``--fixed-ladder``: ``--levels`` only); with ``--need 2``, only where fewer
+  than two other cameras resolve the mote;
+* ends at its last recording (``--zoom-out``: zooms back out first).
+
+``--old`` prices the previous plan (rotation-free book, burst retries of wide views only,
+separate tiles on the fixed ladder, zoom-out). The sequential column is the same in
+every variant.
 """
 
 from __future__ import annotations
 
 import argparse
 import math
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
-from fgloc.camera.blink_codes import code_book
+from fgloc.camera.blink_codes import code_book, sync_code_book
 from fgloc.camera.intrinsics import CameraIntrinsics
 from fgloc.camera.led_search import SearchConfig
 from fgloc.core.geometry import bearing_pan_tilt, rot_z, world_to_base
 from fgloc.core.model import CameraPose
-from fgloc.survey.clock import HEAD_MODELS, CameraTiming, RigTiming
-from fgloc.survey.field_plans import coded_survey_time, frames_for, sequential_survey_time
-from fgloc.survey.view_planner import RefinePass, coverage, plan_refinement, plan_views
+from fgloc.survey.clock import HEAD_MODELS, CameraTiming, RigTiming, price
+from fgloc.survey.field_plans import (
+    SequentialTime,
+    coded_survey_time,
+    frames_for,
+    refinement_ops,
+    sequential_survey_time,
+)
+from fgloc.survey.view_planner import RefinePass, coverage, needed_from, neighbour_px, plan_refinement, plan_views
+
+SEPARATION_PX = 4.0
 
 
 def cameras(n: int, height: float = 0.1) -> dict[str, CameraPose]:
@@ -51,8 +74,40 @@ def field_directions(pose: CameraPose, step: float = 0.01) -> np.ndarray:
     return np.column_stack([p, t])
 
 
+@dataclass(frozen=True)
+class Variant:
+    """How the coded survey is run (see the module docstring)."""
+
+    fields: bool = True  #: decode fields on interlaced heads
+    broadcast: bool = True  #: one broadcast start, not one unicast per mote
+    sync: bool = False  #: synchronized book (epoch broadcast, resync every RESYNC_S)
+    extend: int = 0  #: more code lengths recorded in every view (sliding windows)
+    continuous_retry: bool = True  #: a retry goes on recording one code length, not a new burst
+    retry_refinement: bool = True  #: refinement views are retried like wide views
+    zoom_out: bool = False  #: zoom back out after the last refinement pass
+    need: int = 0  #: refine a mote only where fewer than this many other cameras resolve it (0: always)
+    share_tiles: bool = True  #: a higher-zoom refinement tile also serves lower-zoom targets it covers
+    pick_ladder: bool = True  #: per camera, the zoom ladder of LADDERS whose refinement is cheapest on the clock
+
+
+_SEQUENTIAL: dict[tuple[int, int, int, RigTiming], SequentialTime] = {}
+OLD = Variant(continuous_retry=False, retry_refinement=False, zoom_out=True, share_tiles=False,
+              pick_ladder=False)
+#: candidate refinement zoom ladders (fractions of the optical range, 1x..10x): the old one first
+LADDERS = ((1 / 9, 3 / 9, 1.0), (1 / 9, 2 / 9, 4 / 9, 1.0), (0.2, 0.5, 1.0), (1 / 18, 1 / 9, 2 / 9, 1 / 3, 5 / 9, 1.0))
+RESYNC_S = 10.0
+
+
+def _retry_fraction(intr: CameraIntrinsics, pt: np.ndarray, views: list[tuple[float, float]], q: float) -> float:
+    """Expected fraction of ``views`` with at least one of their motes missed (rate ``q`` each)."""
+    if not views:
+        return 0.0
+    per_view = coverage(intr, pt, np.array(views), 12.0).sum(axis=1)
+    return float(np.mean(1.0 - (1.0 - q) ** per_view))
+
+
 def run(n_motes: int, n_cams: int, timing: RigTiming, miss_rate: float, seed: int = 0,
-        fields: bool = True, broadcast: bool = True, levels: tuple[float, ...] = (1 / 9, 3 / 9, 1.0),
+        variant: Variant = Variant(), levels: tuple[float, ...] = (1 / 9, 3 / 9, 1.0),
         periods: int = 3) -> dict[str, float]:
     rng = np.random.default_rng(seed)
     nodes = np.column_stack([rng.uniform(0, 1, (n_motes, 2)), np.zeros(n_motes)])
@@ -60,12 +115,13 @@ def run(n_motes: int, n_cams: int, timing: RigTiming, miss_rate: float, seed: in
     cams = cameras(n_cams)
     bearings, searches, views = {}, {}, {}
     refine: dict[str, list[RefinePass]] = {}
-    book = code_book(n_motes)
+    book = sync_code_book(n_motes) if variant.sync else code_book(n_motes)
     k = frames_for(book.length, periods)
-    fields = fields and timing.head.interlaced
+    fields = variant.fields and timing.head.interlaced
     coded_timing = replace(timing, camera=timing.camera.at_field_rate()) if fields else timing
-    retry_views = 0.0
+    retry_views = refine_retry = 0.0
     unresolved = 0
+    pts: dict[str, np.ndarray] = {}
     for c, pose in cams.items():
         d = world_to_base(pose.rotation, pose.position, nodes)
         bearings[c] = d / np.linalg.norm(d, axis=1, keepdims=True)
@@ -73,22 +129,47 @@ def run(n_motes: int, n_cams: int, timing: RigTiming, miss_rate: float, seed: in
         searches[c] = SearchConfig(pan_min=float(region[:, 0].min()), pan_max=float(region[:, 0].max()),
                                    tilt_min=float(region[:, 1].min()), tilt_max=float(region[:, 1].max()))
         views[c] = plan_views(intr, region)
-        pt = np.column_stack(bearing_pan_tilt(bearings[c]))
-        cov = coverage(intr, pt, np.array(views[c]), 12.0)
-        per_view = cov.sum(axis=1)
-        retry_views += float(np.sum(1.0 - (1.0 - miss_rate) ** per_view)) / max(len(views[c]), 1) / n_cams
-        refine[c], lost = plan_refinement(intr, pt, 4.0, levels, start=views[c][-1], field_rows=fields)
-        unresolved += lost
-    seq = sequential_survey_time(bearings, intr, searches, timing)
+        pts[c] = np.column_stack(bearing_pan_tilt(bearings[c]))
+        retry_views += _retry_fraction(intr, pts[c], views[c], miss_rate) / n_cams
+    resolved = {c: neighbour_px(pts[c], intr, fields) >= SEPARATION_PX for c in cams}
+    needed = needed_from(resolved, variant.need) if variant.need else {c: None for c in cams}
+    n_refine = 0
+    extend = variant.extend * book.length
+    retry_frames = book.length if variant.continuous_retry else None
+    for c in cams:
+        best = math.inf
+        for ladder in (LADDERS if variant.pick_ladder else (levels,)):
+            passes, lost = plan_refinement(intr, pts[c], SEPARATION_PX, ladder, start=views[c][-1],
+                                           field_rows=fields, needed=needed[c], share_tiles=variant.share_tiles)
+            nv = sum(len(rp.views) for rp in passes)
+            q = sum(_retry_fraction(intr.at_zoom(rp.zoom), pts[c], rp.views, miss_rate) * len(rp.views)
+                    for rp in passes) / max(nv, 1)
+            cost = price(refinement_ops(passes, k, views[c][-1], q if variant.retry_refinement else 0.0, extend,
+                                        retry_frames, variant.zoom_out), coded_timing).total
+            if cost < best:  # the cheapest ladder on the clock (ties: the first)
+                best, refine[c], lost_c, q_c, nv_c = cost, passes, lost, q, nv
+        unresolved += lost_c
+        refine_retry += q_c * nv_c
+        n_refine += nv_c
+    refine_retry /= max(n_refine, 1)
+    key = (n_motes, n_cams, seed, timing)
+    if key not in _SEQUENTIAL:  # the same in every variant
+        _SEQUENTIAL[key] = sequential_survey_time(bearings, intr, searches, timing)
+    seq = _SEQUENTIAL[key]
     # the start broadcast is sent three times (a running mote ignores a repeat); a mote that
     # missed all three is a miss, retried like the decoder's misses
-    coded = coded_survey_time(views, n_motes, k, coded_timing, retry_fraction=retry_views, refine=refine,
-                              broadcast_start=broadcast, start_broadcasts=3)
+    coded = coded_survey_time(
+        views, n_motes, k, coded_timing, retry_fraction=retry_views, refine=refine,
+        broadcast_start=variant.broadcast, start_broadcasts=3, extend_frames=extend, retry_frames=retry_frames,
+        refine_retry_fraction=refine_retry if variant.retry_refinement else 0.0, zoom_out=variant.zoom_out,
+        resync_s=RESYNC_S if variant.sync else None)
     return {
         "seq": seq.time.total, "seq_desc": seq.time.describe(), "coded": coded.time.total,  # type: ignore[dict-item]
         "coded_desc": coded.time.describe(), "views": sum(coded.views.values()) / n_cams,  # type: ignore[dict-item]
-        "L": book.length, "K": k, "refine": coded.refinements, "retry": retry_views, "missing": seq.not_found,
-        "unresolved": unresolved, "rate": coded_timing.camera.frame_rate_hz,
+        "L": book.length, "K": k + variant.extend * book.length, "refine": coded.refinements, "retry": retry_views,
+        "refine_retry": refine_retry, "missing": seq.not_found, "unresolved": unresolved,
+        "rate": coded_timing.camera.frame_rate_hz, "phases": coded.time.phases,  # type: ignore[dict-item]
+        "seq_phases": seq.time.phases,  # type: ignore[dict-item]
     }
 
 
@@ -99,25 +180,41 @@ def main() -> None:
     ap.add_argument("--fps", type=float, default=30000.0 / 1001.0)
     ap.add_argument("--frames", action="store_true", help="decode frames, not fields (interlaced heads)")
     ap.add_argument("--unicast", action="store_true", help="one unicast start per mote, not a broadcast")
+    ap.add_argument("--sync", action="store_true", help="the synchronized book (epoch broadcast, resync every 10 s)")
+    ap.add_argument("--extend", type=int, default=0, help="code lengths recorded beyond K in every view")
+    ap.add_argument("--burst-retry", action="store_true", help="a retry records a new burst of K frames")
+    ap.add_argument("--no-refine-retry", action="store_true", help="refinement views are never retried")
+    ap.add_argument("--zoom-out", action="store_true", help="zoom back out after the last refinement pass")
+    ap.add_argument("--separate-tiles", action="store_true", help="each zoom level tiles only its own targets")
+    ap.add_argument("--fixed-ladder", action="store_true", help="refine on --levels only, not the cheapest of LADDERS")
+    ap.add_argument("--need", type=int, default=0,
+                    help="refine a mote only where fewer than this many other cameras resolve it (0: always)")
+    ap.add_argument("--old", action="store_true", help="the previous plan: rotation-free book, burst retries of "
+                    "wide views only, zoom out at the end (other flags but --frames/--unicast ignored)")
     ap.add_argument("--periods", type=int, default=3, help="code periods recorded per view (K = periods x L + 2)")
     ap.add_argument("--levels", default="0.111,0.333,1", help="refinement zoom ladder (fractions, ascending)")
+    ap.add_argument("--sizes", default="100x2,100x4,1000x2,1000x4", help="scenes, motes x cameras")
     args = ap.parse_args()
     levels = tuple(float(x) for x in args.levels.split(","))
     timing = RigTiming(head=HEAD_MODELS[args.head], camera=CameraTiming(frame_rate_hz=args.fps))
-    print(f"head {args.head}, {args.fps:.2f} frames/s, miss rate {args.miss_rate}, "
-          f"{'unicast' if args.unicast else 'broadcast'} start, refinement zooms {levels}")
+    variant = Variant(fields=not args.frames, broadcast=not args.unicast, sync=args.sync,
+                      extend=args.extend, continuous_retry=not args.burst_retry,
+                      retry_refinement=not args.no_refine_retry, zoom_out=args.zoom_out, need=args.need,
+                      share_tiles=not args.separate_tiles, pick_ladder=not args.fixed_ladder)
+    if args.old:
+        variant = replace(OLD, fields=not args.frames, broadcast=not args.unicast)
+    print(f"head {args.head}, {args.fps:.2f} frames/s, miss rate {args.miss_rate}, refinement zooms {levels}, {variant}")
     print("| motes | cameras | sequential (s) | coded (s) | speed-up | L | samples/view | decode rate (Hz) | "
-          "views/camera | refinement views | retried views | unresolved |")
+          "views/camera | refinement views | retried views (wide / refinement) | unresolved |")
     print("|---|---|---|---|---|---|---|---|---|---|---|---|")
-    for n in (100, 1000):
-        for c in (2, 4):
-            r = run(n, c, timing, args.miss_rate, fields=not args.frames, broadcast=not args.unicast, levels=levels,
-                    periods=args.periods)
-            print(f"| {n} | {c} | {r['seq']:.1f} | {r['coded']:.1f} | {r['seq'] / r['coded']:.1f}x | {r['L']} | "
-                  f"{r['K']} | {r['rate']:.2f} | {r['views']:.1f} | {r['refine']} | {r['retry']:.2f} | "
-                  f"{r['unresolved']} |")
-            print(f"|   | sequential phases: {r['seq_desc']} (not found {r['missing']}) |||||||||||")
-            print(f"|   | coded phases: {r['coded_desc']} |||||||||||")
+    for size in args.sizes.split(","):
+        n, c = (int(x) for x in size.split("x"))
+        r = run(n, c, timing, args.miss_rate, variant=variant, levels=levels, periods=args.periods)
+        print(f"| {n} | {c} | {r['seq']:.1f} | {r['coded']:.1f} | {r['seq'] / r['coded']:.1f}x | {r['L']} | "
+              f"{r['K']} | {r['rate']:.2f} | {r['views']:.1f} | {r['refine']} | {r['retry']:.2f} / "
+              f"{r['refine_retry']:.2f} | {r['unresolved']} |")
+        print(f"|   | sequential phases: {r['seq_desc']} (not found {r['missing']}) |||||||||||")
+        print(f"|   | coded phases: {r['coded_desc']} |||||||||||")
 
 
 if __name__ == "__main__":

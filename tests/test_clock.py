@@ -85,3 +85,35 @@ def test_field_rate_and_coded_plan_by_hand() -> None:
     assert ct.refinements == 2
     unicast = coded_survey_time(views, 100, 10, timing, broadcast_start=False)
     assert unicast.time.phases["radio"] == pytest.approx(100 * 0.03 + 0.01)
+
+
+def test_continuous_frames_retries_extensions_and_resync_by_hand() -> None:
+    from fgloc.survey.field_plans import coded_survey_time
+    from fgloc.survey.view_planner import RefinePass
+
+    cam = CameraTiming(frame_rate_hz=50.0, grab_latency_s=0.04)
+    timing = RigTiming(head=EVI_D100, camera=cam, radio=RadioTiming(unicast_s=0.03, broadcast_s=0.01))
+    assert price([Frames(10, continuous=True)], timing).total == pytest.approx(0.2)  # no wait, no latency
+    d10 = math.radians(10.0)
+    views = {"a": [(0.0, 0.0), (d10, 0.0), (2 * d10, 0.0), (3 * d10, 0.0)]}
+    refine = {"a": [RefinePass(0.5, [(3 * d10, -d10), (3 * d10, -2 * d10)], 4)]}
+    ct = coded_survey_time(views, 100, 20, timing, retry_fraction=0.5, refine=refine, start_broadcasts=3,
+                           extend_frames=10, retry_frames=8, refine_retry_fraction=0.5, zoom_out=False,
+                           resync_s=4.0)
+    burst = 0.01 + 30 * 0.02 + 0.04  # K + extension in one burst
+    view = 0.1 + 0.04 + burst
+    wide = (0.05 + view) + 3 * (EVI_D100.slew_time(d10, 0.0) + view) + 2 * 8 * 0.02  # 2 of 4 retried
+    fine = 0.5 * 2.0 + 2 * (EVI_D100.slew_time(0.0, d10) + view) + 1 * 8 * 0.02  # zoom in, no zoom out
+    lane = wide + fine
+    resyncs = math.ceil(lane / 4.0) - 1
+    assert ct.time.total == pytest.approx(lane + (3 + 1 + 3 * resyncs) * 0.01)
+    # the phases add up to the total, refinement under 'centring'
+    assert sum(ct.time.phases.values()) == pytest.approx(ct.time.total)
+    assert ct.time.phases["centring"] == pytest.approx(fine)
+    # the old defaults: burst retries of K frames for wide views only, and the zoom back out
+    old = coded_survey_time(views, 100, 20, timing, retry_fraction=0.5, refine=refine, start_broadcasts=3)
+    burst0 = 0.01 + 20 * 0.02 + 0.04
+    view0 = 0.1 + 0.04 + burst0
+    wide0 = (0.05 + view0) + 3 * (EVI_D100.slew_time(d10, 0.0) + view0) + 2 * burst0
+    fine0 = 0.5 * 2.0 * 2 + 2 * (EVI_D100.slew_time(0.0, d10) + view0)
+    assert old.time.total == pytest.approx(wide0 + fine0 + 4 * 0.01)

@@ -5,9 +5,17 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 
 from fgloc.camera.intrinsics import CameraIntrinsics
-from fgloc.survey.view_planner import box_targets, coverage, neighbour_px, plan_refinement, plan_views
+from fgloc.survey.view_planner import (
+    box_targets,
+    coverage,
+    needed_from,
+    neighbour_px,
+    plan_refinement,
+    plan_views,
+)
 
 
 def test_box_is_covered_by_few_views() -> None:
@@ -66,3 +74,51 @@ def test_refinement_zooms_only_as_far_as_needed() -> None:
     sep = pairs[0.6]
     cov = coverage(tele, np.array(pts[5:7]), np.array(passes[2].views), 12.0)
     assert cov.all() and sep[0] == -0.6
+
+
+def _crowded_scene(seed: int, n: int) -> np.ndarray:
+    """(pan, tilt) of motes on the unit square seen from a camera 0.1 above a corner."""
+    from fgloc.core.geometry import bearing_pan_tilt, rot_z, world_to_base
+
+    rng = np.random.default_rng(seed)
+    pts = np.column_stack([rng.uniform(0, 1, (n, 2)), np.zeros(n)])
+    d = world_to_base(rot_z(math.pi / 4), np.array([0.0, 0.0, 0.1]), pts)
+    return np.column_stack(bearing_pan_tilt(d))
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_shared_tiles_cover_every_target_at_a_zoom_that_separates_it(seed: int) -> None:
+    intr = CameraIntrinsics.from_fov(640, 480, 65.0)
+    pt = _crowded_scene(seed, 600)
+    levels = (1 / 9, 3 / 9, 1.0)
+    alone, lost_a = plan_refinement(intr, pt, 4.0, levels, field_rows=True)
+    shared, lost_s = plan_refinement(intr, pt, 4.0, levels, field_rows=True, share_tiles=True)
+    assert lost_a == lost_s
+    assert sum(len(rp.views) for rp in shared) <= sum(len(rp.views) for rp in alone)
+    assert [rp.zoom for rp in shared] == sorted(rp.zoom for rp in shared)  # recorded in ascending zoom
+    need = 4.0 / np.maximum(neighbour_px(pt, intr, field_rows=True), 1e-12)
+    served = np.zeros(len(pt), bool)
+    for rp in shared:
+        zi = intr.at_zoom(rp.zoom)
+        cov = coverage(zi, pt, np.array(rp.views), 12.0).any(axis=0)
+        served |= cov & (need <= zi.fx / intr.fx)  # in a tile whose zoom separates it
+    crowded = need > 1.0
+    reachable = need <= intr.at_zoom(1.0).fx / intr.fx
+    assert served[crowded & reachable].all()
+    assert lost_s == int((crowded & ~reachable).sum())
+
+
+def test_needed_from_two_and_four_cameras() -> None:
+    resolved = {"a": np.array([True, False, False, True]), "b": np.array([False, False, True, True])}
+    need = needed_from(resolved)
+    assert all(need[c].all() for c in resolved)  # two cameras: every target from both
+    four = {"a": np.array([False, False, True]), "b": np.array([True, True, True]),
+            "c": np.array([True, False, True]), "d": np.array([False, True, False])}
+    need4 = needed_from(four)
+    assert need4["a"].tolist() == [False, False, False]  # target 0: b, c; 1: b, d resolve it
+    assert need4["d"].tolist() == [False, True, False]  # target 2: a, b, c resolve it
+    intr = CameraIntrinsics.from_fov(640, 480, 65.0)
+    pt = _crowded_scene(0, 300)
+    crowded = neighbour_px(pt, intr) < 4.0
+    passes, lost = plan_refinement(intr, pt, 4.0, needed=~crowded)  # none needed: nothing refined or lost
+    assert passes == [] and lost == 0

@@ -39,6 +39,14 @@ decoded, is reported missed and is started again by a unicast. Nodes still send 
 blink report, after a random backoff, while the cameras record; nobody waits for them.
 A stop for all nodes is the 10-byte stop payload sent to ``0xFFFF``.
 
+**Synchronized start by address**: the same layout with command ``0x03``
+(``BlinkBroadcast(..., synchronized=True)``). Node ``A`` runs word ``A - A0`` of the
+*synchronized* ``L``-bit book (:func:`fgloc.camera.blink_codes.sync_code_book`) and
+starts bit 0 of it when the packet arrives (the epoch); a node already running the
+same word re-aligns its bit clock to that moment (the base station repeats the
+packet at whole words of the nominal schedule, so the re-alignment only removes
+crystal drift). Old payloads (0x00, 0x01, 0x02) are unchanged.
+
 Example (protocols.md 3.4 framing): start node 5 with the 16-bit word 0x0A5F at
 33.37 ms per bit until stopped, seq 0x01::
 
@@ -56,7 +64,7 @@ from fgloc.drivers.tinyos.messages import AM_BROADCAST, DEFAULT_GROUP, AmPacket
 
 AM_BLINK_CODE = 0x8B
 AM_BLINK_REPORT = 0x8C
-BLINK_STOP, BLINK_START, BLINK_START_BY_ADDRESS = 0x00, 0x01, 0x02
+BLINK_STOP, BLINK_START, BLINK_START_BY_ADDRESS, BLINK_START_SYNCHRONIZED = 0x00, 0x01, 0x02, 0x03
 MAX_CODE_BITS = 32
 BIT_PERIOD_UNIT_S = 1e-5
 
@@ -113,6 +121,7 @@ class BlinkBroadcast:
     count: int
     bit_period_s: float
     cycles: int = 0
+    synchronized: bool = False  #: command 0x03: the synchronized book, bit 0 at the packet's arrival
 
     def payload(self) -> bytes:
         """The 10-byte payload (see the module docstring)."""
@@ -125,19 +134,21 @@ class BlinkBroadcast:
             raise ValueError(f"bit period {self.bit_period_s} s not in 10 us .. 655.35 ms")
         if not 0 <= self.cycles <= 0xFFFF:
             raise ValueError(f"cycles {self.cycles} not in 0..65535")
-        return (bytes([BLINK_START_BY_ADDRESS, self.length]) + self.first.to_bytes(2, "big")
+        command = BLINK_START_SYNCHRONIZED if self.synchronized else BLINK_START_BY_ADDRESS
+        return (bytes([command, self.length]) + self.first.to_bytes(2, "big")
                 + self.count.to_bytes(2, "big") + period.to_bytes(2, "big") + self.cycles.to_bytes(2, "big"))
 
     @staticmethod
     def from_payload(payload: bytes) -> BlinkBroadcast:
         """Inverse of :meth:`payload`; MoteProtocolError on a malformed payload."""
-        if len(payload) != 10 or payload[0] != BLINK_START_BY_ADDRESS:
+        if len(payload) != 10 or payload[0] not in (BLINK_START_BY_ADDRESS, BLINK_START_SYNCHRONIZED):
             raise MoteProtocolError(f"not a broadcast blink payload: {payload.hex(' ')}")
         length = payload[1]
         first, count, period, cycles = (int.from_bytes(payload[i:i + 2], "big") for i in (2, 4, 6, 8))
         if not 8 <= length <= MAX_CODE_BITS or count == 0 or period == 0 or first + count > 0xFFFF:
             raise MoteProtocolError(f"broadcast blink: bad length/addresses/period: {payload.hex(' ')}")
-        return BlinkBroadcast(length, first, count, period * BIT_PERIOD_UNIT_S, cycles)
+        return BlinkBroadcast(length, first, count, period * BIT_PERIOD_UNIT_S, cycles,
+                              payload[0] == BLINK_START_SYNCHRONIZED)
 
     def word_index(self, address: int) -> int | None:
         """Book index node ``address`` runs, or None (the node stays dark)."""
@@ -156,7 +167,7 @@ def word_for_address(book: CodeBook, command: BlinkBroadcast, address: int) -> i
     """The code word node ``address`` runs after ``command`` (what the firmware's table gives),
     or None when the node stays dark or ``book`` has another length or too few words."""
     k = command.word_index(address)
-    if k is None or book.length != command.length or k >= len(book):
+    if k is None or book.length != command.length or k >= len(book) or book.synchronized != command.synchronized:
         return None
     return book.words[k]
 
@@ -172,7 +183,7 @@ def parse_blink_command(packet: AmPacket) -> BlinkCommand | BlinkBroadcast | Non
     if packet.am_type != AM_BLINK_CODE:
         return None
     try:
-        if packet.payload[:1] == bytes([BLINK_START_BY_ADDRESS]):
+        if packet.payload[:1] in (bytes([BLINK_START_BY_ADDRESS]), bytes([BLINK_START_SYNCHRONIZED])):
             return BlinkBroadcast.from_payload(packet.payload) if packet.dest == AM_BROADCAST else None
         return BlinkCommand.from_payload(packet.payload)
     except MoteProtocolError:
@@ -219,9 +230,9 @@ class BlinkField:
         if cmd is None:
             return []
         if isinstance(cmd, BlinkBroadcast):
-            from fgloc.camera.blink_codes import code_book
+            from fgloc.camera.blink_codes import code_book, sync_code_book
 
-            book = code_book(cmd.count, cmd.length)
+            book = (sync_code_book if cmd.synchronized else code_book)(cmd.count, cmd.length)
             addrs = range(cmd.first, cmd.first + cmd.count) if self.nodes is None else sorted(self.nodes)
             out = []
             for a in addrs:

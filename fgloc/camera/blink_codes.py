@@ -22,6 +22,19 @@ smallest rotation of each word) in increasing order, accepted when none of their
 rotations lies within distance 2 of an already accepted rotation. ``code_book(n)``
 returns the shortest length ``L`` whose book holds ``n`` words (lengths 8..24).
 Word ``k`` of a book is the code of the ``k``-th mote in the survey's node order.
+
+**Synchronized books** (:func:`sync_code_book`): when every mote starts its word at a
+broadcast epoch (and is re-synchronized often enough that its crystal drift stays
+below half a bit, see ``docs/blink-codes.md``), the camera knows each sample's bit
+position up to one bit: a sample taken near a bit edge may belong to the neighbouring
+bit. The book then only needs distance >= 3 between words shifted by at most one
+bit against each other (``d(w_i, rot_k(w_j)) >= 3`` for ``i != j``, ``|k| <= 1``),
+not between all rotations; the same word rules apply, words need not be the smallest
+rotation of their necklace. The decoder tries the expected alignment and the one
+neighbouring shift towards the nearer bit edge (:meth:`CodeBook.identify_synchronized`);
+a received word within two bit errors of one word at one of those two shifts is never
+within two bit errors of another word at either. 100 motes: L = 14 (rotation-free: 16);
+1000 motes: L = 18 (rotation-free: 20).
 """
 
 from __future__ import annotations
@@ -36,6 +49,8 @@ from fgloc.core.errors import FglocError
 
 MIN_DISTANCE = 3
 MIN_LENGTH, MAX_LENGTH = 8, 24
+#: largest shift (bits) between words that a synchronized book keeps apart (the phase guard)
+SYNC_SHIFT = 1
 
 
 class CodeBookError(FglocError):
@@ -86,9 +101,9 @@ def _combinations(n: int, r: int) -> list[tuple[int, ...]]:
     return list(combinations(range(n), r))
 
 
-def _word_ok(word: int, length: int) -> bool:
+def _word_ok(word: int, length: int, canonical: bool = True) -> bool:
     rots = rotations(word, length)
-    if min(rots) != word or len(set(rots)) != length:  # not canonical / not primitive
+    if (canonical and min(rots) != word) or len(set(rots)) != length:  # not canonical / not primitive
         return False
     w = bin(word).count("1")
     lo = math.ceil(length / 3)
@@ -117,12 +132,34 @@ def _greedy_book(length: int, limit: int) -> tuple[int, ...]:
     return tuple(book)
 
 
+@functools.lru_cache(maxsize=32)
+def _greedy_sync_book(length: int, limit: int) -> tuple[int, ...]:
+    """Greedy synchronized book: distance >= 3 between distinct words shifted by <= SYNC_SHIFT bits."""
+    forbidden = np.zeros(1 << length, dtype=bool)
+    ball = _ball(length, MIN_DISTANCE - 1)
+    book: list[int] = []
+    for word in range(1, 1 << length):
+        if forbidden[word] or not _word_ok(word, length, canonical=False):
+            continue
+        shifted = np.array([rotate(word, k, length) for k in range(-SYNC_SHIFT, SYNC_SHIFT + 1)], dtype=np.int64)
+        if forbidden[shifted].any():
+            continue
+        book.append(word)
+        forbidden[(shifted[:, None] ^ ball[None, :]).ravel()] = True
+        if len(book) >= limit:
+            break
+    return tuple(book)
+
+
 @dataclass(frozen=True)
 class CodeBook:
-    """``words`` of ``length`` bits; every rotation pair of distinct words differs in >= 3 bits."""
+    """``words`` of ``length`` bits. Rotation-free (default): every rotation pair of distinct
+    words differs in >= 3 bits. ``synchronized``: distinct words shifted by at most
+    :data:`SYNC_SHIFT` bits against each other differ in >= 3 bits (see the module docstring)."""
 
     length: int
     words: tuple[int, ...]
+    synchronized: bool = False
 
     def __len__(self) -> int:
         return len(self.words)
@@ -135,12 +172,43 @@ class CodeBook:
     def _lookup(self) -> dict[int, tuple[int, int]]:
         return {r: (i, k) for i, w in enumerate(self.words) for k, r in enumerate(rotations(w, self.length))}
 
+    @functools.cached_property
+    def _exact(self) -> dict[int, int]:
+        return {w: i for i, w in enumerate(self.words)}
+
     def identify(self, word: int) -> tuple[int, int] | None:
-        """(book index, rotation) of an exactly received word, or None (unknown word)."""
+        """(book index, rotation) of an exactly received word, or None (unknown word).
+        Rotation-free books only; a synchronized book uses :meth:`identify_synchronized`."""
+        if self.synchronized:
+            raise ValueError("a synchronized book identifies aligned words: use identify_synchronized")
         return self._lookup.get(word)
 
+    def identify_synchronized(self, word: int, shifts: tuple[int, ...] = (0,)) -> tuple[int, int] | None:
+        """(book index, shift) of ``word`` (received in book alignment: bit 0 of the word
+        first) when ``rotate(word, -shift)`` is exactly a book word for one of ``shifts``
+        (each ``|shift| <= SYNC_SHIFT``, at most two shifts one bit apart); None when none
+        or two different words match (never guessed)."""
+        if not self.synchronized:
+            raise ValueError("identify_synchronized needs a synchronized book")
+        if len(shifts) > 2 or any(abs(k) > SYNC_SHIFT for k in shifts) or (
+                len(shifts) == 2 and abs(shifts[0] - shifts[1]) > SYNC_SHIFT):
+            raise ValueError(f"shifts {shifts}: at most two, {SYNC_SHIFT} bit apart, each within the guard")
+        hits = {(self._exact[w], k) for k in shifts if (w := rotate(word, -k, self.length)) in self._exact}
+        if len({i for i, _ in hits}) != 1:
+            return None
+        return min(hits, key=lambda h: abs(h[1]))
+
     def min_distance(self) -> int:
-        """Smallest Hamming distance between rotations of two different words (brute force)."""
+        """Smallest Hamming distance between two different words under every rotation
+        (rotation-free) or every shift of at most :data:`SYNC_SHIFT` bits (synchronized); brute force."""
+        if self.synchronized:
+            best = self.length
+            for i, a in enumerate(self.words):
+                for j, b in enumerate(self.words):
+                    if i != j:
+                        for k in range(-SYNC_SHIFT, SYNC_SHIFT + 1):
+                            best = min(best, hamming(a, rotate(b, k, self.length)))
+            return best
         rots = [rotations(w, self.length) for w in self.words]
         best = self.length
         for i in range(len(rots)):
@@ -163,3 +231,18 @@ def code_book(n_motes: int, length: int | None = None) -> CodeBook:
         if len(words) >= n_motes:
             return CodeBook(ln, words[:n_motes])
     raise CodeBookError(f"code book: motes: more than a {lengths[-1]}-bit book holds ({n_motes})")
+
+
+def sync_code_book(n_motes: int, length: int | None = None) -> CodeBook:
+    """The synchronized book for ``n_motes`` motes (see the module docstring): at ``length``
+    bits, or the shortest length that fits. Word ``k`` is the same for every book size."""
+    if n_motes < 1:
+        raise CodeBookError(f"code book: motes: need at least one ({n_motes})")
+    lengths = [length] if length is not None else list(range(MIN_LENGTH, MAX_LENGTH + 1))
+    for ln in lengths:
+        if not MIN_LENGTH <= ln <= MAX_LENGTH:
+            raise CodeBookError(f"code book: length: must be {MIN_LENGTH}..{MAX_LENGTH} bits ({ln})")
+        words = _greedy_sync_book(ln, n_motes)
+        if len(words) >= n_motes:
+            return CodeBook(ln, words[:n_motes], synchronized=True)
+    raise CodeBookError(f"code book: motes: more than a {lengths[-1]}-bit synchronized book holds ({n_motes})")

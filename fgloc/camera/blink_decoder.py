@@ -28,6 +28,20 @@ period, and the :class:`~fgloc.camera.blink_codes.CodeBook`. Steps:
 6. **Angles.** The decoded centroid (mean over on frames) becomes (pan, tilt) by the
    exact composition :func:`fgloc.camera.pixel_angles.pixel_to_pan_tilt`.
 
+**Synchronized books** (``sync``, :class:`SyncTiming`): every mote started its word at a
+broadcast epoch, so sample ``i`` (mid-exposure time ``t_i``) is folded at bit position
+``floor((t_i - epoch) / bit_period) mod L`` instead of ``i mod L``, and the folded word
+must match a book word exactly at the expected alignment or at the one neighbouring
+shift towards the nearer bit edge (:meth:`CodeBook.identify_synchronized`): a mote whose
+clock is off by less than half a bit is read at one of the two.
+
+**Sliding windows** (:func:`decode_windows`): a continuous recording is decoded in
+windows of ``window`` samples every ``step`` samples; a mote missed in one window (a
+burst of drops, a glint crossing it) is usually read in the next. Readings of one code
+from different windows must agree in position (else the code is refused as a
+duplicate), one blob may carry only one code (else both are refused), and a code
+refused as duplicate in any window is refused.
+
 Pixels: OpenCV convention (centre of the top-left pixel is (0, 0)); angles radians.
 """
 
@@ -60,6 +74,17 @@ class DecoderConfig:
 
 
 @dataclass(frozen=True)
+class SyncTiming:
+    """Timing of a synchronized start: the broadcast ``epoch_s`` (camera host clock, s) at
+    which every mote started bit 0, the commanded ``bit_period_s`` and the frame exposure
+    (samples are taken at mid-exposure)."""
+
+    epoch_s: float
+    bit_period_s: float
+    exposure_s: float = 0.002
+
+
+@dataclass(frozen=True)
 class DecodedReading:
     """One identified mote: book ``index``, centroid (u, v) px with sigma, and (pan, tilt) rad."""
 
@@ -80,6 +105,7 @@ class RefusedBlob:
     v: float
     kind: str
     reason: str
+    code: int | None = None  #: the code a duplicate claimed (None otherwise)
 
 
 @dataclass(frozen=True)
@@ -116,6 +142,27 @@ def sample_stack(frames: Sequence[tuple[float, np.ndarray]], period: float) -> t
     return stack, valid
 
 
+def _fold_positions(frames: Sequence[tuple[float, np.ndarray]], period: float, n: int, length: int,
+                    sync: SyncTiming | None) -> tuple[np.ndarray, tuple[int, ...]]:
+    """Bit position (0..L-1) of each of the ``n`` samples, and the alignment shifts to try.
+    Rotation-free: ``i mod L``, shift 0. Synchronized: one bit per sample, anchored at the
+    bit in which the middle sample's mid-exposure time falls (time since the epoch over
+    the bit period), and shifts (0, -1) when that sample lies in the first half of its
+    bit (a late mote may still show the previous bit), else (0, +1). One bit per sample,
+    not each sample's own bit: frames and bits slip by ~2e-4 bit per frame, and a mote
+    whose bits slip past the samples is rejected as a conflict whichever way it is folded."""
+    if sync is None:
+        return np.arange(n) % length, (0,)
+    t0 = frames[0][0]
+    stamps = np.array([t for t, _ in frames])
+    idx = np.rint((stamps - t0) / period)
+    t_ref = float(np.median(stamps - idx * period))  # robust to timestamp jitter
+    mid = n // 2
+    x = (t_ref + period * mid + 0.5 * sync.exposure_s - sync.epoch_s) / sync.bit_period_s
+    b = math.floor(x)
+    return (b + np.arange(n) - mid) % length, ((0, -1) if x - b < 0.5 else (0, 1))
+
+
 def _two_means(x: np.ndarray) -> tuple[float, float]:
     lo, hi = float(x.min()), float(x.max())
     for _ in range(20):
@@ -132,14 +179,18 @@ def _two_means(x: np.ndarray) -> tuple[float, float]:
 
 def decode_view(
     frames: Sequence[tuple[float, np.ndarray]], period: float, book: CodeBook, intr: CameraIntrinsics,
-    head_pan: float, head_tilt: float, config: DecoderConfig | None = None,
+    head_pan: float, head_tilt: float, config: DecoderConfig | None = None, sync: SyncTiming | None = None,
 ) -> ViewDecode:
-    """Decode every mote in ``frames`` (see the module docstring)."""
+    """Decode every mote in ``frames`` (see the module docstring). ``sync`` is required
+    with a synchronized book and refused with a rotation-free one."""
     cfg = config or DecoderConfig()
+    if book.synchronized != (sync is not None):
+        raise ValueError("a synchronized book needs sync timing, a rotation-free book none")
     stack, valid = sample_stack(frames, period)
     n = int(valid.size)
     if valid.sum() < book.length:
         return ViewDecode((), (), n, int(n - valid.sum()))
+    positions, shifts = _fold_positions(frames, period, n, book.length, sync)
     good = stack[valid]
     det = detect_led(good.max(axis=0), good.min(axis=0), cfg.detector)
     refused: list[RefusedBlob] = [RefusedBlob(b.u, b.v, "ambiguous", f"unresolved blob: {b.reason}")
@@ -202,7 +253,7 @@ def decode_view(
         word_bits = np.full(length, -1, dtype=np.int8)
         conflict = False
         for i in np.flatnonzero(bits >= 0).tolist():
-            p = i % length
+            p = int(positions[i])
             if word_bits[p] == -1:
                 word_bits[p] = bits[i]
             elif word_bits[p] != bits[i]:
@@ -214,7 +265,8 @@ def decode_view(
             refused.append(RefusedBlob(cand.u, cand.v, "rejected",
                                        f"{int((word_bits < 0).sum())} of {length} bits never read cleanly"))
             continue
-        hit = book.identify(word_of(word_bits))
+        hit = (book.identify_synchronized(word_of(word_bits), shifts) if book.synchronized
+               else book.identify(word_of(word_bits)))
         if hit is None:
             refused.append(RefusedBlob(cand.u, cand.v, "rejected", "word is no rotation of a book code"))
             continue
@@ -227,7 +279,63 @@ def decode_view(
     readings = []
     for rd, code in decoded:
         if counts[code] > 1:
-            refused.append(RefusedBlob(rd.u, rd.v, "duplicate", f"code {code} decoded from {counts[code]} blobs"))
+            refused.append(RefusedBlob(rd.u, rd.v, "duplicate", f"code {code} decoded from {counts[code]} blobs", code))
         else:
             readings.append(rd)
     return ViewDecode(tuple(readings), tuple(refused), n, int(n - valid.sum()))
+
+
+def decode_windows(
+    frames: Sequence[tuple[float, np.ndarray]], period: float, book: CodeBook, intr: CameraIntrinsics,
+    head_pan: float, head_tilt: float, window: int, step: int | None = None, config: DecoderConfig | None = None,
+    sync: SyncTiming | None = None, merge_px: float = 1.0, blob_px: float = 2.0,
+) -> ViewDecode:
+    """Decode a continuous recording in sliding windows of ``window`` samples every ``step``
+    (default one code length) samples, each by :func:`decode_view`, and merge (see the
+    module docstring): a code read in several windows must be read within ``merge_px``
+    of its first reading, codes whose readings lie within ``blob_px`` of each other
+    are refused as one ambiguous blob, and a code refused as duplicate anywhere is
+    refused. The reading kept for a code is the one with the most on samples."""
+    if not frames:
+        return ViewDecode((), (), 0, 0)
+    step = step or book.length
+    t0 = frames[0][0]
+    idx = np.array([int(round((t - t0) / period)) for t, _ in frames])
+    n = int(idx.max()) + 1
+    starts = list(range(0, max(n - window, 0) + 1, step))
+    per_code: dict[int, list[DecodedReading]] = {}
+    refused: list[RefusedBlob] = []
+    duplicates: set[int] = set()
+    for s0 in starts:
+        part = [f for f, k in zip(frames, idx) if s0 <= k < s0 + window]
+        if not part:
+            continue
+        res = decode_view(part, period, book, intr, head_pan, head_tilt, config, sync)
+        for rd in res.readings:
+            per_code.setdefault(rd.index, []).append(rd)
+        for rf in res.refused:
+            if rf.kind == "duplicate" and rf.code is not None:
+                duplicates.add(rf.code)
+            refused.append(rf)
+    kept: dict[int, DecodedReading] = {}
+    for code, rds in per_code.items():
+        far = max(math.hypot(r.u - rds[0].u, r.v - rds[0].v) for r in rds)
+        if code in duplicates or far > merge_px:
+            why = "refused as duplicate in a window" if code in duplicates else f"read {far:.1f} px apart in two windows"
+            refused += [RefusedBlob(r.u, r.v, "duplicate", f"code {code} {why}", code) for r in rds]
+            continue
+        kept[code] = max(rds, key=lambda r: r.on_samples)
+    clash = {a for a in kept for b in kept
+             if a != b and math.hypot(kept[a].u - kept[b].u, kept[a].v - kept[b].v) <= blob_px}
+    for code in sorted(clash):
+        rd = kept.pop(code)
+        refused.append(RefusedBlob(rd.u, rd.v, "ambiguous", f"code {code}: one blob read as two codes", code))
+    readings = tuple(sorted(kept.values(), key=lambda r: r.index))
+    left: list[RefusedBlob] = []  # one refusal per blob (windows repeat them), none where a code was read
+    for rf in refused:
+        read = any(math.hypot(rf.u - r.u, rf.v - r.v) <= blob_px for r in readings)
+        seen = any(math.hypot(rf.u - o.u, rf.v - o.v) <= blob_px and (rf.kind, rf.code) == (o.kind, o.code)
+                   for o in left)
+        if not read and not seen:
+            left.append(rf)
+    return ViewDecode(readings, tuple(left), n, n - len(set(idx.tolist())))

@@ -39,7 +39,9 @@ Completion). Then the head settles (``settle_s``) before a frame is usable.
   vertical resolution). The SNC-RZ25N is read over the network as JPEG frames:
   **assumed** not field-decodable. A frame grabbed
   "now" is on average half a frame period away plus one period of grabber latency
-  (``CameraTiming.grab_latency_s``), paid once per burst of consecutive frames.
+  (``CameraTiming.grab_latency_s``), paid once per burst of consecutive frames; frames
+  that continue a running recording (``Frames(continuous=True)``: a retry or an
+  extension decoded in sliding windows) cost their frame periods only.
 * Radio (MicaZ base station, protocols.md 3): one command = serial frame at 57600
   bit/s (~3 ms) + serial ACK + CSMA radio transmit and the node's report back; we
   assume 0.03 s per acknowledged command and 0.01 s per broadcast (no report).
@@ -168,10 +170,13 @@ class Settle:
 
 @dataclass(frozen=True)
 class Frames:
-    """A burst of ``count`` consecutive frames."""
+    """A burst of ``count`` consecutive frames. ``continuous``: the frames continue a
+    recording already running (no wait for a frame start, no second grabber latency):
+    ``count`` frame periods."""
 
     count: int
     phase: str = "frames"
+    continuous: bool = False
 
 
 @dataclass(frozen=True)
@@ -239,7 +244,7 @@ def op_time(op: Op, timing: RigTiming) -> float:
     if isinstance(op, Settle):
         return timing.head.settle_s
     if isinstance(op, Frames):
-        return timing.camera.burst_time(op.count)
+        return op.count * timing.camera.frame_period_s if op.continuous else timing.camera.burst_time(op.count)
     if isinstance(op, PositionRead):
         return timing.head.position_s
     if isinstance(op, Zoom):

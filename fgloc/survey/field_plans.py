@@ -11,10 +11,13 @@ Cameras work in parallel, so a node costs the radio plus its slowest camera.
 word from the book by its address, ``drivers/tinyos/blink.py``; or, the old way, one
 unicast start per mote), then every camera records ``frames_per_view`` frames (or
 fields) in each view of its plan (:mod:`fgloc.survey.view_planner`), all cameras in
-parallel, then one stop broadcast. ``retry_fraction`` of the views are recorded a second
-time right away (motes missed in the first window); motes too close to separate at the
-survey zoom are recorded again in refinement passes at the lowest zoom that separates
-them (:func:`fgloc.survey.view_planner.plan_refinement`).
+parallel, then one stop broadcast. ``retry_fraction`` of the views are retried right away
+without moving (motes missed in the first window): a new burst (the default) or, with
+``retry_frames``, the recording continues for that many frames and is decoded in
+sliding windows (:func:`fgloc.camera.blink_decoder.decode_windows`). Motes too close to
+separate at the survey zoom are recorded again in refinement passes at the lowest zoom
+that separates them (:func:`fgloc.survey.view_planner.plan_refinement`,
+:func:`refinement_ops`), retried with ``refine_retry_fraction``.
 
 Angles radians, times seconds.
 """
@@ -158,16 +161,24 @@ class CodedTime:
 
 
 def coded_view_ops(views: Sequence[tuple[float, float]], frames_per_view: int, retry_fraction: float,
-                   start: tuple[float, float] = (0.0, 0.0)) -> list[Op]:
-    """Clock operations of one camera visiting ``views`` in order and recording each."""
+                   start: tuple[float, float] = (0.0, 0.0), extend_frames: int = 0,
+                   retry_frames: int | None = None) -> list[Op]:
+    """Clock operations of one camera visiting ``views`` in order and recording each.
+
+    Each view records ``frames_per_view + extend_frames`` frames in one burst (the
+    extension: more sliding windows of the same recording). ``retry_fraction`` of the
+    views (rounded) are retried without moving: by default a new burst of
+    ``frames_per_view`` frames; with ``retry_frames`` the recording just goes on for
+    that many frames (continuous, :class:`Frames` ``continuous``)."""
     ops: list[Op] = []
     pan, tilt = start
     for p, t in views:
         ops += [Slew(math.remainder(p - pan, 2 * math.pi), t - tilt), Settle(), PositionRead(),
-                Frames(frames_per_view)]
+                Frames(frames_per_view + extend_frames)]
         pan, tilt = p, t
     extra = round(retry_fraction * len(views))
-    ops += [Frames(frames_per_view, "frames")] * extra
+    retry = Frames(frames_per_view, "frames") if retry_frames is None else Frames(retry_frames, "frames", True)
+    ops += [retry] * extra
     return ops
 
 
@@ -175,31 +186,58 @@ def coded_survey_time(
     views: dict[str, list[tuple[float, float]]], n_motes: int, frames_per_view: int, timing: RigTiming,
     retry_fraction: float = 0.0, refine: dict[str, list[RefinePass]] | None = None,
     broadcast_start: bool = True, start_broadcasts: int = 1, restarts: int = 0,
+    extend_frames: int = 0, retry_frames: int | None = None, refine_retry_fraction: float = 0.0,
+    zoom_out: bool = True, resync_s: float | None = None,
 ) -> CodedTime:
     """Price the coded survey (see the module docstring). ``refine[camera]`` are its refinement
     passes (ascending zoom): zoom in to each pass's level, record its views, and after the
-    last pass zoom back out. ``broadcast_start``: one broadcast starts every mote (each takes
+    last pass zoom back out (``zoom_out``; False: the survey ends at the last recording,
+    as the sequential survey ends at its last node, and the head is left zoomed in).
+    ``broadcast_start``: one broadcast starts every mote (each takes
     its word by address; sent ``start_broadcasts`` times), plus ``restarts`` unicast starts for motes that missed it;
-    otherwise one unicast start per mote. A stop broadcast ends the survey."""
+    otherwise one unicast start per mote. A stop broadcast ends the survey.
+    ``extend_frames``, ``retry_frames``: see :func:`coded_view_ops` (wide views retried
+    with ``retry_fraction``, refinement views with ``refine_retry_fraction``).
+    ``resync_s``: a synchronized book's start broadcast is repeated every ``resync_s``
+    seconds of the survey (``start_broadcasts`` more broadcasts each time, priced on the
+    radio lane, conservatively in series with the cameras)."""
     refine = refine or {}
     lanes = []
     for cam, vs in views.items():
-        ops = coded_view_ops(vs, frames_per_view, retry_fraction, vs[0] if vs else (0.0, 0.0))
+        ops = coded_view_ops(vs, frames_per_view, retry_fraction, vs[0] if vs else (0.0, 0.0), extend_frames,
+                             retry_frames)
         here = vs[-1] if vs else (0.0, 0.0)
-        zoom = 0.0
-        for rp in refine.get(cam, []):
-            if not rp.views:
-                continue
-            ops += [Zoom(rp.zoom - zoom, "centring")]
-            ops += [replace(o, phase="centring") for o in coded_view_ops(rp.views, frames_per_view, 0.0, here)]
-            here, zoom = rp.views[-1], rp.zoom
-        if zoom:
-            ops += [Zoom(zoom, "centring")]
+        ops += refinement_ops(refine.get(cam, []), frames_per_view, here, refine_retry_fraction, extend_frames,
+                              retry_frames, zoom_out)
         lanes.append(price(ops, timing))
     start = Radio(unicast=restarts, broadcast=start_broadcasts) if broadcast_start else Radio(unicast=n_motes)
     radio = price([start, Radio(broadcast=1)], timing)
-    return CodedTime(radio + parallel(lanes), {c: len(v) for c, v in views.items()},
+    cameras = parallel(lanes)
+    if resync_s is not None and broadcast_start:
+        resyncs = max(0, math.ceil(cameras.total / resync_s) - 1)
+        radio = radio + price([Radio(broadcast=resyncs * start_broadcasts)], timing)
+    return CodedTime(radio + cameras, {c: len(v) for c, v in views.items()},
                      frames_per_view, sum(len(rp.views) for ps in refine.values() for rp in ps))
+
+
+def refinement_ops(passes: Sequence[RefinePass], frames_per_view: int, start: tuple[float, float],
+                   retry_fraction: float = 0.0, extend_frames: int = 0, retry_frames: int | None = None,
+                   zoom_out: bool = True) -> list[Op]:
+    """Clock operations (phase 'centring') of refinement ``passes`` in order from head position
+    ``start`` at the survey zoom: zoom to each pass's level, record its views
+    (:func:`coded_view_ops`), and, with ``zoom_out``, zoom back out after the last."""
+    ops: list[Op] = []
+    here, zoom = start, 0.0
+    for rp in passes:
+        if not rp.views:
+            continue
+        ops += [Zoom(rp.zoom - zoom, "centring")]
+        ops += [replace(o, phase="centring") for o in coded_view_ops(
+            rp.views, frames_per_view, retry_fraction, here, extend_frames, retry_frames)]
+        here, zoom = rp.views[-1], rp.zoom
+    if zoom and zoom_out:
+        ops += [Zoom(zoom, "centring")]
+    return ops
 
 
 def frames_for(code_length: int, periods: int = 3) -> int:

@@ -77,9 +77,14 @@ def plan_views(
             break
         chosen.append(best)
         todo &= ~cov[best]
+    return _order([(float(cand[i, 0]), float(cand[i, 1])) for i in chosen], start)
+
+
+def _order(views: list[tuple[float, float]], start: tuple[float, float]) -> list[tuple[float, float]]:
+    """``views`` in nearest-neighbour order from ``start`` (angles between view directions)."""
     order: list[tuple[float, float]] = []
     here = pan_tilt_bearing(*start)
-    left = [(float(cand[i, 0]), float(cand[i, 1])) for i in chosen]
+    left = list(views)
     while left:
         d = [math.acos(min(1.0, float(pan_tilt_bearing(*v) @ here))) for v in left]
         k = int(np.argmin(d))
@@ -117,19 +122,51 @@ class RefinePass:
 def plan_refinement(
     intr: CameraIntrinsics, pan_tilt: np.ndarray, separation_px: float, levels: tuple[float, ...] = (1 / 9, 3 / 9, 1.0),
     margin_px: float = 12.0, start: tuple[float, float] = (0.0, 0.0), field_rows: bool = False,
-    max_magnification: float = 10.0,
+    max_magnification: float = 10.0, needed: np.ndarray | None = None, share_tiles: bool = False,
 ) -> tuple[list[RefinePass], int]:
     """Zoom in only where needed: targets whose nearest neighbour is closer than
     ``separation_px`` at the survey zoom (``intr``) are refined at the lowest zoom of
     ``levels`` (ascending) that puts the neighbour ``separation_px`` away, each level's
     targets covered by :func:`plan_views` at that zoom (tiles, not one view per target).
     Returns the passes (ascending zoom, empty levels left out) and the number of targets
-    no level separates (reported missed from this camera, not recorded again)."""
+    no level separates (reported missed from this camera, not recorded again).
+    ``needed`` (bool per target, default all): crowded targets not needed from this
+    camera (e.g. resolved by two other cameras, :func:`needed_from`) are neither refined
+    nor counted; their neighbours still count as crowding.
+    ``share_tiles``: plan the levels from the highest zoom down, and let a tile of a
+    higher zoom also serve the lower-zoom targets it covers (a higher zoom separates
+    them too), so the lower levels need fewer tiles; recorded in ascending zoom all the same."""
     pt = np.asarray(pan_tilt, dtype=float)
     d = neighbour_px(pt, intr, field_rows)
     need = separation_px / np.maximum(d, 1e-12)  # magnification each target needs
     passes: list[RefinePass] = []
     done = need <= 1.0
+    if needed is not None:
+        done |= ~np.asarray(needed, dtype=bool)
+    here = start
+    if share_tiles:
+        todo = ~done
+        assigned = np.full(len(pt), -1)
+        mags = [intr.at_zoom(z, max_magnification).fx / intr.fx for z in levels]
+        for li, mag in enumerate(mags):
+            assigned[todo & (assigned < 0) & (need <= mag)] = li
+        plans: dict[int, list[tuple[float, float]]] = {}
+        for li in range(len(levels) - 1, -1, -1):
+            mine = todo & (assigned == li)
+            if not mine.any():
+                continue
+            zi = intr.at_zoom(levels[li], max_magnification)
+            plans[li] = plan_views(zi, pt[mine], margin_px)
+            if plans[li]:  # lower-level targets inside these tiles are served here
+                cov = coverage(zi, pt, np.array(plans[li]), margin_px).any(axis=0)
+                todo &= ~(cov & (assigned < li) & (assigned >= 0))
+        for li in sorted(plans):
+            if plans[li]:
+                views = _order(plans[li], here)
+                passes.append(RefinePass(levels[li], views, int((assigned == li).sum())))
+                here = views[-1]
+        done |= assigned >= 0
+        return passes, int((~done).sum())
     here = start
     for z in levels:
         mag = intr.at_zoom(z, max_magnification).fx / intr.fx
@@ -140,3 +177,15 @@ def plan_refinement(
             here = views[-1] if views else here
         done |= mine
     return passes, int((~done).sum())
+
+
+def needed_from(resolved: dict[str, np.ndarray], cameras_needed: int = 2) -> dict[str, np.ndarray]:
+    """Which targets each camera must still resolve (by refinement): ``resolved[camera]``
+    says (bool per target, same target order for every camera) which targets that
+    camera's survey-zoom views already separate. A target resolved by at least
+    ``cameras_needed`` other cameras is not needed from a camera that does not resolve
+    it (two bearings locate a node on the plane); otherwise every camera must resolve
+    it. With two cameras every target is needed from both."""
+    cams = list(resolved)
+    count = np.sum([np.asarray(resolved[c], dtype=bool) for c in cams], axis=0)
+    return {c: count - np.asarray(resolved[c], dtype=int) < cameras_needed for c in cams}
