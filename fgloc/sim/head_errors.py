@@ -6,7 +6,11 @@ ideal head reads, so the noise draw is unchanged: the same survey with and
 without head errors differ only by the head. :func:`typical_head_errors` draws
 errors of the sizes issue 17 calls typical (tilt index 0.3 degree, collimation
 and trunnion 0.2 degree, encoder scales 0.5 %, lever arm 0.05 % of the
-baseline), with random signs and lever-arm direction.
+baseline), with random signs and lever-arm direction; :func:`sample_head_errors`
+draws a head from the population those sizes are the one-sigma spread of (zero-mean
+Gaussian, :data:`fgloc.core.head_model.DEFAULT_PRIOR_SIGMAS`), the population the
+self-calibration's prior describes: Monte Carlo runs that check its covariances
+draw each run's heads from it.
 """
 
 from __future__ import annotations
@@ -20,7 +24,8 @@ from fgloc.core.geometry import FloatArray, project_pan_tilt, wrap_angle
 from fgloc.core.head_model import HEAD_DIM, HEAD_PARAMETERS, head_pan_tilt
 from fgloc.core.model import Survey
 
-#: Magnitudes of typical head errors (rad, rad, rad, 1, 1, baseline units for the lever arm's length).
+#: Magnitudes of typical head errors (rad, rad, rad, 1, 1, baseline units for the lever arm's length):
+#: the population's one-sigma spread, equal to the self-calibration prior.
 TYPICAL_MAGNITUDES: FloatArray = np.array(
     [np.deg2rad(0.3), np.deg2rad(0.2), np.deg2rad(0.2), 0.005, 0.005, 0.0005, 0.0005]
 )
@@ -37,13 +42,25 @@ def typical_head_errors(camera_ids: list[str], rng: np.random.Generator) -> dict
     return out
 
 
-def parse_head_errors(text: str, camera_ids: list[str], rng: np.random.Generator) -> dict[str, FloatArray]:
-    """``typical`` or ``name=value,...`` (angles in degrees, scales in percent, lever arm in baseline units).
+def sample_head_errors(
+    camera_ids: list[str], rng: np.random.Generator, sigmas: FloatArray = TYPICAL_MAGNITUDES
+) -> dict[str, FloatArray]:
+    """Per camera a 7-vector drawn from the population of heads: independent zero-mean
+    Gaussians with one-sigma ``sigmas`` (default: the typical sizes, which are the prior)."""
+    return {cid: np.asarray(sigmas, dtype=float) * rng.standard_normal(HEAD_DIM) for cid in camera_ids}
 
-    The same values apply to every camera. Raises :class:`FglocError` naming the bad item.
+
+def parse_head_errors(text: str, camera_ids: list[str], rng: np.random.Generator) -> dict[str, FloatArray]:
+    """``typical``, ``sampled`` or ``name=value,...`` (angles in degrees, scales in percent, lever arm in
+    baseline units).
+
+    ``typical``: :func:`typical_head_errors`; ``sampled``: :func:`sample_head_errors`, both per camera.
+    Otherwise the same values apply to every camera. Raises :class:`FglocError` naming the bad item.
     """
     if text.strip() == "typical":
         return typical_head_errors(camera_ids, rng)
+    if text.strip() == "sampled":
+        return sample_head_errors(camera_ids, rng)
     p = np.zeros(HEAD_DIM)
     for item in filter(None, (s.strip() for s in text.split(","))):
         name, _, value = item.partition("=")

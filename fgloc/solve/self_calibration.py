@@ -16,9 +16,11 @@ whose information is rank deficient; ``AUTO`` leaves it out (pins it at zero).
 Weakly determined parameters stay in and lean on their datasheet prior.
 
 Model selection (``AUTO``): a likelihood-ratio test of all determinable
-parameters against the ideal head (chi-square with k dof, 5 %); if the ideal
-head is rejected, each camera keeps its parameters unless holding its head ideal
-(the others estimated) passes the same test.
+parameters against the ideal head (chi-square with k dof, 5 %). Rejected: every
+determinable parameter of every camera is estimated with its prior (none is
+dropped for being insignificant: its effect would be missing from the
+covariance). Not rejected: the ideal head's estimates, with node covariances of
+the extended model at that solution (the heads held at zero under their prior).
 """
 
 from __future__ import annotations
@@ -47,6 +49,7 @@ from fgloc.solve.joint import (
     optimize,
     solve_survey,
 )
+from fgloc.solve.levenberg_marquardt import LMOutcome
 
 logger = logging.getLogger(__name__)
 
@@ -474,31 +477,43 @@ def solve_with_head_model(
     lr = chi2_ideal - fit.chi2
     threshold = chi2_quantile(1.0 - LR_ALPHA, k)
     if not lr > threshold:
-        report = _report(model, None, survey, f"ideal head kept (LR {lr:.1f} < {threshold:.1f}, {k} dof)",
-                         data_std, ranks)
+        # The data show no head error, yet errors within the prior may hide in directions the
+        # bearings cannot see (they move the geometry instead): the ideal head's estimates, with
+        # the extended model's node covariances (heads at zero under their prior).
+        honest = _with_head_prior_covariance(survey, ideal, active, frozenset(f.index for f in ideal.flagged),
+                                             options, prior_sigmas)
+        report = _report(model, None, survey, f"ideal head kept (LR {lr:.1f} < {threshold:.1f}, {k} dof); "
+                         "node covariances include the head prior", data_std, ranks)
         report.lr_statistic, report.lr_threshold = lr, threshold
-        return ideal, report
-    # Per camera: does holding this camera's head ideal (the others full) explain the data
-    # as well (LR, 5 %)? Parameters are not dropped one by one: weakly determined ones
-    # trade off against the geometry, and a model without them fits the readings almost
-    # as well while its node ellipses are confidently wrong (docs/head-calibration.md).
-    full = fit
-    keep = dict(active)
-    for cid, idx in active.items():
-        reduced = {c: a for c, a in active.items() if c != cid}
-        if not reduced:
-            continue
-        trial = solve_self_calibrated(survey, start, reduced, replace(options, compute_marginals=False), exclude,
-                                      prior_sigmas)
-        if trial.chi2 - full.chi2 <= chi2_quantile(1.0 - LR_ALPHA, len(idx)):
-            del keep[cid]
-    if keep != active:
-        fit = solve_self_calibrated(survey, start, keep, options, exclude, prior_sigmas)
+        return honest, report
+    # Rejected: every determinable parameter of every camera stays in with its prior. Dropping
+    # a camera's or a parameter's insignificant errors would leave their effect out of the
+    # covariance (post-selection overconfidence, docs/head-calibration.md).
     n_est = sum(len(a) for a in fit.problem.active.values())
     report = _report(model, fit, survey, f"ideal head rejected (LR {lr:.1f} > {threshold:.1f}, {k} dof); "
-                     f"{n_est} parameters on {len(keep)} cameras", data_std, ranks)
+                     f"{n_est} parameters on {len(fit.problem.active)} cameras", data_std, ranks)
     report.lr_statistic, report.lr_threshold = lr, threshold
     return _finish(fit, flagged, report)
+
+
+def _with_head_prior_covariance(
+    survey: Survey, result: Result, active: dict[str, tuple[int, ...]], exclude: frozenset[int],
+    options: SolverOptions, prior_sigmas: FloatArray,
+) -> Result:
+    """``result`` (ideal head) with each node's covariance from the extended model linearized there.
+
+    The head parameters ``active`` sit at zero under their prior: their possible effect on
+    the nodes is in the covariance although they are not estimated (a consider covariance).
+    """
+    if not options.compute_marginals:
+        return result
+    start = InitialEstimate(cameras=dict(result.cameras), nodes={n: e.position for n, e in result.nodes.items()},
+                            unlocalized=dict(result.unlocalized))
+    problem = build_self_calibration_problem(survey, start, active, None, options, exclude, prior_sigmas)
+    extended = collect_result(problem, LMOutcome(problem.initial, [0.0]), options)
+    nodes = {n: replace(e, covariance=extended.nodes[n].covariance) if n in extended.nodes else e
+             for n, e in result.nodes.items()}
+    return replace(result, nodes=nodes)
 
 
 def _finish(fit: SelfCalibratedSolve, flagged: list[FlaggedObservation],
