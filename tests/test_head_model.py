@@ -7,8 +7,9 @@ import pytest
 from gtsam.utils.numerical_derivative import numericalDerivative31, numericalDerivative32, numericalDerivative33
 
 from fgloc.core.geometry import bearing_pan_tilt, rot_x, rot_y, rot_z
-from fgloc.core.head_model import HEAD_DIM, head_pan_tilt
+from fgloc.core.head_model import DATASHEET_TOLERANCES, DEFAULT_PRIOR_SIGMAS, HEAD_DIM, head_pan_tilt
 from fgloc.factors.pan_tilt_head_factor import HeadFactorSet
+from fgloc.sim.head_errors import TYPICAL_MAGNITUDES, sample_head_errors
 
 C, L, H = gtsam.symbol_shorthand.C, gtsam.symbol_shorthand.L, gtsam.symbol_shorthand.H
 
@@ -124,9 +125,6 @@ def test_factor_jacobians_match_gtsam_numerical(planar: bool, seed: int) -> None
 
 def test_prior_is_the_population_the_simulator_draws_heads_from() -> None:
     """Prior sigma = datasheet tolerance / 2 = the typical errors; sampled heads have that spread."""
-    from fgloc.core.head_model import DATASHEET_TOLERANCES, DEFAULT_PRIOR_SIGMAS
-    from fgloc.sim.head_errors import TYPICAL_MAGNITUDES, sample_head_errors
-
     np.testing.assert_allclose(DEFAULT_PRIOR_SIGMAS, DATASHEET_TOLERANCES / 2)
     np.testing.assert_allclose(TYPICAL_MAGNITUDES, DEFAULT_PRIOR_SIGMAS)
     draws = sample_head_errors([f"c{i}" for i in range(4000)], np.random.default_rng(0))
