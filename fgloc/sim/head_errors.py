@@ -20,7 +20,7 @@ from dataclasses import replace
 import numpy as np
 
 from fgloc.core.errors import FglocError
-from fgloc.core.geometry import FloatArray, project_pan_tilt, wrap_angle
+from fgloc.core.geometry import FloatArray, bearing_pan_tilt, wrap_angle
 from fgloc.core.head_model import HEAD_DIM, HEAD_PARAMETERS, head_pan_tilt
 from fgloc.core.model import Survey
 
@@ -82,18 +82,20 @@ def inject_head_errors(survey: Survey, heads: dict[str, FloatArray]) -> Survey:
     truth = survey.truth
     if truth is None:
         raise FglocError("head errors can only be injected into a survey with truth")
-    observations = []
-    for o in survey.observations:
-        p = heads.get(o.camera)
-        if p is None or not np.any(p):
-            observations.append(o)
-            continue
-        cam = truth.cameras[o.camera]
-        x = np.asarray(truth.nodes[o.node], dtype=float)
-        q = cam.rotation.T @ (x - cam.position)
-        ideal_pan, ideal_tilt = project_pan_tilt(cam.rotation, cam.position, x)
-        pan, tilt, _, _ = head_pan_tilt(q, p, jacobians=False)
-        new_pan = float(wrap_angle(o.pan + (pan - ideal_pan)))
-        new_tilt = float(np.clip(o.tilt + (tilt - ideal_tilt), -np.pi / 2, np.pi / 2))
-        observations.append(replace(o, pan=new_pan, tilt=new_tilt))
+    rows = [j for j, o in enumerate(survey.observations) if o.camera in heads and np.any(heads[o.camera])]
+    if not rows:
+        return survey
+    obs = [survey.observations[j] for j in rows]
+    R = np.array([truth.cameras[o.camera].rotation for o in obs])
+    c = np.array([truth.cameras[o.camera].position for o in obs])
+    x = np.array([truth.nodes[o.node] for o in obs], dtype=float)
+    q = np.einsum("nji,nj->ni", R, x - c)  # R^T (x - c): base frame
+    params = np.array([heads[o.camera] for o in obs], dtype=float)
+    ideal_pan, ideal_tilt = bearing_pan_tilt(q)
+    pan, tilt, _, _ = head_pan_tilt(q, params, jacobians=False)
+    new_pan = wrap_angle(np.array([o.pan for o in obs]) + (pan - ideal_pan))
+    new_tilt = np.clip(np.array([o.tilt for o in obs]) + (tilt - ideal_tilt), -np.pi / 2, np.pi / 2)
+    observations = list(survey.observations)
+    for k, j in enumerate(rows):
+        observations[j] = replace(obs[k], pan=float(new_pan[k]), tilt=float(new_tilt[k]))
     return replace(survey, observations=observations)
