@@ -34,7 +34,7 @@ import gtsam  # noqa: E402
 import numpy as np  # noqa: E402
 from scipy.stats import chi2, t  # noqa: E402
 
-from fgloc.core.head_model import HEAD_DIM, HEAD_PARAMETERS  # noqa: E402
+from fgloc.core.head_model import DEFAULT_PRIOR_SIGMAS, HEAD_DIM, HEAD_PARAMETERS  # noqa: E402
 from fgloc.core.model import NodeMode, Result, Survey  # noqa: E402
 from fgloc.evaluate.crlb import cramer_rao_bound  # noqa: E402
 from fgloc.init.start import InitialEstimate  # noqa: E402
@@ -43,6 +43,7 @@ from fgloc.sim.scenes import PaperScenario, RandomScene, observe, paper_scenario
 from fgloc.solve.self_calibration import (  # noqa: E402
     HeadCalibrationReport,
     HeadModel,
+    _dense_jacobian,
     build_self_calibration_problem,
     solve_with_head_model,
 )
@@ -103,13 +104,12 @@ def joint_nees(result: Result, report: HeadCalibrationReport, survey: Survey) ->
 
     The covariance is the inverse Hessian of the solved model (the head parameters it
     estimated, the readings it kept) linearized at the result; when auto kept the ideal
-    head, of the extended model with the heads at zero under their prior (as auto reports).
+    head, plus the consider term of head errors drawn from the prior (as auto reports).
     """
     truth = survey.truth
     assert truth is not None
     active = {c: tuple(HEAD_PARAMETERS.index(n) for n in e.estimated) for c, e in report.cameras.items()}
-    if report.model is HeadModel.AUTO and not any(active.values()):
-        active = {c: tuple(range(HEAD_DIM)) for c in report.cameras}  # ideal kept: covariance with the head prior
+    consider = report.model is HeadModel.AUTO and not any(active.values())  # ideal kept: consider covariance
     heads = {c: e.values for c, e in report.cameras.items()}
     start = InitialEstimate(cameras=dict(result.cameras), nodes={n: e.position for n, e in result.nodes.items()})
     exclude = frozenset(f.index for f in result.flagged)
@@ -127,6 +127,17 @@ def joint_nees(result: Result, report: HeadCalibrationReport, survey: Survey) ->
     d_ = _dim(survey)
     cols = np.concatenate([np.arange(where[k], where[k] + d_) for k in problem.node_keys.values()])
     cov = np.linalg.inv(info)[np.ix_(cols, cols)]
+    if consider:  # as auto reports it: plus the effect of head errors drawn from the prior
+        full = {c: tuple(range(HEAD_DIM)) for c in report.cameras}
+        ext = build_self_calibration_problem(survey, start, full, None, exclude=exclude, with_prior=False)
+        A, kcols = _dense_jacobian(ext, ext.initial, ext.graph.size())
+        hc = np.concatenate([np.arange(kcols[k].start, kcols[k].stop) for k in ext.head_keys.values()])
+        other = np.setdiff1d(np.arange(A.shape[1]), hc)
+        J_x, J_h = A[:, other], A[:, hc] * np.tile(DEFAULT_PRIOR_SIGMAS, len(ext.head_keys))[None, :]
+        S = np.linalg.solve(J_x.T @ J_x, J_x.T @ J_h)
+        where = {int(c): i for i, c in enumerate(other)}
+        rows = [where[c] for k in ext.node_keys.values() for c in range(kcols[k].start, kcols[k].stop)]
+        cov = cov + S[rows] @ S[rows].T
     err = np.concatenate([np.asarray(problem.initial.atPoint3(k) if d_ == 3 else problem.initial.atPoint2(k))[:d_]
                           - truth.nodes[n][:d_] for n, k in problem.node_keys.items()])
     return float(err @ np.linalg.solve(cov, err)), len(err)

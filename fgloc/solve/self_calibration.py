@@ -19,8 +19,8 @@ Model selection (``AUTO``): a likelihood-ratio test of all determinable
 parameters against the ideal head (chi-square with k dof, 5 %). Rejected: every
 determinable parameter of every camera is estimated with its prior (none is
 dropped for being insignificant: its effect would be missing from the
-covariance). Not rejected: the ideal head's estimates, with node covariances of
-the extended model at that solution (the heads held at zero under their prior).
+covariance). Not rejected: the ideal head's estimates, with consider covariances
+(what head errors drawn from the prior would do to them added to the noise's).
 """
 
 from __future__ import annotations
@@ -49,7 +49,6 @@ from fgloc.solve.joint import (
     optimize,
     solve_survey,
 )
-from fgloc.solve.levenberg_marquardt import LMOutcome
 
 logger = logging.getLogger(__name__)
 
@@ -479,7 +478,7 @@ def solve_with_head_model(
     if not lr > threshold:
         # The data show no head error, yet errors within the prior may hide in directions the
         # bearings cannot see (they move the geometry instead): the ideal head's estimates, with
-        # the extended model's node covariances (heads at zero under their prior).
+        # their consider covariances (the heads' possible effect under their prior added).
         honest = _with_head_prior_covariance(survey, ideal, active, frozenset(f.index for f in ideal.flagged),
                                              options, prior_sigmas)
         report = _report(model, None, survey, f"ideal head kept (LR {lr:.1f} < {threshold:.1f}, {k} dof); "
@@ -500,19 +499,36 @@ def _with_head_prior_covariance(
     survey: Survey, result: Result, active: dict[str, tuple[int, ...]], exclude: frozenset[int],
     options: SolverOptions, prior_sigmas: FloatArray,
 ) -> Result:
-    """``result`` (ideal head) with each node's covariance from the extended model linearized there.
+    """``result`` (ideal head) with consider covariances: the head errors ``active`` as unestimated
+    zero-mean parameters with their prior.
 
-    The head parameters ``active`` sit at zero under their prior: their possible effect on
-    the nodes is in the covariance although they are not estimated (a consider covariance).
+    Linearized at the result, the ideal estimate moves by ``-S h`` for head errors ``h``,
+    ``S = (J_x' J_x)^-1 J_x' J_h`` (whitened Jacobians of the bearings and gauge priors in
+    the poses and nodes ``x`` and in ``h``), so each node's covariance gains
+    ``S_i P_h S_i'`` (``P_h`` the prior) on top of the reading noise's.
     """
-    if not options.compute_marginals:
+    if not options.compute_marginals or not result.nodes:
         return result
     start = InitialEstimate(cameras=dict(result.cameras), nodes={n: e.position for n, e in result.nodes.items()},
                             unlocalized=dict(result.unlocalized))
-    problem = build_self_calibration_problem(survey, start, active, None, options, exclude, prior_sigmas)
-    extended = collect_result(problem, LMOutcome(problem.initial, [0.0]), options)
-    nodes = {n: replace(e, covariance=extended.nodes[n].covariance) if n in extended.nodes else e
-             for n, e in result.nodes.items()}
+    problem = build_self_calibration_problem(survey, start, active, None, options, exclude, prior_sigmas,
+                                             with_prior=False)
+    A, cols = _dense_jacobian(problem, problem.initial, problem.graph.size())
+    head_cols = np.concatenate([np.arange(cols[k].start, cols[k].stop) for k in problem.head_keys.values()])
+    sig = np.concatenate([np.asarray(prior_sigmas)[list(problem.active[c])] for c in problem.head_keys])
+    other = np.setdiff1d(np.arange(A.shape[1]), head_cols)
+    J_x, J_h = A[:, other], A[:, head_cols] * sig[None, :]  # columns of J_h per prior sigma
+    S = np.linalg.solve(J_x.T @ J_x, J_x.T @ J_h)
+    where = {int(c): i for i, c in enumerate(other)}
+    nodes = {}
+    for n, e in result.nodes.items():
+        key = problem.node_keys.get(n)
+        if key is None:
+            nodes[n] = e
+            continue
+        rows = [where[c] for c in range(cols[key].start, cols[key].stop)]
+        S_i = S[rows]
+        nodes[n] = replace(e, covariance=np.asarray(e.covariance) + S_i @ S_i.T)
     return replace(result, nodes=nodes)
 
 
