@@ -34,6 +34,7 @@ import gtsam  # noqa: E402
 import numpy as np  # noqa: E402
 from scipy.stats import chi2, t  # noqa: E402
 
+from fgloc.core.errors import FglocError  # noqa: E402
 from fgloc.core.head_model import DEFAULT_PRIOR_SIGMAS, HEAD_DIM, HEAD_PARAMETERS  # noqa: E402
 from fgloc.core.model import NodeMode, Result, Survey  # noqa: E402
 from fgloc.evaluate.crlb import cramer_rao_bound  # noqa: E402
@@ -154,7 +155,13 @@ def head_z(report: HeadCalibrationReport, heads: dict[str, np.ndarray]) -> dict[
 
 
 def one_run(args: tuple[str, str, int]) -> dict:
-    experiment, name, seed = args
+    try:
+        return _one_run(*args)
+    except FglocError as exc:  # reported and counted, not hidden
+        return {"seed": args[2], "failed": str(exc)}
+
+
+def _one_run(experiment: str, name: str, seed: int) -> dict:
     base = scene(name)
     rng_seed = 1 if experiment == "fixed" else 2000 + seed
     heads = sample_head_errors(base.camera_ids, np.random.default_rng(rng_seed))
@@ -226,14 +233,15 @@ def main() -> None:
     base = scene(a.scene)
     jobs = [(a.experiment, a.scene, s) for s in range(a.runs)]
     with ProcessPoolExecutor(a.workers) as pool:
-        runs = list(pool.map(one_run, jobs, chunksize=4))
+        all_runs = list(pool.map(one_run, jobs, chunksize=4))
+    runs = [r for r in all_runs if "failed" not in r]
     dim = _dim(base)
     crb_i = float(np.sqrt(np.mean([np.trace(c) for c in cramer_rao_bound(base).values()])))
     zero = {c: np.zeros(HEAD_DIM) for c in base.camera_ids}
     crb_e = extended_crb(base, zero)
     keys = ("ideal", "full", "auto", "clean_ideal", "clean_auto") if a.experiment == "population" else ("full",)
-    summary: dict = {"experiment": a.experiment, "runs": a.runs, "scene": a.scene, "crb_ideal": crb_i,
-                     "crb_extended": crb_e}
+    summary: dict = {"experiment": a.experiment, "runs": len(runs), "scene": a.scene, "crb_ideal": crb_i,
+                     "crb_extended": crb_e, "failed": [r for r in all_runs if "failed" in r]}
     summary.update(summarize(runs, keys, dim))
     for key in keys:
         summary[key]["rms_over_crb_ideal"] = summary[key]["rms"] / crb_i
@@ -243,7 +251,7 @@ def main() -> None:
     summary["coverage_95_full"] = {c: dict(zip(HEAD_PARAMETERS, np.round(inside[:, i].mean(axis=0), 4).tolist()))
                                    for i, c in enumerate(base.camera_ids)}
     summary["coverage_95_full_pooled"] = float(inside.mean())
-    summary["coverage_binomial_sd"] = float(np.sqrt(0.95 * 0.05 / a.runs))
+    summary["coverage_binomial_sd"] = float(np.sqrt(0.95 * 0.05 / len(runs)))
     if a.experiment == "population":
         summary["auto_cameras_estimated_mean"] = float(np.mean([r["auto_cameras"] for r in runs]))
         summary["auto_ideal_kept_share"] = float(np.mean([r["auto_cameras"] == 0 for r in runs]))
@@ -252,7 +260,7 @@ def main() -> None:
     if a.out:
         os.makedirs(os.path.dirname(a.out) or ".", exist_ok=True)
         with open(a.out, "w") as f:
-            json.dump({"summary": summary, "runs": runs}, f, indent=1)
+            json.dump({"summary": summary, "runs": all_runs}, f, indent=1)
     print(json.dumps(summary, indent=1))
 
 
