@@ -35,7 +35,7 @@ import numpy as np  # noqa: E402
 from scipy.stats import chi2, t  # noqa: E402
 
 from fgloc.core.errors import FglocError  # noqa: E402
-from fgloc.core.head_model import DEFAULT_PRIOR_SIGMAS, HEAD_DIM, HEAD_PARAMETERS  # noqa: E402
+from fgloc.core.head_model import HEAD_DIM, HEAD_PARAMETERS  # noqa: E402
 from fgloc.core.model import NodeMode, Result, Survey  # noqa: E402
 from fgloc.evaluate.crlb import cramer_rao_bound  # noqa: E402
 from fgloc.init.start import InitialEstimate  # noqa: E402
@@ -44,7 +44,6 @@ from fgloc.sim.scenes import PaperScenario, RandomScene, observe, paper_scenario
 from fgloc.solve.self_calibration import (  # noqa: E402
     HeadCalibrationReport,
     HeadModel,
-    _dense_jacobian,
     build_self_calibration_problem,
     solve_with_head_model,
 )
@@ -100,17 +99,10 @@ def node_errors(result: Result, survey: Survey) -> tuple[float, float, int]:
     return se, ne, len(result.nodes)
 
 
-def joint_nees(result: Result, report: HeadCalibrationReport, survey: Survey) -> tuple[float, int]:
-    """NEES of all node positions together under their joint posterior covariance (chi-square, d*N dof).
-
-    The covariance is the inverse Hessian of the solved model (the head parameters it
-    estimated, the readings it kept) linearized at the result; when auto kept the ideal
-    head, plus the consider term of head errors drawn from the prior (as auto reports).
-    """
-    truth = survey.truth
-    assert truth is not None
+def joint_covariance(result: Result, report: HeadCalibrationReport, survey: Survey) -> tuple[np.ndarray, list[str]]:
+    """Joint covariance of all node positions: the inverse Hessian of the solved model (the head
+    parameters it estimated, the readings it kept) linearized at the result; and the node order."""
     active = {c: tuple(HEAD_PARAMETERS.index(n) for n in e.estimated) for c, e in report.cameras.items()}
-    consider = report.model is HeadModel.AUTO and not any(active.values())  # ideal kept: consider covariance
     heads = {c: e.values for c, e in report.cameras.items()}
     start = InitialEstimate(cameras=dict(result.cameras), nodes={n: e.position for n, e in result.nodes.items()})
     exclude = frozenset(f.index for f in result.flagged)
@@ -127,20 +119,29 @@ def joint_nees(result: Result, report: HeadCalibrationReport, survey: Survey) ->
     where = {k: offsets[i] for i, k in enumerate(keys)}
     d_ = _dim(survey)
     cols = np.concatenate([np.arange(where[k], where[k] + d_) for k in problem.node_keys.values()])
-    cov = np.linalg.inv(info)[np.ix_(cols, cols)]
-    if consider:  # as auto reports it: plus the effect of head errors drawn from the prior
-        full = {c: tuple(range(HEAD_DIM)) for c in report.cameras}
-        ext = build_self_calibration_problem(survey, start, full, None, exclude=exclude, with_prior=False)
-        A, kcols = _dense_jacobian(ext, ext.initial, ext.graph.size())
-        hc = np.concatenate([np.arange(kcols[k].start, kcols[k].stop) for k in ext.head_keys.values()])
-        other = np.setdiff1d(np.arange(A.shape[1]), hc)
-        J_x, J_h = A[:, other], A[:, hc] * np.tile(DEFAULT_PRIOR_SIGMAS, len(ext.head_keys))[None, :]
-        S = np.linalg.solve(J_x.T @ J_x, J_x.T @ J_h)
-        where = {int(c): i for i, c in enumerate(other)}
-        rows = [where[c] for k in ext.node_keys.values() for c in range(kcols[k].start, kcols[k].stop)]
-        cov = cov + S[rows] @ S[rows].T
-    err = np.concatenate([np.asarray(problem.initial.atPoint3(k) if d_ == 3 else problem.initial.atPoint2(k))[:d_]
-                          - truth.nodes[n][:d_] for n, k in problem.node_keys.items()])
+    return np.linalg.inv(info)[np.ix_(cols, cols)], list(problem.node_keys)
+
+
+def joint_nees(result: Result, report: HeadCalibrationReport, survey: Survey,
+               extended: tuple[Result, HeadCalibrationReport] | None = None) -> tuple[float, int]:
+    """NEES of all node positions together under their joint covariance (chi-square, d*N dof).
+
+    When auto kept the ideal head, the covariance is as auto reports it: the ``extended``
+    (full) solve's joint covariance plus ``D D'``, ``D`` the offset of the ideal estimates
+    from the extended ones.
+    """
+    truth = survey.truth
+    assert truth is not None
+    d_ = _dim(survey)
+    consider = report.model is HeadModel.AUTO and not any(e.estimated for e in report.cameras.values())
+    if consider:
+        assert extended is not None
+        cov, order = joint_covariance(*extended, survey)
+        D = np.concatenate([result.nodes[n].position[:d_] - extended[0].nodes[n].position[:d_] for n in order])
+        cov = cov + np.outer(D, D)
+    else:
+        cov, order = joint_covariance(result, report, survey)
+    err = np.concatenate([result.nodes[n].position[:d_] - truth.nodes[n][:d_] for n in order])
     return float(err @ np.linalg.solve(cov, err)), len(err)
 
 
@@ -176,14 +177,15 @@ def _one_run(experiment: str, name: str, seed: int) -> dict:
     ideal, irep = solve_with_head_model(dirty, HeadModel.IDEAL)
     out["ideal"] = node_errors(ideal, dirty) + joint_nees(ideal, irep, dirty)
     auto, arep = solve_with_head_model(dirty, HeadModel.AUTO)
-    out["auto"] = node_errors(auto, dirty) + joint_nees(auto, arep, dirty)
+    out["auto"] = node_errors(auto, dirty) + joint_nees(auto, arep, dirty, (full, rep))
     out["auto_cameras"] = sum(bool(c.estimated) for c in arep.cameras.values())
     out["auto_lr"] = [arep.lr_statistic, arep.lr_threshold]
     if experiment == "population":
         cideal, cirep = solve_with_head_model(clean, HeadModel.IDEAL)
         out["clean_ideal"] = node_errors(cideal, clean) + joint_nees(cideal, cirep, clean)
         cauto, crep = solve_with_head_model(clean, HeadModel.AUTO)
-        out["clean_auto"] = node_errors(cauto, clean) + joint_nees(cauto, crep, clean)
+        cfull, cfrep = solve_with_head_model(clean, HeadModel.FULL)
+        out["clean_auto"] = node_errors(cauto, clean) + joint_nees(cauto, crep, clean, (cfull, cfrep))
         out["clean_auto_ideal"] = all(not c.estimated for c in crep.cameras.values())
     return out
 

@@ -19,8 +19,9 @@ Model selection (``AUTO``): a likelihood-ratio test of all determinable
 parameters against the ideal head (chi-square with k dof, 5 %). Rejected: every
 determinable parameter of every camera is estimated with its prior (none is
 dropped for being insignificant: its effect would be missing from the
-covariance). Not rejected: the ideal head's estimates, with consider covariances
-(what head errors drawn from the prior would do to them added to the noise's).
+covariance). Not rejected: the ideal head's estimates, with covariances equal to
+their mean squared error under the extended model's posterior (its covariance
+plus the squared offset of the ideal estimate from its estimate).
 """
 
 from __future__ import annotations
@@ -478,11 +479,10 @@ def solve_with_head_model(
     if not lr > threshold:
         # The data show no head error, yet errors within the prior may hide in directions the
         # bearings cannot see (they move the geometry instead): the ideal head's estimates, with
-        # their consider covariances (the heads' possible effect under their prior added).
-        honest = _with_head_prior_covariance(survey, ideal, active, frozenset(f.index for f in ideal.flagged),
-                                             options, prior_sigmas)
+        # their mean squared error under the extended model's posterior as covariance.
+        honest = _with_posterior_mse(ideal, fit.result)
         report = _report(model, None, survey, f"ideal head kept (LR {lr:.1f} < {threshold:.1f}, {k} dof); "
-                         "node covariances include the head prior", data_std, ranks)
+                         "node covariances: the head model's posterior error of these estimates", data_std, ranks)
         report.lr_statistic, report.lr_threshold = lr, threshold
         return honest, report
     # Rejected: every determinable parameter of every camera stays in with its prior. Dropping
@@ -495,41 +495,24 @@ def solve_with_head_model(
     return _finish(fit, flagged, report)
 
 
-def _with_head_prior_covariance(
-    survey: Survey, result: Result, active: dict[str, tuple[int, ...]], exclude: frozenset[int],
-    options: SolverOptions, prior_sigmas: FloatArray,
-) -> Result:
-    """``result`` (ideal head) with consider covariances: the head errors ``active`` as unestimated
-    zero-mean parameters with their prior.
+def _with_posterior_mse(ideal: Result, extended: Result) -> Result:
+    """``ideal``'s estimates with covariances = their mean squared error under the extended
+    model's posterior: its covariance ``P_i`` plus the squared offset ``d_i d_i'`` of the
+    ideal estimate from the extended one (``d_i = x_ideal - x_extended``).
 
-    Linearized at the result, the ideal estimate moves by ``-S h`` for head errors ``h``,
-    ``S = (J_x' J_x)^-1 J_x' J_h`` (whitened Jacobians of the bearings and gauge priors in
-    the poses and nodes ``x`` and in ``h``), so each node's covariance gains
-    ``S_i P_h S_i'`` (``P_h`` the prior) on top of the reading noise's.
+    If the extended posterior is right, ``E[e e' | readings] = P_i + d_i d_i'`` for the
+    ideal estimate's error ``e``: its NEES has expectation = dof for every survey.
     """
-    if not options.compute_marginals or not result.nodes:
-        return result
-    start = InitialEstimate(cameras=dict(result.cameras), nodes={n: e.position for n, e in result.nodes.items()},
-                            unlocalized=dict(result.unlocalized))
-    problem = build_self_calibration_problem(survey, start, active, None, options, exclude, prior_sigmas,
-                                             with_prior=False)
-    A, cols = _dense_jacobian(problem, problem.initial, problem.graph.size())
-    head_cols = np.concatenate([np.arange(cols[k].start, cols[k].stop) for k in problem.head_keys.values()])
-    sig = np.concatenate([np.asarray(prior_sigmas)[list(problem.active[c])] for c in problem.head_keys])
-    other = np.setdiff1d(np.arange(A.shape[1]), head_cols)
-    J_x, J_h = A[:, other], A[:, head_cols] * sig[None, :]  # columns of J_h per prior sigma
-    S = np.linalg.solve(J_x.T @ J_x, J_x.T @ J_h)
-    where = {int(c): i for i, c in enumerate(other)}
     nodes = {}
-    for n, e in result.nodes.items():
-        key = problem.node_keys.get(n)
-        if key is None:
+    for n, e in ideal.nodes.items():
+        x = extended.nodes.get(n)
+        if x is None or not np.all(np.isfinite(x.covariance)):
             nodes[n] = e
             continue
-        rows = [where[c] for c in range(cols[key].start, cols[key].stop)]
-        S_i = S[rows]
-        nodes[n] = replace(e, covariance=np.asarray(e.covariance) + S_i @ S_i.T)
-    return replace(result, nodes=nodes)
+        dim = np.asarray(x.covariance).shape[0]
+        d = (np.asarray(e.position) - np.asarray(x.position))[:dim]
+        nodes[n] = replace(e, covariance=np.asarray(x.covariance) + np.outer(d, d))
+    return replace(ideal, nodes=nodes)
 
 
 def _finish(fit: SelfCalibratedSolve, flagged: list[FlaggedObservation],
