@@ -119,8 +119,8 @@ def known_motes_from_survey(
     The prediction covariance is the survey posterior's (poses, nodes, head parameters
     jointly) pushed through each reading's Jacobian: the extended model is rebuilt at
     the result with the parameters the report estimated (for ``auto`` that kept the
-    ideal head: the determinable ones at zero under their prior, as auto's covariances)
-    and linearized there.
+    ideal head: the determinable ones at zero under their prior; an approximation that
+    leaves out the offset of the ideal estimate from the extended one) and linearized there.
     """
     active: dict[str, tuple[int, ...]] = {}
     values: dict[str, FloatArray] = {}
