@@ -7,8 +7,9 @@ import pytest
 from gtsam.utils.numerical_derivative import numericalDerivative31, numericalDerivative32, numericalDerivative33
 
 from fgloc.core.geometry import bearing_pan_tilt, rot_x, rot_y, rot_z
-from fgloc.core.head_model import HEAD_DIM, head_pan_tilt
+from fgloc.core.head_model import DATASHEET_TOLERANCES, DEFAULT_PRIOR_SIGMAS, HEAD_DIM, head_pan_tilt
 from fgloc.factors.pan_tilt_head_factor import HeadFactorSet
+from fgloc.sim.head_errors import TYPICAL_MAGNITUDES, sample_head_errors
 
 C, L, H = gtsam.symbol_shorthand.C, gtsam.symbol_shorthand.L, gtsam.symbol_shorthand.H
 
@@ -120,3 +121,13 @@ def test_factor_jacobians_match_gtsam_numerical(planar: bool, seed: int) -> None
         np.testing.assert_allclose(A[:, :6], numericalDerivative31(f, pose, node, hv, 1e-6), atol=1e-6)
         np.testing.assert_allclose(A[:, 6:6 + dp], numericalDerivative32(f, pose, node, hv, 1e-6), atol=1e-6)
         np.testing.assert_allclose(A[:, 6 + dp:], numericalDerivative33(f, pose, node, hv, 1e-6), atol=1e-6)
+
+
+def test_prior_is_the_population_the_simulator_draws_heads_from() -> None:
+    """Prior sigma = datasheet tolerance / 2 = the typical errors; sampled heads have that spread."""
+    np.testing.assert_allclose(DEFAULT_PRIOR_SIGMAS, DATASHEET_TOLERANCES / 2)
+    np.testing.assert_allclose(TYPICAL_MAGNITUDES, DEFAULT_PRIOR_SIGMAS)
+    draws = sample_head_errors([f"c{i}" for i in range(4000)], np.random.default_rng(0))
+    z = np.array(list(draws.values())) / DEFAULT_PRIOR_SIGMAS
+    # 4000 draws: the sample std of a unit Gaussian is within 1 +- 0.05 (4.5 sd), the mean within 0.07.
+    assert np.all(np.abs(z.std(axis=0) - 1.0) < 0.05) and np.all(np.abs(z.mean(axis=0)) < 0.07)

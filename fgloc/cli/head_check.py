@@ -21,7 +21,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--repeats", type=int, default=None, metavar="N",
                    help="readings per mote and camera (default: the rig's repeats)")
     p.add_argument("--alpha", type=float, default=1e-3,
-                   help="false-alarm probability of the drift test per look (default 0.001)")
+                   help="bound on the drift test's false-alarm probability over the whole check (SPRT; default 0.001)")
     p.add_argument("--with-calibration-uncertainty", action="store_true",
                    help="add the calibration's marginal uncertainty to the test (conservative; docs/survey.md)")
     p.add_argument("--rerun", metavar="FILE.rrd",

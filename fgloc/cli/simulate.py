@@ -31,7 +31,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--head-errors", metavar="SPEC", default=None,
         help="non-ideal heads: 'typical' (tilt index 0.3 deg, collimation/trunnion 0.2 deg, scales 0.5 %%, "
-        "lever arm 0.0005, random signs) or name=value,... (degrees, percent, baseline units); "
+        "lever arm 0.0005, random signs), 'sampled' (drawn from the population those sizes are the 1-sigma of) "
+        "or name=value,... (degrees, percent, baseline units); "
         "see docs/head-calibration.md",
     )
     p.set_defaults(run=run)

@@ -59,11 +59,18 @@ HEAD_GROUPS: dict[str, tuple[int, ...]] = {
     "lever_arm": (5, 6),
 }
 
-#: Datasheet-scale tolerances used as zero-mean Gaussian priors (one sigma): index,
-#: collimation and trunnion 0.5 degree, encoder scales 1 %, lever arm 0.01 baseline.
-DEFAULT_PRIOR_SIGMAS: FloatArray = np.array(
-    [np.deg2rad(0.5), np.deg2rad(0.5), np.deg2rad(0.5), 0.01, 0.01, 0.01, 0.01]
+#: Datasheet-scale tolerances of a commodity PTZ head, read as ~95 % bounds of the
+#: population of heads: index, collimation and trunnion 0.6 / 0.4 / 0.4 degree, encoder
+#: scales 1 %, lever arm 0.1 % of the baseline per component.
+DATASHEET_TOLERANCES: FloatArray = np.array(
+    [np.deg2rad(0.6), np.deg2rad(0.4), np.deg2rad(0.4), 0.01, 0.01, 0.001, 0.001]
 )
+#: The zero-mean Gaussian prior of each parameter (one sigma): a tolerance quoted as a
+#: ~95 % bound is two sigma, so sigma = tolerance / 2 = the "typical head errors" of
+#: issue 17 (tilt index 0.3 degree, collimation and trunnion 0.2 degree, encoder scales
+#: 0.5 %, lever arm 0.05 % of the baseline). The simulator draws heads from this same
+#: population (:func:`fgloc.sim.head_errors.sample_head_errors`), so the prior describes it.
+DEFAULT_PRIOR_SIGMAS: FloatArray = DATASHEET_TOLERANCES / 2.0
 
 _NEWTON_STEPS = 4
 _X, _Y, _Z = np.eye(3)

@@ -1,22 +1,33 @@
-"""Calibration-only mode: re-survey known motes to update a camera's head calibration and flag drift.
+"""Calibration-only mode: re-read known motes with one camera and flag a drift of its tilt index.
 
-After a survey (and its self-calibration) the motes' positions, the camera's
-base pose and its head calibration are known. Re-reading a few motes with that
-camera tests whether the head has moved since: each reading's residual
-``r = (wrap(pan - pan_pred), tilt - tilt_pred)`` (radians) under the old
-calibration is modelled as ``r = delta + noise`` with ``delta = (pan offset,
-tilt index change)``: a pan offset is a base-yaw change (a slipped mount or a
-lost pan index), a tilt offset a change of the tilt index error. The noise
-covariance is ``sigma^2 I`` plus the mote's position covariance pushed through
-the head model; the calibration's own uncertainty is common to all readings and
-enters the test once, as the mean of its projection over the readings. The
-camera pose is taken as exact (after a survey its angular uncertainty is far
-below sigma; see docs/head-calibration.md).
+After a survey (and its self-calibration) the motes' positions, the camera's base
+pose and its head calibration are estimated *jointly*: their errors are
+correlated so that the tilt the survey predicts for a mote is known much better
+than the mote, the pose or the tilt index alone (a tilt index error and a base
+pitch error cancel in every prediction). :class:`KnownMotes` holds, for the motes a
+camera can re-read, the predicted readings under the survey's calibration and the
+joint covariance of the predicted tilts, from the survey's posterior
+(:func:`known_motes_from_survey`; :meth:`KnownMotes.from_positions` for motes known
+without a survey fit).
 
-:class:`DriftMonitor` accumulates readings one mote at a time; after each it
-gives the generalized-least-squares estimate of ``delta``, its covariance, the
-chi-square statistic (2 dof) and whether it exceeds the threshold (``alpha``
-per look, 1e-3 by default), plus the updated calibration and yaw correction.
+Test. A tilt reading of mote j is ``tilt_j = pred_j + delta + e_j + n``: ``delta``
+the tilt index change (radians, 1 dof), ``e`` the prediction error (covariance
+``T`` over the motes), ``n`` the reading noise (``sigma``). With ``m_j`` readings
+of mote j the mean residuals ``r`` have covariance ``C = diag(sigma^2 / m_j) + T``;
+the generalized-least-squares change is ``delta_hat = 1'C^-1 r / I`` with
+information ``I = 1'C^-1 1``. :class:`DriftMonitor` runs a two-sided sequential
+probability ratio test (Wald) of ``delta = 0`` against ``delta = +-drift`` on
+it: ``log LR(+-) = +-drift * I * delta_hat - drift^2 I / 2``, exact for the
+correlated Gaussian readings, flagged when either reaches ``ln(2 / alpha)``.
+Under no drift each likelihood ratio is a martingale, so by Ville's inequality the
+chance of *ever* flagging, however many motes are read, is at most ``alpha``.
+Pan readings give the pan offset (a base-yaw change) as a GLS estimate, reported
+but not tested.
+
+Choice of motes: :meth:`KnownMotes.best` picks them greedily by the information
+they add about the change (far motes, whose tilt depends little on their position,
+and motes whose prediction errors cancel), and reading each several times averages
+the reading noise down.
 """
 
 from __future__ import annotations
@@ -24,20 +35,147 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+import gtsam
 import numpy as np
 
 from fgloc.core.geometry import FloatArray, pan_tilt_residual, rot_z
-from fgloc.core.head_model import HEAD_DIM, HeadCalibration, head_pan_tilt
-from fgloc.core.model import CameraPose
+from fgloc.core.head_model import HEAD_DIM, HEAD_PARAMETERS, HeadCalibration, head_pan_tilt
+from fgloc.core.model import CameraPose, Result, Survey
+from fgloc.init.start import InitialEstimate
+from fgloc.solve.self_calibration import HeadCalibrationReport, HeadModel, build_self_calibration_problem
+
+#: Default tilt-index change the test is designed to detect (radians).
+DEFAULT_DRIFT = math.radians(0.1)
+
+
+@dataclass(frozen=True)
+class KnownMotes:
+    """Predicted readings of known motes by one camera and the uncertainty of the tilt predictions.
+
+    ``pan``, ``tilt`` (n,) radians under the survey's calibration; ``tilt_covariance``
+    and ``pan_covariance`` (n, n) the joint covariance of those predictions.
+    """
+
+    ids: tuple[str, ...]
+    pan: FloatArray
+    tilt: FloatArray
+    tilt_covariance: FloatArray
+    pan_covariance: FloatArray
+
+    def index(self, mote: str) -> int:
+        return self.ids.index(mote)
+
+    def best(self, k: int, sigma: float, readings: int = 1) -> list[str]:
+        """The ``k`` motes that tell most about a tilt-index change, in reading order.
+
+        Greedy: each next mote maximizes the GLS information ``1'C^-1 1`` of the motes so
+        far read ``readings`` times each with noise ``sigma`` (radians). With independent
+        prediction errors that is the smallest predicted-tilt std first (far motes);
+        with correlated ones it also picks motes whose prediction errors cancel.
+        """
+        n = len(self.ids)
+        chosen: list[int] = []
+        noise = sigma**2 / readings
+        for _ in range(min(k, n)):
+            best_j, best_info = -1, -1.0
+            for j in range(n):
+                if j in chosen:
+                    continue
+                c = chosen + [j]
+                C = self.tilt_covariance[np.ix_(c, c)] + noise * np.eye(len(c))
+                info = float(np.sum(np.linalg.solve(C, np.ones(len(c)))))
+                if info > best_info:
+                    best_j, best_info = j, info
+            chosen.append(best_j)
+        return [self.ids[j] for j in chosen]
+
+    @staticmethod
+    def from_positions(
+        camera: CameraPose, calibration: HeadCalibration, positions: dict[str, FloatArray],
+        position_covariances: dict[str, FloatArray] | None = None,
+    ) -> KnownMotes:
+        """Motes at world ``positions`` (3,), independent position covariances (2x2 planar or 3x3)
+        or exact; the camera pose and calibration taken as exact."""
+        ids = tuple(positions)
+        q = np.array([camera.rotation.T @ (np.asarray(positions[m], dtype=float) - camera.position) for m in ids])
+        pan, tilt, d_q, _ = head_pan_tilt(q.reshape(-1, 3), calibration.values)
+        assert d_q is not None
+        var = np.zeros((len(ids), 2))
+        for j, m in enumerate(ids):
+            if position_covariances is not None and m in position_covariances:
+                P = np.zeros((3, 3))
+                c = np.asarray(position_covariances[m], dtype=float)
+                P[: c.shape[0], : c.shape[0]] = c
+                D = d_q[j] @ camera.rotation.T
+                var[j] = np.diag(D @ P @ D.T)
+        return KnownMotes(ids, np.asarray(pan), np.asarray(tilt), np.diag(var[:, 1]), np.diag(var[:, 0]))
+
+
+def known_motes_from_survey(
+    survey: Survey, result: Result, report: HeadCalibrationReport, camera: str,
+) -> KnownMotes:
+    """The motes ``camera`` read in ``survey``, predicted from ``result`` and its head ``report``.
+
+    The prediction covariance is the survey posterior's (poses, nodes, head parameters
+    jointly) pushed through each reading's Jacobian: the extended model is rebuilt at
+    the result with the parameters the report estimated (for ``auto`` that kept the
+    ideal head: the determinable ones at zero under their prior; an approximation that
+    leaves out the offset of the ideal estimate from the extended one) and linearized there.
+    """
+    active: dict[str, tuple[int, ...]] = {}
+    values: dict[str, FloatArray] = {}
+    for cid, est in report.cameras.items():
+        idx = tuple(HEAD_PARAMETERS.index(n) for n in est.estimated)
+        if not idx and report.model is HeadModel.AUTO:
+            idx = tuple(int(i) for i in np.flatnonzero(np.isfinite(est.data_std)))
+        active[cid], values[cid] = idx, np.asarray(est.values, dtype=float)
+    start = InitialEstimate(cameras=dict(result.cameras), nodes={n: e.position for n, e in result.nodes.items()},
+                            unlocalized=dict(result.unlocalized))
+    exclude = frozenset(f.index for f in result.flagged)
+    problem = build_self_calibration_problem(survey, start, active, values, exclude=exclude)
+    assert problem.heads is not None
+    cam_key = problem.camera_keys[camera]
+    rows: dict[int, int] = {}  # node key -> first factor of this camera reading it
+    for j in range(len(problem.heads)):
+        if int(problem.heads.camera_keys[j]) == cam_key:
+            rows.setdefault(int(problem.heads.node_keys[j]), j)
+    node_of_key = {k: n for n, k in problem.node_keys.items()}
+    ids = tuple(node_of_key[k] for k in rows)
+    problem.prepare(problem.initial)
+    keys = [cam_key] + ([problem.head_keys[camera]] if camera in problem.head_keys else []) + list(rows)
+    dims = {k: int(problem.initial.dims()[k]) for k in keys}
+    offset = dict(zip(keys, np.cumsum([0] + [dims[k] for k in keys])[:-1]))
+    G = np.zeros((2 * len(ids), sum(dims.values())))  # d(pan, tilt prediction) / d(variables), unwhitened
+    for i, (node_key, j) in enumerate(rows.items()):
+        factor = problem.graph.at(j)
+        A, _ = factor.linearize(problem.initial).jacobian()
+        A = A / problem.heads.inv_sigmas[j][:, None]
+        col = 0
+        for k in factor.keys():
+            G[2 * i:2 * i + 2, offset[k]:offset[k] + dims[k]] = A[:, col:col + dims[k]]
+            col += dims[k]
+    marginals = gtsam.Marginals(problem.graph.linearize(problem.initial), problem.initial)
+    joint = marginals.jointMarginalCovariance(gtsam.KeyVector(keys))
+    S = np.zeros((G.shape[1], G.shape[1]))
+    for a in keys:
+        for b in keys:
+            S[offset[a]:offset[a] + dims[a], offset[b]:offset[b] + dims[b]] = joint.at(a, b)
+    cov = G @ S @ G.T
+    pose = result.cameras[camera]
+    q = np.array([pose.rotation.T @ (result.nodes[n].position - pose.position) for n in ids]).reshape(-1, 3)
+    pan, tilt, _, _ = head_pan_tilt(q, values.get(camera, np.zeros(HEAD_DIM)), jacobians=False)
+    return KnownMotes(ids, np.asarray(pan), np.asarray(tilt), cov[1::2, 1::2], cov[0::2, 0::2])
 
 
 @dataclass(frozen=True)
 class DriftCheck:
     """The drift test after ``n_readings`` readings of ``n_motes`` motes.
 
-    ``offset`` (2,) is the estimated (pan offset, tilt index change) in radians,
-    ``covariance`` its 2x2 covariance, ``chi2`` the test statistic against zero
-    drift, ``drifted`` whether it exceeds ``threshold``.
+    ``offset`` (2,) is the estimated (pan offset, tilt index change) in radians and
+    ``covariance`` their 2x2 covariance (GLS each; cross term not estimated, 0);
+    ``chi2`` the tilt change's squared z against zero (1 dof, for reports);
+    ``llr`` the larger of the two SPRT log likelihood ratios, ``threshold`` its
+    ``ln(2 / alpha)``; ``drifted`` once ``llr`` has reached it.
     """
 
     n_motes: int
@@ -47,74 +185,78 @@ class DriftCheck:
     chi2: float
     threshold: float
     drifted: bool
+    llr: float = 0.0
 
 
 @dataclass
 class DriftMonitor:
-    """Sequential drift test of one camera against its last calibration (see module docstring).
+    """Sequential (SPRT) test of one camera's tilt index against its last calibration (module docstring).
 
-    ``camera`` is the base pose, ``calibration`` the head calibration (its
-    ``covariance`` optional, 7x7), ``sigma`` the reading noise in radians.
+    ``known`` the camera's known motes, ``sigma`` the reading noise (radians),
+    ``drift`` the tilt-index change to detect (radians), ``alpha`` the bound on the
+    false-alarm probability over the whole (unbounded) sequence.
     """
 
-    camera: CameraPose
-    calibration: HeadCalibration
+    known: KnownMotes
     sigma: float
-    alpha: float = 1e-3
-    _info: FloatArray = field(default_factory=lambda: np.zeros((2, 2)))
-    _vec: FloatArray = field(default_factory=lambda: np.zeros(2))
-    _cal_cov_sum: FloatArray = field(default_factory=lambda: np.zeros((2, 2)))
-    _motes: set[str] = field(default_factory=set)
+    drift: float = DEFAULT_DRIFT
+    alpha: float = 0.01
+    _sums: dict[str, list[float]] = field(default_factory=dict)  # mote -> [pan residual sum, tilt sum, count]
     _n: int = 0
+    _flagged: bool = False
 
     @property
     def threshold(self) -> float:
-        """Chi-square (2 dof) quantile at 1 - alpha: exactly ``-2 ln(alpha)``."""
-        return -2.0 * math.log(self.alpha)
+        """``ln(2 / alpha)``: each side's likelihood ratio reaches 1/(alpha/2) with chance <= alpha/2 (Ville)."""
+        return math.log(2.0 / self.alpha)
 
-    def add(self, mote: str, position: FloatArray, pan: float, tilt: float,
-            position_covariance: FloatArray | None = None) -> DriftCheck:
-        """Add one reading of a known mote (world position (3,), covariance 2x2 planar or 3x3) and test."""
-        R, c = self.camera.rotation, self.camera.position
-        q = R.T @ (np.asarray(position, dtype=float) - c)
-        pred_pan, pred_tilt, d_q, d_p = head_pan_tilt(q, self.calibration.values)
-        assert d_q is not None and d_p is not None
-        r = pan_tilt_residual(pan, tilt, pred_pan, pred_tilt)
-        C = self.sigma**2 * np.eye(2)
-        if position_covariance is not None:
-            P = np.zeros((3, 3))
-            k = np.asarray(position_covariance).shape[0]
-            P[:k, :k] = position_covariance
-            D = d_q @ R.T
-            C = C + D @ P @ D.T
-        if self.calibration.covariance is not None:
-            self._cal_cov_sum += d_p @ self.calibration.covariance @ d_p.T
-        Ci = np.linalg.inv(C)
-        self._info += Ci
-        self._vec += Ci @ r
+    def add(self, mote: str, pan: float, tilt: float) -> DriftCheck:
+        """Add one reading (radians) of known mote ``mote`` and test."""
+        j = self.known.index(mote)
+        r = pan_tilt_residual(pan, tilt, self.known.pan[j], self.known.tilt[j])
+        s = self._sums.setdefault(mote, [0.0, 0.0, 0.0])
+        s[0] += float(r[0])
+        s[1] += float(r[1])
+        s[2] += 1.0
         self._n += 1
-        self._motes.add(mote)
-        return self.check()
+        check = self.check()
+        self._flagged = self._flagged or check.llr >= check.threshold
+        return DriftCheck(check.n_motes, check.n_readings, check.offset, check.covariance, check.chi2,
+                          check.threshold, self._flagged, check.llr)
+
+    def _gls(self, axis: int, cov: FloatArray) -> tuple[float, float]:
+        """GLS offset and its variance on ``axis`` (0 pan, 1 tilt) from the readings so far."""
+        idx = [self.known.index(m) for m in self._sums]
+        count = np.array([s[2] for s in self._sums.values()])
+        mean = np.array([s[axis] for s in self._sums.values()]) / count
+        C = cov[np.ix_(idx, idx)] + np.diag(self.sigma**2 / count)
+        w = np.linalg.solve(C, np.ones(len(idx)))
+        info = float(w.sum())
+        return float(w @ mean) / info, 1.0 / info
 
     def check(self) -> DriftCheck:
-        """The test on the readings so far."""
-        cov: FloatArray = np.asarray(np.linalg.inv(self._info) if self._n else np.full((2, 2), np.inf), dtype=float)
-        offset: FloatArray = cov @ self._vec if self._n else np.zeros(2)
-        total = cov + (self._cal_cov_sum / self._n if self._n else 0.0)
-        chi2 = float(offset @ np.linalg.solve(total, offset)) if self._n else 0.0
-        return DriftCheck(len(self._motes), self._n, offset, cov, chi2, self.threshold, chi2 > self.threshold)
+        """The test on the readings so far (``drifted``: the SPRT has crossed at any look)."""
+        if not self._n:
+            return DriftCheck(0, 0, np.zeros(2), np.full((2, 2), np.inf), 0.0, self.threshold, False, 0.0)
+        pan, var_pan = self._gls(0, self.known.pan_covariance)
+        tilt, var_tilt = self._gls(1, self.known.tilt_covariance)
+        info = 1.0 / var_tilt
+        llr = abs(self.drift * info * tilt) - 0.5 * self.drift**2 * info
+        return DriftCheck(len(self._sums), self._n, np.array([pan, tilt]), np.diag([var_pan, var_tilt]),
+                          tilt**2 / var_tilt, self.threshold, self._flagged or llr >= self.threshold, llr)
 
-    def updated(self) -> tuple[CameraPose, HeadCalibration]:
-        """Camera and calibration corrected by the estimated offsets (pan offset as a base-yaw turn)."""
+    def updated(self, camera: CameraPose, calibration: HeadCalibration) -> tuple[CameraPose, HeadCalibration]:
+        """Camera and calibration corrected by the estimated offsets (pan offset as a base-yaw turn).
+
+        The tilt index gains the estimated change; its variance gains the change's variance.
+        """
         check = self.check()
-        values = np.array(self.calibration.values, dtype=float).copy()
+        values = np.array(calibration.values, dtype=float).copy()
         values[0] += check.offset[1]
         cov = None
-        if self.calibration.covariance is not None:
-            cov = np.array(self.calibration.covariance, dtype=float).copy()
-            cov[0, 0] = check.covariance[1, 1]
-            cov[0, 1:] = cov[1:, 0] = 0.0
+        if calibration.covariance is not None:
+            cov = np.array(calibration.covariance, dtype=float).copy()
+            cov[0, 0] += check.covariance[1, 1]
         # A pan reading larger by d means the base turned by -d about its z axis.
-        rotation = self.camera.rotation @ rot_z(-float(check.offset[0]) / (1.0 + values[3]))
-        assert values.shape == (HEAD_DIM,)
-        return CameraPose(self.camera.position, rotation), HeadCalibration(values, cov)
+        rotation = camera.rotation @ rot_z(-float(check.offset[0]) / (1.0 + values[3]))
+        return CameraPose(camera.position, rotation), HeadCalibration(values, cov)

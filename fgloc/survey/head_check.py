@@ -41,12 +41,12 @@ import numpy as np
 
 from fgloc.core.errors import FglocError
 from fgloc.core.geometry import FloatArray
-from fgloc.core.head_model import HEAD_DIM, HEAD_PARAMETERS, HeadCalibration
+from fgloc.core.head_model import HEAD_DIM, HEAD_PARAMETERS, HeadCalibration, head_pan_tilt
 from fgloc.core.model import CameraPose, Result, Survey, Truth
 from fgloc.files.json_io import load_json, show_value, write_json_atomic
 from fgloc.files.rig_config import RigConfig
 from fgloc.files.survey_result import read_result
-from fgloc.solve.head_drift import DriftCheck, DriftMonitor
+from fgloc.solve.head_drift import DriftCheck, DriftMonitor, KnownMotes
 from fgloc.survey.session import OpenedRig, open_hardware, open_simulated, run_survey
 
 logger = logging.getLogger(__name__)
@@ -119,8 +119,8 @@ class HeadCheckReport:
             lines.append(
                 f"{cid}: tilt index change {math.degrees(c.offset[1]):+.4f}±{math.degrees(sd[1]):.4f}°, "
                 f"pan offset {math.degrees(c.offset[0]):+.4f}±{math.degrees(sd[0]):.4f}° "
-                f"({c.n_motes} motes, {c.n_readings} readings): chi2 {c.chi2:.1f} "
-                f"{'>' if c.drifted else '<='} {c.threshold:.1f}: {'DRIFT' if c.drifted else 'no drift'}")
+                f"({c.n_motes} motes, {c.n_readings} readings): log LR {c.llr:.1f} "
+                f"{'>=' if c.drifted else '<'} {c.threshold:.1f}: {'DRIFT' if c.drifted else 'no drift'}")
         return "\n".join(lines)
 
 
@@ -130,7 +130,7 @@ def _check_json(c: DriftCheck) -> dict[str, Any]:
             "pan_offset_deg": math.degrees(float(c.offset[0])), "pan_offset_std_deg": math.degrees(float(sd[0])),
             "tilt_index_change_deg": math.degrees(float(c.offset[1])),
             "tilt_index_change_std_deg": math.degrees(float(sd[1])),
-            "chi2": float(c.chi2), "threshold": float(c.threshold), "drifted": bool(c.drifted)}
+            "chi2": float(c.chi2), "log_lr": float(c.llr), "threshold": float(c.threshold), "drifted": bool(c.drifted)}
 
 
 def _block_camera(cal: HeadCalibration, estimated: tuple[str, ...]) -> dict[str, Any]:
@@ -223,31 +223,41 @@ def check_motes(rig: RigConfig, result: Result, motes: list[str], where: str) ->
             raise FglocError(f"{where}: cameras: camera {c!r} of {rig.path} has no pose")
 
 
+def known_motes_for(camera: CameraPose, calibration: HeadCalibration, result: Result, motes: list[str],
+                    calibration_uncertainty: bool) -> KnownMotes:
+    """The listed motes' predicted readings by ``camera`` and the covariance of the predicted tilts:
+    the motes' position covariances (independent), plus the calibration's, shared by every
+    prediction, with ``calibration_uncertainty`` (see the module docstring)."""
+    positions = {m: np.asarray(result.nodes[m].position, dtype=float) for m in motes}
+    covariances = {m: np.asarray(result.nodes[m].covariance, dtype=float) for m in motes}
+    known = KnownMotes.from_positions(camera, HeadCalibration(calibration.values), positions, covariances)
+    if not calibration_uncertainty or calibration.covariance is None:
+        return known
+    q = np.array([camera.rotation.T @ (positions[m] - camera.position) for m in motes])
+    _, _, _, d_h = head_pan_tilt(q, calibration.values)
+    assert d_h is not None
+    cov = np.asarray(calibration.covariance, dtype=float)
+    return replace(known, pan_covariance=known.pan_covariance + d_h[:, 0] @ cov @ d_h[:, 0].T,
+                   tilt_covariance=known.tilt_covariance + d_h[:, 1] @ cov @ d_h[:, 1].T)
+
+
 def monitor_readings(survey: Survey, result: Result, calibrations: dict[str, tuple[HeadCalibration, tuple[str, ...]]],
                      sigma: float, alpha: float = 1e-3, calibration_uncertainty: bool = False) -> dict[str, CameraCheck]:
-    """Feed every reading of ``survey`` (journal order) to its camera's drift monitor (the
-    calibrations' covariances only with ``calibration_uncertainty``, see the module docstring)."""
-    def monitor(c: str) -> DriftMonitor:
-        cal = calibrations[c][0]
-        return DriftMonitor(result.cameras[c], cal if calibration_uncertainty else HeadCalibration(cal.values),
-                            sigma, alpha)
-
-    monitors = {c: monitor(c) for c in survey.camera_ids}
+    """Feed every reading of ``survey`` (journal order) to its camera's drift monitor, a two-sided
+    SPRT with false-alarm probability at most ``alpha`` over the whole sequence
+    (:class:`fgloc.solve.head_drift.DriftMonitor`)."""
+    motes = sorted({o.node for o in survey.observations})
+    monitors = {c: DriftMonitor(known_motes_for(result.cameras[c], calibrations[c][0], result, motes,
+                                                calibration_uncertainty), sigma, alpha=alpha)
+                for c in survey.camera_ids}
     checks = {c: CameraCheck(c) for c in survey.camera_ids}
     for o in survey.observations:
-        node = result.nodes[o.node]
-        check = monitors[o.camera].add(o.node, np.asarray(node.position, dtype=float), o.pan, o.tilt,
-                                       np.asarray(node.covariance, dtype=float))
+        check = monitors[o.camera].add(o.node, o.pan, o.tilt)
         checks[o.camera].steps.append(CheckStep(o.node, check))
     for c, cc in checks.items():
         if cc.steps:
-            cc.pose, updated = monitors[c].updated()
-            cov = calibrations[c][0].covariance  # the old uncertainty, the tilt index's from the check
-            if cov is not None and not calibration_uncertainty:
-                cov = np.array(cov, dtype=float)
-                cov[0, :] = cov[:, 0] = 0.0
-                cov[0, 0] = float(cc.steps[-1].check.covariance[1, 1])
-            cc.calibration = updated if calibration_uncertainty else HeadCalibration(updated.values, cov)
+            cc.pose, updated = monitors[c].updated(result.cameras[c], calibrations[c][0])
+            cc.calibration = updated
             est = calibrations[c][1]
             cc.estimated = est if "tilt_index" in est else ("tilt_index", *est)
     return checks

@@ -18,7 +18,7 @@ for the lever arm. Entity paths (``<id>`` a camera id):
 ``cameras/<id>/head/drift/<series>``        drift check on the ``head_check`` timeline (one
                                             step per re-read reading): ``tilt_index_change_deg``,
                                             its ``..._sigma_deg``, ``pan_offset_deg``,
-                                            ``chi2``, ``threshold``, ``drifted`` (0/1)
+                                            ``chi2``, ``log_lr`` (the SPRT statistic), ``threshold``, ``drifted`` (0/1)
 ``cameras/<id>/head/drift/log``             one text line per reading: mote, estimate, flag
 ``cameras/<id>/head/updated/...``           the calibration after the drift check (as above)
 ==========================================  ==============================================
@@ -47,7 +47,7 @@ HEAD_GROUPS_DISPLAY: tuple[tuple[str, tuple[str, ...], float, str], ...] = (
 DRIFT_SERIES: tuple[tuple[str, str], ...] = (
     ("tilt_index_change_deg", "tilt_index_change_deg"), ("tilt_index_change_sigma_deg", "tilt_index_change_std_deg"),
     ("pan_offset_deg", "pan_offset_deg"), ("pan_offset_sigma_deg", "pan_offset_std_deg"),
-    ("chi2", "chi2"), ("threshold", "threshold"),
+    ("chi2", "chi2"), ("log_lr", "log_lr"), ("threshold", "threshold"),
 )
 TIMELINE = "head_check"
 ESTIMATE_BAR = (230, 120, 40, 255)  #: bar colour of the estimates
@@ -112,7 +112,7 @@ def log_drift_check(rec: rr.RecordingStream, report: Mapping[str, Any]) -> None:
             rec.log(f"{base}/drifted", rr.Scalars([1.0 if step["drifted"] else 0.0]))
             rec.log(f"{base}/log", rr.TextLog(
                 f"{step['mote']}: tilt index change {step['tilt_index_change_deg']:+.4f}±"
-                f"{step['tilt_index_change_std_deg']:.4f}°, chi2 {step['chi2']:.1f}: "
+                f"{step['tilt_index_change_std_deg']:.4f}°, log LR {step['log_lr']:.1f}: "
                 f"{'DRIFT' if step['drifted'] else 'no drift'}", level="WARN" if step["drifted"] else "INFO"))
         if "updated" in camera:
             updated[cid] = camera["updated"]["head_calibration"]
