@@ -31,6 +31,7 @@ MEASURE_METHODS = ("centre", "pixel-offset")
 DETECTIONS = ("single", "on-off")
 SIMULATION_TWINS = ("inprocess", "visca")
 SIMULATION_FRAMES = ("spot", "rendered")
+IDENTIFICATIONS = ("sequential", "coded")  #: one lit LED at a time, or blink codes (fgloc.survey.coded)
 
 
 class RigConfigError(FglocError):
@@ -128,6 +129,7 @@ class RigConfig:
     node_ids: list[str]
     repeats: int = 1
     repeat_budget: int = 0  # readings re-measured after the node loop, chosen by fgloc.plan.repeat
+    identification: str = "sequential"  # "sequential" or "coded" (blink codes, fgloc.survey.coded)
     search: SearchConfig = SearchConfig()
     retry: RetryConfig = RetryConfig()
     simulation: SimulationConfig = SimulationConfig()
@@ -292,6 +294,7 @@ def parse_rig(data: Any, path: str = "rig.json", base: Path | None = None) -> Ri
         node_ids=node_ids,
         repeats=int(top.get("repeats", 1)),
         repeat_budget=repeat_budget,
+        identification=str(top.get("identification", "sequential")),
         search=search,
         retry=retry,
         simulation=simulation,
