@@ -136,6 +136,7 @@ class JournalState:
     rig_changes: list[dict[str, Any]] = field(default_factory=list)  # rig_changed records, in order
     views: dict[tuple[str, str, int], dict[str, Any]] = field(default_factory=dict)  # (camera, view, attempt) -> record
     field_times: list[dict[str, Any]] = field(default_factory=list)  # field_time records, in order
+    codes: list[dict[str, Any]] = field(default_factory=list)  # codes records (coded surveys), in order
     records: int = 0
     torn_tail_bytes: int = 0
     duplicates_ignored: int = 0
@@ -257,6 +258,8 @@ class _Replay:
             state.rig_changes.append(rec)
         elif kind == "view":
             self.apply_view(rec, line)
+        elif kind == "codes":
+            state.codes.append(rec)
         elif kind == "field_time":
             if rec.get("node") is not None and rec["node"] not in self.nodes:
                 raise self.fail(line, f"field_time.node: unknown node {show_value(rec['node'])}")

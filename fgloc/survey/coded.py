@@ -72,12 +72,11 @@ from fgloc.survey.clock import (
     Radio,
     Settle,
     Slew,
-    Wait,
     parallel,
     price,
     sum_times,
 )
-from fgloc.survey.coded_clock import ClockSink, CountingLeds, clocked_opener, rig_timing
+from fgloc.survey.coded_clock import ClockSink, CountingLeds, clocked_opener, node_field_time, rig_timing
 from fgloc.survey.field_plans import frames_for
 from fgloc.survey.runner import CameraFailed, Progress, SurveyRunner
 from fgloc.survey.view_planner import box_targets, plan_views
@@ -133,6 +132,13 @@ def coded_observation(camera: str, view: str, node: str, index: int, reading: De
     u, v = (reading.u, reading.v) if centroid is None else centroid
     pan, tilt = pixel_to_pan_tilt(intr, np.array([u, v]), head[0], head[1])
     return JournalObservation(node, camera, index, math.remainder(float(pan), 2 * math.pi), float(tilt), None, view)
+
+
+def unexplained_blob(refused: dict[str, Any]) -> bool:
+    """A refused blob that may be a mote nobody read: ambiguous, duplicate, a code no mote runs,
+    or rejected for any reason but the image border (the planner's margin puts every direction
+    well inside another view) or never going dark (a steady or flickering lamp, not a code)."""
+    return refused["kind"] != "rejected" or not str(refused.get("reason", "")).startswith(_NOT_RETRIED)
 
 
 def needs_second_recording(record: dict[str, Any]) -> bool:
@@ -328,9 +334,11 @@ class CodedSurvey:
                 break
         silent = sorted(n for n, a in self.addresses.items() if a not in confirmed)
         self.stats.confirmed = len(expect & confirmed)
-        runner.journal.append({"type": "codes", "action": "start", "length": self.book.length, "first": self.first,
-                               "count": len(self.book), "bit_period_s": command.bit_period_s,
-                               "confirmed": self.stats.confirmed, "silent": silent})
+        rec = {"type": "codes", "action": "start", "length": self.book.length, "first": self.first,
+               "count": len(self.book), "bit_period_s": command.bit_period_s, "confirmed": self.stats.confirmed,
+               "silent": silent}
+        runner.journal.append(rec)
+        runner.state.codes.append(rec)
         if silent:
             logger.warning(f"{len(silent)} motes did not confirm their code (first: {silent[0]}); "
                            "they are read the sequential way if no camera decodes them")
@@ -386,7 +394,7 @@ class CodedSurvey:
                 for f in futures:
                     f.result()
                 self.stop_codes(runner)
-                self.run_fallback(runner, pool, total, t0)
+                self.run_fallback(runner, pool, total, t0, plans)
                 if self.rig.repeat_budget > 0:
                     from fgloc.survey.repeats import run_repeats
 
@@ -409,12 +417,40 @@ class CodedSurvey:
         emit(self.progress(runner, total, total, t0))
         return journal_to_survey(runner.state)
 
-    def run_fallback(self, runner: SurveyRunner, pool: ThreadPoolExecutor, total: int, t0: float) -> None:
-        """Measure, the sequential way, every node some camera has not read; priced per node."""
+    def unexplained(self, runner: SurveyRunner, plans: dict[str, list[tuple[float, float]]]) -> dict[str, int]:
+        """Per camera: blobs in the last recording of its views that no reading explains
+        (:func:`unexplained_blob`), plus views never recorded (a camera error)."""
+        out: dict[str, int] = {}
+        for cam, views in plans.items():
+            n = 0
+            for k in range(len(views)):
+                recs = [runner.state.views.get((cam, f"w{k:03d}", a)) for a in range(1 + self.settings.retries)]
+                last = [r for r in recs if r is not None]
+                n += sum(1 for r in last[-1]["refused"] if unexplained_blob(r)) if last else 1
+            out[cam] = n
+        return out
+
+    def run_fallback(self, runner: SurveyRunner, pool: ThreadPoolExecutor, total: int, t0: float,
+                     plans: dict[str, list[tuple[float, float]]]) -> None:
+        """Finish every node some camera has not read. A camera whose views left no blob
+        unexplained did not see a mote that confirmed its code: that is journaled ``not_found``
+        without a search. The rest (and motes that never confirmed) are measured the
+        sequential way, priced per node."""
         st = runner.state
+        clean = {c for c, n in self.unexplained(runner, plans).items() if n == 0}
+        starts = [set(r.get("silent", [])) for r in st.codes if r.get("action") == "start"]
+        silent = set.intersection(*starts) if starts else set(self.rig.node_ids)  # never confirmed a start
         for node in self.rig.node_ids:
             if node in st.done:
                 continue
+            if node not in silent:
+                for cam in sorted(clean):
+                    if not st.camera_finished(node, cam, self.rig.repeats):
+                        reason = "not decoded in any view of the camera, which left no blob unexplained"
+                        runner.journal.not_found(node, cam, reason)
+                        st.not_found[(node, cam)] = reason
+                        runner.stats.not_found += 1
+                        logger.info(f"{node}: not found by {cam}: {reason}")
             if all(st.camera_finished(node, c, self.rig.repeats) for c in self.rig.camera_ids):
                 runner.journal.node_done(node)
                 st.done.add(node)
@@ -427,11 +463,8 @@ class CodedSurvey:
                 runner.run_node(node, pool, check_misses=False)
             finally:
                 self.sink.active = False
-            radio = Radio(unicast=self.leds.commands - before)
-            ops = self.sink.take()
-            lanes = [price(ops[c], self.timing[c]) for c in self.rig.camera_ids]
-            first = self.timing[self.rig.camera_ids[0]]
-            node_time = price([radio, Wait(self.rig.search.led_wait_s)], first) + parallel(lanes)
+            node_time = node_field_time(self.sink.take(), self.leds.commands - before, self.rig.search.led_wait_s,
+                                        self.timing)
             runner.journal.field_time("fallback_node", dict(node_time.phases), node=node)
             self.fallback = self.fallback + node_time
             if runner.on_progress is not None:

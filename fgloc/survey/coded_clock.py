@@ -18,7 +18,21 @@ from typing import Any
 import numpy as np
 
 from fgloc.core.hardware import LedController, PanTiltHead
-from fgloc.survey.clock import EVI_D100, HEAD_MODELS, Frames, Op, PositionRead, RigTiming, Settle, Slew
+from fgloc.survey.clock import (
+    EVI_D100,
+    HEAD_MODELS,
+    FieldTime,
+    Frames,
+    Op,
+    PositionRead,
+    Radio,
+    RigTiming,
+    Settle,
+    Slew,
+    Wait,
+    parallel,
+    price,
+)
 
 
 def rig_timing(model: str) -> RigTiming:
@@ -93,3 +107,12 @@ class CountingLeds:
 
     def __getattr__(self, name: str) -> Any:
         return getattr(self._leds, name)
+
+
+def node_field_time(ops: dict[str, list[Op]], led_commands: int, led_wait_s: float,
+                    timing: dict[str, RigTiming]) -> FieldTime:
+    """Field time of one sequentially measured node: its LED commands (acknowledged radio
+    commands) and the LED wait, then every camera's operations in parallel (the longest lane)."""
+    first = timing[next(iter(timing))]
+    lanes = [price(ops.get(c, []), t) for c, t in timing.items()]
+    return price([Radio(unicast=led_commands), Wait(led_wait_s)], first) + parallel(lanes)
