@@ -102,11 +102,14 @@ class SceneBlinks:
         return out
 
     def record(self, camera_id: str, pan: float, tilt: float, n_frames: int, t_start: float, key: str,
-               ) -> list[tuple[float, np.ndarray]]:
+               zoom: float | None = None) -> list[tuple[float, np.ndarray]]:
         """``(timestamp s, uint8 frame)`` of ``n_frames`` frame periods recorded by ``camera_id``
-        with its head at (pan, tilt) radians, from ``t_start`` on the survey clock (dropped frames missing)."""
+        with its head at (pan, tilt) radians, from ``t_start`` on the survey clock (dropped frames
+        missing). ``zoom`` other than the camera's survey zoom renders through the idealised
+        :meth:`~fgloc.camera.intrinsics.CameraIntrinsics.at_zoom` model of its intrinsics."""
         i = self.scene.camera_ids.index(camera_id)
-        intr = self.rig.cameras[i].intrinsics
+        cam = self.rig.cameras[i]
+        intr = cam.intrinsics if zoom is None or zoom == cam.zoom else cam.intrinsics.at_zoom(zoom)
         rng = np.random.default_rng(_seed(self.seed, camera_id, key, "blink-video"))
         statics = self.scene.lights if len(self.scene.lights) else None
         return render_view(self.cameras[camera_id], intr, pan, tilt, self.motes(camera_id), n_frames, rng,

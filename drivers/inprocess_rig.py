@@ -347,6 +347,7 @@ class InProcessRig:
         self._generation: dict[str, int] = {}
         self.heads: dict[str, SceneHead] = {}  # the head last opened per camera
         self._blinks: object | None = None
+        self.blink_zoom = True  # record_blinks renders at the head's zoom (coded refinement)
 
     def record_blinks(self, camera_id: str, n_frames: int, t_start: float, key: str) -> list[tuple[float, np.ndarray]]:
         """Coded surveys: ``n_frames`` frame periods of blinking-mote video from ``camera_id``'s
@@ -358,7 +359,8 @@ class InProcessRig:
             self._blinks = SceneBlinks(self.scene, self.rig, self.leds.addresses, self.leds.blink,
                                        lambda: list(self.leds.received))
         head = self.heads[camera_id]
-        return self._blinks.record(camera_id, head.pan, head.tilt, n_frames, t_start, key)  # type: ignore[attr-defined]
+        return self._blinks.record(camera_id, head.pan, head.tilt, n_frames, t_start, key,  # type: ignore[attr-defined]
+                                   head._zoom)
 
     def open_head(self, camera_id: str) -> SceneHead:
         """Open (or reopen, after a disconnect) the head of ``camera_id``."""

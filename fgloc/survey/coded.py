@@ -72,6 +72,7 @@ from fgloc.survey.clock import (
     Radio,
     Settle,
     Slew,
+    Zoom,
     parallel,
     price,
     sum_times,
@@ -87,6 +88,7 @@ logger = logging.getLogger(__name__)
 _NOT_RETRIED = ("too close to the image border", "never dark")
 
 Frame = tuple[float, np.ndarray]
+CLUSTER_SPREAD_PX = 6.0  #: refinement tiles also cover this far (px of the coarser view) around a blob
 
 
 @dataclass(frozen=True)
@@ -103,6 +105,9 @@ class CodedSettings:
     #: refuses blobs within 7 px of the border)
     target_step: float = 0.7
     decoder: DecoderConfig = field(default_factory=DecoderConfig)
+    #: refinement zooms (fractions of the optical range, ascending; :meth:`CameraIntrinsics.at_zoom`:
+    #: 2x, 4x, 10x), used where the rig can record at other zooms (the in-process rig)
+    levels: tuple[float, ...] = (1 / 9, 3 / 9, 1.0)
 
 
 @dataclass
@@ -134,11 +139,15 @@ def coded_observation(camera: str, view: str, node: str, index: int, reading: De
     return JournalObservation(node, camera, index, math.remainder(float(pan), 2 * math.pi), float(tilt), None, view)
 
 
-def unexplained_blob(refused: dict[str, Any]) -> bool:
+def unexplained_blob(refused: dict[str, Any], top: bool = False) -> bool:
     """A refused blob that may be a mote nobody read: ambiguous, duplicate, a code no mote runs,
-    or rejected for any reason but the image border (the planner's margin puts every direction
-    well inside another view) or never going dark (a steady or flickering lamp, not a code)."""
-    return refused["kind"] != "rejected" or not str(refused.get("reason", "")).startswith(_NOT_RETRIED)
+    or rejected for any reason but the image border (the planners' margins put every direction
+    well inside another view). A blob that never goes dark is a lamp or several motes in one
+    blob; at the ``top`` rung of the zoom ladder it is taken for a lamp (explained)."""
+    reason = str(refused.get("reason", ""))
+    if refused["kind"] != "rejected":
+        return True
+    return not reason.startswith(_NOT_RETRIED[0]) and not (top and reason.startswith(_NOT_RETRIED[1]))
 
 
 def needs_second_recording(record: dict[str, Any]) -> bool:
@@ -148,21 +157,20 @@ def needs_second_recording(record: dict[str, Any]) -> bool:
                for r in record.get("refused", []))
 
 
-def on_off_centroid(frames: list[Frame], u: float, v: float, radius: int = 3) -> tuple[float, float] | None:
+def on_off_centroid(stack: np.ndarray, u: float, v: float, radius: int = 3) -> tuple[float, float] | None:
     """Sub-pixel centroid of the LED near (u, v) px from the **difference** of its mean lit and
     mean dark frame (the static background and static lights cancel, as in the sequential
     survey's on-off detection): frames are split by their aperture flux (two levels, lit above
     70 % of the way from dark to lit, dark below 30 %), the centroid is the intensity-weighted
-    mean over a (2 radius + 1)^2 window of the positive difference. None when the window leaves
-    the image or either level has no frame."""
+    mean over a (2 radius + 1)^2 window of the positive difference. ``stack`` (N, H, W) holds
+    the view's frames. None when the window leaves the image or either level has no frame."""
     cu, cv = int(round(u)), int(round(v))
-    stack = np.stack([np.asarray(f, np.float32) for _, f in frames])
     if stack.ndim != 3:
         return None
     h, w = stack.shape[1:]
     if not (radius <= cu < w - radius and radius <= cv < h - radius):
         return None
-    win = stack[:, cv - radius: cv + radius + 1, cu - radius: cu + radius + 1]
+    win = stack[:, cv - radius: cv + radius + 1, cu - radius: cu + radius + 1].astype(np.float32)
     flux = win.reshape(len(win), -1).sum(axis=1)
     lo, hi = float(np.min(flux)), float(np.max(flux))
     lit, dark = flux >= lo + 0.7 * (hi - lo), flux <= lo + 0.3 * (hi - lo)
@@ -209,6 +217,10 @@ class CodedSurvey:
         self.radio_s = 0.0
         self.fallback = FieldTime({})
         self._events: queue.Queue[str] = queue.Queue()
+        self.survey_zoom = {c.id: c.zoom for c in rig.cameras}
+        # refinement needs frames at other zooms: the simulated rigs that render them say so
+        self.levels = self.settings.levels if getattr(recorder, "blink_zoom", False) else ()
+        self.remaining: dict[str, int] = {}  # camera -> unexplained blobs and failed views after its last rung
 
     # ----- plan and clock
     def plan(self, camera: str) -> list[tuple[float, float]]:
@@ -229,7 +241,7 @@ class CodedSurvey:
 
     # ----- one camera
     def _record(self, runner: SurveyRunner, camera: str, vid: str, attempt: int, target: tuple[float, float],
-                head: tuple[float, float], t_start: float) -> dict[str, Any]:
+                head: tuple[float, float], zoom: float, t_start: float) -> dict[str, Any]:
         worker = runner.workers[camera]
         key = f"{vid}/{attempt}"
         if self.recorder is not None:
@@ -239,12 +251,13 @@ class CodedSurvey:
             for _ in range(self.frames):
                 img = worker.call(lambda h: h.grab_frame())
                 frames.append((time.monotonic(), np.asarray(img)))
-        intr = self.rig.cameras[self.rig.camera_ids.index(camera)].intrinsics
+        intr = self.intrinsics_at(camera, zoom)
         dec: ViewDecode = decode_view(frames, self.camera.frame_period_s, self.book, intr, head[0], head[1],
                                       self.settings.decoder)
         readings, refused = [], [{"kind": r.kind, "u": r.u, "v": r.v, "reason": r.reason} for r in dec.refused]
         st = runner.state
         taken: set[str] = set()
+        stack = np.stack([np.asarray(f) for _, f in frames]) if dec.readings else np.zeros((0, 0, 0))
         for rd in dec.readings:
             node = self.node_of_code.get(rd.index)
             if node is None:
@@ -255,12 +268,12 @@ class CodedSurvey:
             if node in taken or have >= self.rig.repeats:
                 continue
             taken.add(node)
-            uv = on_off_centroid(frames, rd.u, rd.v) or (rd.u, rd.v)
+            uv = on_off_centroid(stack, rd.u, rd.v) or (rd.u, rd.v)
             obs = coded_observation(camera, vid, node, have, rd, intr, head, uv)
             readings.append({"node": node, "index": obs.index, "pan": obs.pan, "tilt": obs.tilt, "code": rd.index,
                              "u": uv[0], "v": uv[1]})
         return {"camera": camera, "view": vid, "attempt": attempt, "target": list(target), "head": list(head),
-                "frames": self.frames, "erased": dec.erased, "clock_s": t_start, "readings": readings,
+                "zoom": zoom, "frames": self.frames, "erased": dec.erased, "clock_s": t_start, "readings": readings,
                 "refused": refused}
 
     def _commit(self, runner: SurveyRunner, record: dict[str, Any]) -> None:
@@ -282,38 +295,98 @@ class CodedSurvey:
             logger.info(f"{record['camera']} view {record['view']} ({record['attempt']}): {r['kind']} blob at "
                         f"({r['u']:.1f}, {r['v']:.1f}) px: {r['reason']}")
 
+    def _visit(self, runner: SurveyRunner, camera: str, vid: str, target: tuple[float, float], zoom: float,
+               here: tuple[float, float]) -> dict[str, Any] | None:
+        """Record one view (and its second recording when needed) unless journaled; prices it
+        on the camera's lane. Returns the view's last record (None: the camera failed)."""
+        worker, lane = runner.workers[camera], self.lanes[camera]
+        lane += [Slew(math.remainder(target[0] - here[0], 2 * math.pi), target[1] - here[1]), Settle(),
+                 PositionRead()]
+        head: tuple[float, float] | None = None
+        last = None
+        for attempt in range(1 + self.settings.retries):
+            rec = runner.state.views.get((camera, vid, attempt))
+            if rec is not None and ([float(x) for x in rec.get("target", [])] != list(target)
+                                    or float(rec.get("zoom", self.survey_zoom[camera])) != zoom):
+                rec = None  # another plan (the search box changed): record this view anew
+            if rec is None:
+                try:
+                    if head is None:
+                        worker.call(lambda h: (h.set_zoom(zoom), h.move_to(*target)))
+                        got = worker.call(lambda h: h.position())
+                        head = (float(got[0]), float(got[1]))  # type: ignore[index]
+                    rec = self._record(runner, camera, vid, attempt, target, head, zoom,
+                                       self.radio_s + price(lane, self.timing[camera]).total)
+                except CameraFailed as exc:
+                    self.stats.failed_views.append(f"{camera}/{vid}")
+                    logger.warning(f"{camera} view {vid}: camera error, view not recorded: {exc}")
+                    return None
+                self._commit(runner, rec)
+                self._events.put(camera)
+            lane.append(Frames(self.frames))
+            last = rec
+            if not needs_second_recording(rec):
+                break
+        return last
+
+    def blob_directions(self, camera: str, records: list[dict[str, Any] | None], top: bool = False,
+                        spread_px: float = 0.0) -> np.ndarray:
+        """(M, 2) (pan, tilt) of the unexplained blobs in ``records`` (:func:`unexplained_blob`);
+        with ``spread_px`` each blob also gives the 8 directions ``spread_px`` (pixels of its own
+        recording) around it, so tiles cover every member of a cluster that merged into it."""
+        out = []
+        for rec in records:
+            if rec is None:
+                continue
+            intr = self.intrinsics_at(camera, float(rec.get("zoom", self.survey_zoom[camera])))
+            for r in rec["refused"]:
+                if unexplained_blob(r, top) and "u" in r:
+                    for du in (-spread_px, 0.0, spread_px) if spread_px else (0.0,):
+                        for dv in (-spread_px, 0.0, spread_px) if spread_px else (0.0,):
+                            p, t = pixel_to_pan_tilt(intr, np.array([r["u"] + du, r["v"] + dv]), *rec["head"])
+                            out.append((float(p), float(t)))
+        return np.array(out, dtype=float).reshape(-1, 2)
+
+    def intrinsics_at(self, camera: str, zoom: float) -> CameraIntrinsics:
+        """The camera's intrinsics at ``zoom`` (its own at the survey zoom; else the idealised
+        :meth:`~fgloc.camera.intrinsics.CameraIntrinsics.at_zoom` model, as the simulator renders)."""
+        intr = self.rig.cameras[self.rig.camera_ids.index(camera)].intrinsics
+        return intr if zoom == self.survey_zoom[camera] else intr.at_zoom(zoom)
+
     def run_camera(self, runner: SurveyRunner, camera: str, views: list[tuple[float, float]]) -> None:
-        """Record every view of ``camera`` that has no journal record yet (in plan order)."""
-        worker, lane, timing = runner.workers[camera], self.lanes[camera], self.timing[camera]
-        here = worker.home
+        """Record every view of ``camera`` that has no journal record yet (in plan order), then
+        the refinement rungs: tiles over the blobs no reading explains, at the next zoom of the
+        ladder, until none is left or the ladder ends; then zoom back to the survey zoom."""
+        here, zoom0 = runner.workers[camera].home, self.survey_zoom[camera]
+        last: list[dict[str, Any] | None] = []
         for k, target in enumerate(views):
-            vid = f"w{k:03d}"
-            lane += [Slew(math.remainder(target[0] - here[0], 2 * math.pi), target[1] - here[1]), Settle(),
-                     PositionRead()]
+            last.append(self._visit(runner, camera, f"w{k:03d}", target, zoom0, here))
             here = target
-            head: tuple[float, float] | None = None
-            for attempt in range(1 + self.settings.retries):
-                rec = runner.state.views.get((camera, vid, attempt))
-                if rec is not None and [float(x) for x in rec.get("target", [])] != list(target):
-                    rec = None  # another plan (the search box changed): record this view anew
-                if rec is None:
-                    try:
-                        if head is None:
-                            worker.call(lambda h: h.move_to(*target))
-                            got = worker.call(lambda h: h.position())
-                            head = (float(got[0]), float(got[1]))  # type: ignore[index]
-                        rec = self._record(runner, camera, vid, attempt, target, head,
-                                           self.radio_s + price(lane, timing).total)
-                    except CameraFailed as exc:
-                        self.stats.failed_views.append(f"{camera}/{vid}")
-                        logger.warning(f"{camera} view {vid}: camera error, view not recorded: {exc}")
-                        break
-                    self._commit(runner, rec)
-                    self._events.put(camera)
-                lane.append(Frames(self.frames))
-                if not needs_second_recording(rec):
-                    break
         self.stats.views += len(views)
+        zoom = zoom0
+        s = self.rig.search
+        for rung, level in enumerate(self.levels, start=1):
+            if any(r is None for r in last):
+                break  # a view failed: its blobs are unknown, the fallback covers this camera
+            pts = self.blob_directions(camera, last, spread_px=CLUSTER_SPREAD_PX)
+            if not len(pts):
+                break
+            tiles = plan_views(self.intrinsics_at(camera, level), pts, self.settings.margin_px, start=here,
+                               tilt_limits=(s.tilt_min, s.tilt_max))
+            self.lanes[camera].append(Zoom(level - zoom))
+            zoom, last = level, []
+            for k, target in enumerate(tiles):
+                last.append(self._visit(runner, camera, f"r{rung}-{k:03d}", target, level, here))
+                here = target
+            self.stats.views += len(tiles)
+        top = zoom == (self.levels[-1] if self.levels else zoom0)
+        self.remaining[camera] = sum(r is None for r in last) + len(self.blob_directions(camera, last, top))
+        if zoom != zoom0:
+            self.lanes[camera].append(Zoom(zoom0 - zoom))
+            try:
+                runner.workers[camera].call(lambda h: h.set_zoom(zoom0))
+            except CameraFailed as exc:
+                logger.warning(f"{camera}: could not zoom back to the survey zoom: {exc}")
 
     # ----- the whole phase
     def _broadcast(self, command: object, expect: set[int]) -> dict[int, tuple[bool, int, int]]:
@@ -394,7 +467,7 @@ class CodedSurvey:
                 for f in futures:
                     f.result()
                 self.stop_codes(runner)
-                self.run_fallback(runner, pool, total, t0, plans)
+                self.run_fallback(runner, pool, total, t0)
                 if self.rig.repeat_budget > 0:
                     from fgloc.survey.repeats import run_repeats
 
@@ -410,34 +483,21 @@ class CodedSurvey:
         if s.ambiguous or s.duplicate or s.unassigned:
             logger.warning(f"refused blobs: {s.ambiguous} ambiguous (LEDs closer than the detector separates), "
                            f"{s.duplicate} duplicate IDs, {s.unassigned} codes no mote runs; never guessed "
-                           f"(their motes are read the sequential way: {s.fallback_nodes} nodes)")
+                           f"(recorded again zoomed in where the rig can; {s.fallback_nodes} nodes measured "
+                           "the sequential way)")
         ft = self.field_time()
         runner.journal.field_time("survey", dict(ft.phases))
         runner.field_time = ft
         emit(self.progress(runner, total, total, t0))
         return journal_to_survey(runner.state)
 
-    def unexplained(self, runner: SurveyRunner, plans: dict[str, list[tuple[float, float]]]) -> dict[str, int]:
-        """Per camera: blobs in the last recording of its views that no reading explains
-        (:func:`unexplained_blob`), plus views never recorded (a camera error)."""
-        out: dict[str, int] = {}
-        for cam, views in plans.items():
-            n = 0
-            for k in range(len(views)):
-                recs = [runner.state.views.get((cam, f"w{k:03d}", a)) for a in range(1 + self.settings.retries)]
-                last = [r for r in recs if r is not None]
-                n += sum(1 for r in last[-1]["refused"] if unexplained_blob(r)) if last else 1
-            out[cam] = n
-        return out
-
-    def run_fallback(self, runner: SurveyRunner, pool: ThreadPoolExecutor, total: int, t0: float,
-                     plans: dict[str, list[tuple[float, float]]]) -> None:
+    def run_fallback(self, runner: SurveyRunner, pool: ThreadPoolExecutor, total: int, t0: float) -> None:
         """Finish every node some camera has not read. A camera whose views left no blob
         unexplained did not see a mote that confirmed its code: that is journaled ``not_found``
         without a search. The rest (and motes that never confirmed) are measured the
         sequential way, priced per node."""
         st = runner.state
-        clean = {c for c, n in self.unexplained(runner, plans).items() if n == 0}
+        clean = {c for c in self.rig.camera_ids if self.remaining.get(c, 1) == 0}
         starts = [set(r.get("silent", [])) for r in st.codes if r.get("action") == "start"]
         silent = set.intersection(*starts) if starts else set(self.rig.node_ids)  # never confirmed a start
         for node in self.rig.node_ids:
