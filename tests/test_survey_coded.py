@@ -182,3 +182,24 @@ def test_coded_survey_over_the_visca_and_tinyos_twins(tmp_path):
     starts = [r for r in map(json.loads, (tmp_path / "journal.jsonl").read_text().splitlines())
               if r["type"] == "codes" and r["action"] == "start"]
     assert starts and starts[0]["confirmed"] == 9 and starts[0]["silent"] == ["n003"]
+
+
+def test_coded_survey_logs_live_estimates_per_view_to_rerun(tmp_path, capsys):
+    """Live estimates run after views (from the fifth node seen by both cameras on) and land on
+    Rerun's 'survey' timeline as in the sequential survey; the last is the estimate.json written."""
+    from fgloc.files.survey_result import read_result
+    from tests.rrd_reading import load_rrd
+
+    (tmp_path / "rig.json").write_text(json.dumps(coded_rig(12, width=160)))
+    rrd, out = tmp_path / "live.rrd", tmp_path / "out"
+    assert main(["survey", "--rig", str(tmp_path / "rig.json"), "-o", str(out), "--simulate", "--quiet",
+                 "--rerun", str(rrd)]) == 0
+    printed = capsys.readouterr().out
+    shown = printed.count("estimate after")
+    rows = load_rrd(rrd)["world/nodes/estimate"].timed["survey"]["Points3D:positions"]
+    assert shown >= 2 and len(rows) == shown
+    steps = [t for t, _ in rows]
+    assert steps == sorted(steps) and steps[-1] == len(read_survey(out / "survey.json").observations)
+    final = read_result(out / "estimate.json")
+    logged = np.sort(np.asarray(rows[-1][1], float), axis=0)
+    assert np.abs(logged - np.sort([final.nodes[n].position for n in final.nodes], axis=0)).max() < 1e-6

@@ -59,6 +59,7 @@ from fgloc.camera.blink_decoder import DecodedReading, DecoderConfig, ViewDecode
 from fgloc.camera.intrinsics import CameraIntrinsics
 from fgloc.camera.pixel_angles import pixel_to_pan_tilt
 from fgloc.core.errors import FglocError
+from fgloc.core.geometry import pan_tilt_bearing
 from fgloc.core.hardware import PanTiltHead
 from fgloc.core.model import Survey
 from fgloc.files.journal import JournalObservation, journal_to_survey
@@ -139,15 +140,24 @@ def coded_observation(camera: str, view: str, node: str, index: int, reading: De
     return JournalObservation(node, camera, index, math.remainder(float(pan), 2 * math.pi), float(tilt), None, view)
 
 
-def unexplained_blob(refused: dict[str, Any], top: bool = False) -> bool:
+def unexplained_blob(refused: dict[str, Any]) -> bool:
     """A refused blob that may be a mote nobody read: ambiguous, duplicate, a code no mote runs,
     or rejected for any reason but the image border (the planners' margins put every direction
-    well inside another view). A blob that never goes dark is a lamp or several motes in one
-    blob; at the ``top`` rung of the zoom ladder it is taken for a lamp (explained)."""
-    reason = str(refused.get("reason", ""))
-    if refused["kind"] != "rejected":
-        return True
-    return not reason.startswith(_NOT_RETRIED[0]) and not (top and reason.startswith(_NOT_RETRIED[1]))
+    well inside another view). A blob that never goes dark may be a lamp or several motes
+    merged (measured: two motes 6 px apart at 10x zoom made one such blob), so it counts."""
+    return refused["kind"] != "rejected" or not str(refused.get("reason", "")).startswith(_NOT_RETRIED[0])
+
+
+def distinct_directions(pan_tilt: np.ndarray, min_angle: float) -> list[tuple[float, float]]:
+    """``pan_tilt`` (M, 2) radians thinned greedily (in order) to directions at least ``min_angle`` apart."""
+    kept: list[tuple[float, float]] = []
+    vecs: list[np.ndarray] = []
+    for p, t in np.asarray(pan_tilt, float).reshape(-1, 2):
+        b = pan_tilt_bearing(float(p), float(t))
+        if all(float(b @ v) < math.cos(min_angle) for v in vecs):
+            kept.append((float(p), float(t)))
+            vecs.append(b)
+    return kept
 
 
 def needs_second_recording(record: dict[str, Any]) -> bool:
@@ -221,6 +231,7 @@ class CodedSurvey:
         # refinement needs frames at other zooms: the simulated rigs that render them say so
         self.levels = self.settings.levels if getattr(recorder, "blink_zoom", False) else ()
         self.remaining: dict[str, int] = {}  # camera -> unexplained blobs and failed views after its last rung
+        self.blobs: dict[str, list[tuple[float, float]] | None] = {}  # their directions (None: a view failed)
 
     # ----- plan and clock
     def plan(self, camera: str) -> list[tuple[float, float]]:
@@ -329,7 +340,7 @@ class CodedSurvey:
                 break
         return last
 
-    def blob_directions(self, camera: str, records: list[dict[str, Any] | None], top: bool = False,
+    def blob_directions(self, camera: str, records: list[dict[str, Any] | None],
                         spread_px: float = 0.0) -> np.ndarray:
         """(M, 2) (pan, tilt) of the unexplained blobs in ``records`` (:func:`unexplained_blob`);
         with ``spread_px`` each blob also gives the 8 directions ``spread_px`` (pixels of its own
@@ -340,7 +351,7 @@ class CodedSurvey:
                 continue
             intr = self.intrinsics_at(camera, float(rec.get("zoom", self.survey_zoom[camera])))
             for r in rec["refused"]:
-                if unexplained_blob(r, top) and "u" in r:
+                if unexplained_blob(r) and "u" in r:
                     for du in (-spread_px, 0.0, spread_px) if spread_px else (0.0,):
                         for dv in (-spread_px, 0.0, spread_px) if spread_px else (0.0,):
                             p, t = pixel_to_pan_tilt(intr, np.array([r["u"] + du, r["v"] + dv]), *rec["head"])
@@ -379,8 +390,10 @@ class CodedSurvey:
                 last.append(self._visit(runner, camera, f"r{rung}-{k:03d}", target, level, here))
                 here = target
             self.stats.views += len(tiles)
-        top = zoom == (self.levels[-1] if self.levels else zoom0)
-        self.remaining[camera] = sum(r is None for r in last) + len(self.blob_directions(camera, last, top))
+        blobs = self.blob_directions(camera, last)
+        self.remaining[camera] = sum(r is None for r in last) + len(blobs)
+        fov = min(runner.workers[camera].locator.pixels.field_of_view())  # at the survey zoom
+        self.blobs[camera] = None if any(r is None for r in last) else distinct_directions(blobs, 0.25 * fov)
         if zoom != zoom0:
             self.lanes[camera].append(Zoom(zoom0 - zoom))
             try:
@@ -519,10 +532,19 @@ class CodedSurvey:
             logger.info(f"{node}: not decoded by every camera; measured the sequential way")
             self.sink.take()
             self.sink.active, before = True, self.leds.commands
+            grids = {c: w.locator.cells for c, w in runner.workers.items()}
             try:
+                for cam, worker in runner.workers.items():
+                    blobs = self.blobs.get(cam)
+                    if node not in silent and blobs is not None:
+                        # a mote that blinks its code and was not decoded is in a blob no reading
+                        # explains (or not in view): look there only, not over the whole grid
+                        worker.locator.cells = [worker.locator.clamp(p, t) for p, t in blobs]
                 runner.run_node(node, pool, check_misses=False)
             finally:
                 self.sink.active = False
+                for cam, worker in runner.workers.items():
+                    worker.locator.cells = grids[cam]
             node_time = node_field_time(self.sink.take(), self.leds.commands - before, self.rig.search.led_wait_s,
                                         self.timing)
             runner.journal.field_time("fallback_node", dict(node_time.phases), node=node)
