@@ -15,10 +15,10 @@ instead of the node loop of :mod:`fgloc.survey.runner` (docs/survey.md, "Coded i
    (the simulated rigs' ``record_blinks``; on hardware ``grab_frame`` with host
    timestamps) and decoded (:func:`fgloc.camera.blink_decoder.decode_view`). Each decoded
    LED's centroid is re-measured on the difference of its mean lit and mean dark frame
-   (:func:`on_off_centroid`: the textured background cancels; 0.017 px RMS against the
+   (:func:`~fgloc.survey.coded_views.on_off_centroid`: the textured background cancels; 0.017 px RMS against the
    decoder's 0.2 px on the simulated rig) and becomes (pan, tilt) by
    :func:`fgloc.camera.pixel_angles.pixel_to_pan_tilt` at the read-back angles
-   (:func:`coded_observation`). Readings of motes this camera already has ``repeats`` readings of
+   (:func:`~fgloc.survey.coded_views.coded_observation`). Readings of motes this camera already has ``repeats`` readings of
    are not taken again. A view whose decode refused a blob for a reason a second recording
    can cure (a word read with conflicts or gaps, a duplicate ID) is recorded once more at
    once. Ambiguous blobs (LEDs closer than the detector separates), duplicates and words no
@@ -55,14 +55,13 @@ from typing import Any
 import numpy as np
 
 from fgloc.camera.blink_codes import CodeBook, code_book
-from fgloc.camera.blink_decoder import DecodedReading, DecoderConfig, ViewDecode, decode_view
+from fgloc.camera.blink_decoder import DecoderConfig, ViewDecode, decode_view
 from fgloc.camera.intrinsics import CameraIntrinsics
 from fgloc.camera.pixel_angles import pixel_to_pan_tilt
 from fgloc.core.errors import FglocError
-from fgloc.core.geometry import pan_tilt_bearing
 from fgloc.core.hardware import PanTiltHead
 from fgloc.core.model import Survey
-from fgloc.files.journal import JournalObservation, journal_to_survey
+from fgloc.files.journal import journal_to_survey
 from fgloc.files.rig_config import RigConfig
 from fgloc.survey.clock import (
     CameraTiming,
@@ -79,14 +78,19 @@ from fgloc.survey.clock import (
     sum_times,
 )
 from fgloc.survey.coded_clock import ClockSink, CountingLeds, clocked_opener, node_field_time, rig_timing
+from fgloc.survey.coded_views import (
+    coded_observation,
+    distinct_directions,
+    needs_second_recording,
+    on_off_centroid,
+    unexplained_blob,
+)
 from fgloc.survey.field_plans import frames_for
 from fgloc.survey.runner import CameraFailed, Progress, SurveyRunner
 from fgloc.survey.view_planner import box_targets, plan_views
 
 logger = logging.getLogger(__name__)
 
-#: refusals a second recording of the same view can cure (a noisy read), by reason prefix
-_NOT_RETRIED = ("too close to the image border", "never dark")
 
 Frame = tuple[float, np.ndarray]
 CLUSTER_SPREAD_PX = 6.0  #: refinement tiles also cover this far (px of the coarser view) around a blob
@@ -126,72 +130,6 @@ class CodedStats:
     confirmed: int = 0
     fallback_nodes: int = 0
     failed_views: list[str] = field(default_factory=list)
-
-
-def coded_observation(camera: str, view: str, node: str, index: int, reading: DecodedReading,
-                      intr: CameraIntrinsics, head: tuple[float, float],
-                      centroid: tuple[float, float] | None = None) -> JournalObservation:
-    """The one place a decoded reading becomes a survey reading: the LED's centroid (``centroid``,
-    the on-off refined one, else the decoder's) through the exact pixel -> pan-tilt composition
-    (:func:`fgloc.camera.pixel_angles.pixel_to_pan_tilt`) at the head's read-back angles
-    ``head``; pan wrapped to [-pi, pi], the survey's sigma, the id of the view it came from."""
-    u, v = (reading.u, reading.v) if centroid is None else centroid
-    pan, tilt = pixel_to_pan_tilt(intr, np.array([u, v]), head[0], head[1])
-    return JournalObservation(node, camera, index, math.remainder(float(pan), 2 * math.pi), float(tilt), None, view)
-
-
-def unexplained_blob(refused: dict[str, Any]) -> bool:
-    """A refused blob that may be a mote nobody read: ambiguous, duplicate, a code no mote runs,
-    or rejected for any reason but the image border (the planners' margins put every direction
-    well inside another view). A blob that never goes dark may be a lamp or several motes
-    merged (measured: two motes 6 px apart at 10x zoom made one such blob), so it counts."""
-    return refused["kind"] != "rejected" or not str(refused.get("reason", "")).startswith(_NOT_RETRIED[0])
-
-
-def distinct_directions(pan_tilt: np.ndarray, min_angle: float) -> list[tuple[float, float]]:
-    """``pan_tilt`` (M, 2) radians thinned greedily (in order) to directions at least ``min_angle`` apart."""
-    kept: list[tuple[float, float]] = []
-    vecs: list[np.ndarray] = []
-    for p, t in np.asarray(pan_tilt, float).reshape(-1, 2):
-        b = pan_tilt_bearing(float(p), float(t))
-        if all(float(b @ v) < math.cos(min_angle) for v in vecs):
-            kept.append((float(p), float(t)))
-            vecs.append(b)
-    return kept
-
-
-def needs_second_recording(record: dict[str, Any]) -> bool:
-    """A journaled view whose refusals a second recording may cure (rejected or duplicate blobs,
-    not those at the border or steady lights)."""
-    return any(r["kind"] in ("rejected", "duplicate") and not str(r.get("reason", "")).startswith(_NOT_RETRIED)
-               for r in record.get("refused", []))
-
-
-def on_off_centroid(stack: np.ndarray, u: float, v: float, radius: int = 3) -> tuple[float, float] | None:
-    """Sub-pixel centroid of the LED near (u, v) px from the **difference** of its mean lit and
-    mean dark frame (the static background and static lights cancel, as in the sequential
-    survey's on-off detection): frames are split by their aperture flux (two levels, lit above
-    70 % of the way from dark to lit, dark below 30 %), the centroid is the intensity-weighted
-    mean over a (2 radius + 1)^2 window of the positive difference. ``stack`` (N, H, W) holds
-    the view's frames. None when the window leaves the image or either level has no frame."""
-    cu, cv = int(round(u)), int(round(v))
-    if stack.ndim != 3:
-        return None
-    h, w = stack.shape[1:]
-    if not (radius <= cu < w - radius and radius <= cv < h - radius):
-        return None
-    win = stack[:, cv - radius: cv + radius + 1, cu - radius: cu + radius + 1].astype(np.float32)
-    flux = win.reshape(len(win), -1).sum(axis=1)
-    lo, hi = float(np.min(flux)), float(np.max(flux))
-    lit, dark = flux >= lo + 0.7 * (hi - lo), flux <= lo + 0.3 * (hi - lo)
-    if not lit.any() or not dark.any() or hi <= lo:
-        return None
-    diff = np.clip(win[lit].mean(axis=0) - win[dark].mean(axis=0), 0.0, None)
-    total = float(diff.sum())
-    if total <= 0.0:
-        return None
-    ys, xs = np.mgrid[-radius:radius + 1, -radius:radius + 1]
-    return cu + float((diff * xs).sum()) / total, cv + float((diff * ys).sum()) / total
 
 
 class CodedSurvey:
@@ -323,7 +261,11 @@ class CodedSurvey:
             if rec is None:
                 try:
                     if head is None:
-                        worker.call(lambda h: (h.set_zoom(zoom), h.move_to(*target)))
+                        def go(h: PanTiltHead) -> None:
+                            h.set_zoom(zoom)  # in the same call: a reconnect resets the survey zoom
+                            h.move_to(*target)
+
+                        worker.call(go)
                         got = worker.call(lambda h: h.position())
                         head = (float(got[0]), float(got[1]))  # type: ignore[index]
                     rec = self._record(runner, camera, vid, attempt, target, head, zoom,
