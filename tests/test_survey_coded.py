@@ -17,7 +17,7 @@ import pytest
 
 from fgloc.cli import main
 from fgloc.drivers.inprocess_rig import InProcessRig
-from fgloc.files.journal import read_journal
+from fgloc.files.journal import JournalObservation, read_journal
 from fgloc.files.rig_config import parse_rig
 from fgloc.files.survey_result import read_result, read_survey, write_result
 from fgloc.survey.session import OpenedRig, run_survey
@@ -203,3 +203,37 @@ def test_coded_survey_logs_live_estimates_per_view_to_rerun(tmp_path, capsys):
     final = read_result(out / "estimate.json")
     logged = np.sort(np.asarray(rows[-1][1], float), axis=0)
     assert np.abs(logged - np.sort([final.nodes[n].position for n in final.nodes], axis=0)).max() < 1e-6
+
+
+def test_view_records_are_checked_and_replayed_like_observations(tmp_path):
+    """A view record's readings replay as observations keyed (node, camera, index) with their
+    view id; a repeated view record is ignored; a bad reading is one line naming the record's
+    line and field; journals without view records read as before."""
+    from fgloc.core.errors import FglocError
+    from fgloc.core.model import Gauge, NodeMode
+    from fgloc.files.journal import JournalHeader, JournalWriter
+
+    header = JournalHeader(NodeMode.PLANAR, Gauge("c0", "c1"), 0.001, ["c0", "c1"], ["a", "b"], "h")
+    path = tmp_path / "journal.jsonl"
+    view = {"camera": "c0", "view": "w000", "attempt": 0, "target": [0.1, -0.2], "head": [0.1, -0.2], "zoom": 0.0,
+            "frames": 50, "erased": 2, "clock_s": 1.5, "refused": [{"kind": "ambiguous", "u": 3.0, "v": 4.0,
+                                                                     "reason": "two LEDs"}],
+            "readings": [{"node": "a", "index": 0, "pan": 0.11, "tilt": -0.21, "code": 0, "u": 10.0, "v": 20.0}]}
+    with JournalWriter.create(path, header) as w:
+        w.observation(JournalObservation("b", "c1", 0, 0.5, -0.1))
+        w.view(view)
+        w.view(view)  # a repeat (e.g. written twice): ignored
+    state = read_journal(path)
+    assert set(state.observations) == {("a", "c0", 0), ("b", "c1", 0)}
+    assert state.observations[("a", "c0", 0)].view == "w000" and state.observations[("b", "c1", 0)].view is None
+    assert list(state.views) == [("c0", "w000", 0)] and state.duplicates_ignored == 1
+    bad = dict(view, view="w001", readings=[dict(view["readings"][0], tilt=3.0)])
+    with JournalWriter.open_existing(path)[0] as w:
+        w.view(bad)
+    with pytest.raises(FglocError, match=r"line 5: view\.readings\[0\]\.tilt") as err:
+        read_journal(path)
+    assert "\n" not in str(err.value)
+    unknown = dict(view, view="w002", readings=[dict(view["readings"][0], node="zz")])
+    path.write_text("\n".join(path.read_text().splitlines()[:-1] + [json.dumps({"type": "view"} | unknown)]) + "\n")
+    with pytest.raises(FglocError, match=r"line 5: view\.readings\[0\]\.node: unknown node"):
+        read_journal(path)
