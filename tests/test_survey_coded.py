@@ -132,12 +132,14 @@ def test_kill_mid_view_resumes_without_duplicates_or_re_recorded_views(tmp_path)
     views = [k for k, t in enumerate(kinds) if t == "view"]
     fallback = [k for k, t in enumerate(kinds) if t == "node_started"]
     assert len(views) >= 4 and fallback, kinds
-    cut_after = [views[len(views) // 2], views[-1], fallback[0]]
+    refine = [k for k in views if records[k]["view"].startswith("r")]  # zoomed-in refinement views
+    assert refine, "the scene should need refinement"
+    cut_after = [refine[len(refine) // 2] - 1, views[-1], fallback[0]]  # the first cut: just before a refinement view
     states = resume_from_cuts(rig, data, [int(ends[k]) for k in cut_after], tmp_path)
     for k in range(len(states)):
         keys = [(r["camera"], r["view"], r["attempt"]) for r in view_records(tmp_path / f"cut{k}" / "journal.jsonl")]
         assert len(keys) == len(set(keys)) == len(views), k
-    # the torn cut really was mid-view: the resumed journal re-recorded that view once
+    # the torn cut really was mid-view (a refinement view, zoomed in): resumed, it was recorded once
     torn = data[:int(ends[cut_after[0]]) + 9]
     assert json.loads(data.splitlines()[cut_after[0] + 1])["type"] == "view" and not torn.endswith(b"\n")
 

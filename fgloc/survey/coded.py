@@ -398,7 +398,9 @@ class CodedSurvey:
         total = sum(len(v) for v in plans.values())
         self.fallback = sum_times(FieldTime({k: float(v) for k, v in r["phases"].items()})
                                   for r in runner.state.field_times if r.get("scope") == "fallback_node")
-        todo = any((c, f"w{k:03d}", 0) not in runner.state.views for c, v in plans.items() for k in range(len(v)))
+        # the motes blink until the stop, which follows the last view: without a journaled stop
+        # (first run, or killed during the views) they are started (again; the codes need no sync)
+        todo = not any(r.get("action") == "stop" for r in runner.state.codes)
         t0 = time.perf_counter()
         emit = runner.on_progress or (lambda _p: None)
         emit(self.progress(runner, 0, total, t0))
