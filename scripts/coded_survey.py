@@ -3,7 +3,7 @@
 Both surveys run end to end through :func:`fgloc.survey.session.run_survey` on the same
 simulated scene per seed (the example rig with ``--motes`` nodes, two cameras 0.1 and
 0.12 above (0, 0) and (1, 0), ``--width`` x 3/4 px frames at a 90 deg horizontal field of
-view, 5 % occluded pairs, one dead mote). Both are priced by the survey clock
+view (or focal length ``--fx``), 5 % occluded pairs, one dead mote). Both are priced by the survey clock
 (:mod:`fgloc.survey.clock`, EVI-D100 model): the coded survey reports its own field time;
 the sequential one is priced here the way the coded survey prices its fallback nodes (each
 node: its LED commands, the LED wait, then the slowest camera's moves, settles, frames and
@@ -45,10 +45,10 @@ from fgloc.survey.session import OpenedRig, run_survey  # noqa: E402
 EXAMPLE = ROOT / "examples" / "rig-simulated.json"
 
 
-def rig_for(seed: int, motes: int, width: int, mode: str):
+def rig_for(seed: int, motes: int, width: int, mode: str, fx: float | None = None):
     data = json.loads(EXAMPLE.read_text())
     data["node_ids"] = [f"n{j:03d}" for j in range(motes)]
-    f = width / 2.0
+    f = fx or width / 2.0
     for cam in data["cameras"]:
         cam["intrinsics"] = {"fx": f, "fy": f, "cx": width / 2, "cy": width * 3 / 8, "width": width,
                              "height": width * 3 // 4}
@@ -73,8 +73,8 @@ def labels(rig, scene, state) -> tuple[int, int, int]:
     return len(decoded), wrong, far
 
 
-def run(seed: int, motes: int, width: int, mode: str, out: Path) -> dict:
-    rig = rig_for(seed, motes, width, mode)
+def run(seed: int, motes: int, width: int, mode: str, out: Path, fx: float | None = None) -> dict:
+    rig = rig_for(seed, motes, width, mode, fx)
     sim = InProcessRig(rig)
     times: list[FieldTime] = []
     if mode == "sequential":
@@ -114,12 +114,13 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=5)
     ap.add_argument("--motes", type=int, default=30)
     ap.add_argument("--width", type=int, default=320)
+    ap.add_argument("--fx", type=float, default=None, help="focal length, px (default width / 2: 90 deg wide)")
     args = ap.parse_args()
     rows: dict[str, list[dict]] = {"sequential": [], "coded": []}
     with tempfile.TemporaryDirectory() as tmp:
         for seed in range(1, args.seeds + 1):
             for mode in rows:
-                rows[mode].append(run(seed, args.motes, args.width, mode, Path(tmp) / f"{mode}{seed}"))
+                rows[mode].append(run(seed, args.motes, args.width, mode, Path(tmp) / f"{mode}{seed}", args.fx))
     for mode, rs in rows.items():
         med = statistics.median
         print(f"{mode}: field time median {med(r['field'].total for r in rs):.1f} s "

@@ -9,29 +9,34 @@ instead of the node loop of :mod:`fgloc.survey.runner` (docs/survey.md, "Coded i
    (:func:`fgloc.camera.blink_codes.code_book`), one bit per frame period. Sent again (up
    to :attr:`CodedSettings.start_attempts`) while some mote has not confirmed.
 2. **Views, every camera in parallel.** Each camera's views cover the rig's search box
-   (:func:`fgloc.survey.view_planner.plan_views`, the box sampled densely enough that every
-   direction lies at least 8 px inside some view). Per view: the head slews there (the camera worker's
-   retries and reconnects), its position is read back, ``3L + 2`` frames are recorded
-   (the simulated rigs' ``record_blinks``; on hardware ``grab_frame`` with host
-   timestamps) and decoded (:func:`fgloc.camera.blink_decoder.decode_view`). Each decoded
-   LED's centroid is re-measured on the difference of its mean lit and mean dark frame
-   (:func:`~fgloc.survey.coded_views.on_off_centroid`: the textured background cancels; 0.017 px RMS against the
-   decoder's 0.2 px on the simulated rig) and becomes (pan, tilt) by
+   (:func:`fgloc.survey.view_planner.plan_views`; every direction lies at least 8 px inside
+   some view). Per view: the head slews there (the camera worker's retries and
+   reconnects), its position is read back, ``3L + 2`` frames are recorded (the simulated
+   rigs' ``record_blinks``; on hardware ``grab_frame`` with host timestamps) and decoded
+   (:func:`fgloc.camera.blink_decoder.decode_view`). Each decoded LED's centroid is
+   re-measured on its mean lit minus mean dark frame
+   (:func:`~fgloc.survey.coded_views.on_off_centroid`) and becomes (pan, tilt) by
    :func:`fgloc.camera.pixel_angles.pixel_to_pan_tilt` at the read-back angles
-   (:func:`~fgloc.survey.coded_views.coded_observation`). Readings of motes this camera already has ``repeats`` readings of
-   are not taken again. A view whose decode refused a blob for a reason a second recording
-   can cure (a word read with conflicts or gaps, a duplicate ID) is recorded once more at
-   once. Ambiguous blobs (LEDs closer than the detector separates), duplicates and words no
-   mote runs are journaled with the view and logged, never guessed.
-3. **Stop**, one broadcast.
-4. **Fallback.** Every node some camera has not read is measured the sequential way
-   (:meth:`SurveyRunner.run_node`: its LED alone, each camera that lacks it searches).
-   Nodes every camera read are journaled ``node_done`` without lighting them.
+   (:func:`~fgloc.survey.coded_views.coded_observation`). A camera takes at most
+   ``repeats`` readings of a mote. A view with curable refusals (a word read with
+   conflicts or gaps, a duplicate ID) is recorded once more at once.
+3. **Refinement** (rigs whose ``record_blinks`` renders other zooms: ``blink_zoom``).
+   Blobs no reading explains (:func:`~fgloc.survey.coded_views.unexplained_blob`) are
+   recorded again in tiles at the next zoom of :attr:`CodedSettings.levels` until none is
+   left; then the head zooms back. Refused blobs are journaled and logged, never guessed.
+4. **Stop**, one broadcast.
+5. **Fallback.** For each node a camera has not read: a camera whose views left no blob
+   unexplained journals ``not_found`` without a search; otherwise the node is measured the
+   sequential way (:meth:`SurveyRunner.run_node`: its LED alone) with that camera looking
+   only at the directions of its unexplained blobs (the full grid for motes that never
+   confirmed their code, or after a failed view). Nodes every camera read are journaled
+   ``node_done`` without lighting them.
 
 Crash safety: a view's readings are committed together, as one ``view`` journal record
 (:meth:`fgloc.files.journal.JournalWriter.view`); a kill during a view loses only that
-view. ``--resume`` re-plans the same views (the plan is a function of the rig), skips
-every view with a record, re-records the rest, and never takes a reading twice.
+view. ``--resume`` re-plans the same views (a function of the rig and, for refinement
+rungs, of the journaled views), skips every view with a record, records the rest, and
+never takes a reading twice.
 
 Field time (:mod:`fgloc.survey.clock`): each camera lane is priced from its plan (slew
 from the previous view, settle, position read, the frames of each recording; the second
