@@ -239,3 +239,24 @@ def test_view_records_are_checked_and_replayed_like_observations(tmp_path):
     path.write_text("\n".join(path.read_text().splitlines()[:-1] + [json.dumps({"type": "view"} | unknown)]) + "\n")
     with pytest.raises(FglocError, match=r"line 5: view\.readings\[0\]\.node: unknown node"):
         read_journal(path)
+
+
+def test_a_coded_survey_cut_mid_view_can_be_finished_sequentially(tmp_path):
+    """identification is operational: a coded journal cut inside its views resumes with
+    --identify sequential, keeps the decoded readings and measures only what they lack."""
+    rig = parsed(coded_rig(10, width=160))
+    full = tmp_path / "full"
+    run_survey(rig, full, opened=opened(rig)[0])
+    data = (full / "journal.jsonl").read_bytes()
+    lines = data.splitlines(keepends=True)
+    views = [k for k, line in enumerate(lines) if json.loads(line)["type"] == "view"]
+    cut = tmp_path / "cut"
+    cut.mkdir()
+    (cut / "journal.jsonl").write_bytes(b"".join(lines[:views[len(views) // 2]]) + lines[views[len(views) // 2]][:9])
+    kept = read_journal(cut / "journal.jsonl").observations
+    rig_opened, sim = opened(rig)
+    run_survey(rig, cut, resume=True, opened=rig_opened, identification="sequential")
+    state = read_journal(cut / "journal.jsonl")
+    assert state.duplicates_ignored == 0 and all(state.observations[k] == o for k, o in kept.items())
+    assert {(c, n) for (n, c, _) in state.observations} == sim.scene.visible_pairs()
+    assert len(view_records(cut / "journal.jsonl")) == len(views) // 2  # no view recorded after the cut
