@@ -166,7 +166,7 @@ def test_the_flag_overrides_the_file(tmp_path, capsys, in_file, flag, coded):
     assert read_survey(tmp_path / "o" / "survey.json").observations
 
 
-def test_coded_survey_over_the_visca_and_tinyos_twins(tmp_path):
+def test_coded_survey_over_the_visca_and_tinyos_twins(tmp_path, caplog):
     """The real VISCA driver slews the twins' heads, the real TinyOS driver broadcasts the start
     to the base-station twin whose motes blink; every visible pair read, none mislabelled."""
     data = coded_rig(10, width=160, twin="visca")
@@ -184,6 +184,11 @@ def test_coded_survey_over_the_visca_and_tinyos_twins(tmp_path):
     starts = [r for r in map(json.loads, (tmp_path / "journal.jsonl").read_text().splitlines())
               if r["type"] == "codes" and r["action"] == "start"]
     assert starts and starts[0]["confirmed"] == 9 and starts[0]["silent"] == ["n003"]
+    # every planned view lies inside the search box, so the heads (which enforce their range) took them all
+    box = rig.search
+    for r in view_records(tmp_path / "journal.jsonl"):
+        assert box.pan_min <= r["target"][0] <= box.pan_max and box.tilt_min <= r["target"][1] <= box.tilt_max
+    assert not [r for r in caplog.records if "view not recorded" in r.getMessage()]
 
 
 def test_coded_survey_logs_live_estimates_per_view_to_rerun(tmp_path, capsys):
@@ -260,3 +265,19 @@ def test_a_coded_survey_cut_mid_view_can_be_finished_sequentially(tmp_path):
     assert state.duplicates_ignored == 0 and all(state.observations[k] == o for k, o in kept.items())
     assert {(c, n) for (n, c, _) in state.observations} == sim.scene.visible_pairs()
     assert len(view_records(cut / "journal.jsonl")) == len(views) // 2  # no view recorded after the cut
+
+
+def test_planned_views_stay_inside_the_search_box():
+    """A tile the planner centres beyond the box edge (its footprint reaches past it) is moved
+    back to the edge, where a head that enforces its range (EVI-D70: pan +-170 deg) accepts it."""
+    from fgloc.files.rig_config import load_rig
+    from fgloc.survey.coded import CodedSurvey
+
+    rig = load_rig(EXAMPLE.parent / "rig-visca-twins.json")  # 40 deg cameras over pan -170..170 deg
+    sim = InProcessRig(rig)
+    coded = CodedSurvey(rig, sim.open_head, sim.leds, sim)
+    s = rig.search
+    views = coded.plan("cam0")
+    assert len(views) > 10
+    assert all(s.pan_min <= p <= s.pan_max and s.tilt_min <= t <= s.tilt_max for p, t in views)
+    assert max(p for p, _ in views) == pytest.approx(s.pan_max)  # one was beyond the edge

@@ -86,6 +86,7 @@ from fgloc.survey.coded_clock import ClockSink, CountingLeds, clocked_opener, no
 from fgloc.survey.coded_views import (
     coded_observation,
     distinct_directions,
+    into_search_box,
     needs_second_recording,
     on_off_centroid,
     unexplained_blob,
@@ -184,8 +185,9 @@ class CodedSurvey:
         step = self.settings.target_step * self.settings.margin_px / max(cam.intrinsics.fx, cam.intrinsics.fy)
         targets = box_targets(s.pan_min, s.pan_max, s.tilt_min, s.tilt_max, step)
         home = (0.0, 0.5 * (s.tilt_min + s.tilt_max))
-        return plan_views(cam.intrinsics, targets, self.settings.margin_px, start=home,
-                          tilt_limits=(s.tilt_min, s.tilt_max))
+        views = plan_views(cam.intrinsics, targets, self.settings.margin_px, start=home,
+                           tilt_limits=(s.tilt_min, s.tilt_max))
+        return [into_search_box(p, t, s.pan_min, s.pan_max, s.tilt_min, s.tilt_max) for p, t in views]
 
     def field_time(self) -> FieldTime:
         """Predicted field time so far: radio, the longest camera lane, the fallback nodes."""
@@ -329,8 +331,9 @@ class CodedSurvey:
             pts = self.blob_directions(camera, last, spread_px=CLUSTER_SPREAD_PX)
             if not len(pts):
                 break
-            tiles = plan_views(self.intrinsics_at(camera, level), pts, self.settings.margin_px, start=here,
-                               tilt_limits=(s.tilt_min, s.tilt_max))
+            tiles = [into_search_box(p, t, s.pan_min, s.pan_max, s.tilt_min, s.tilt_max) for p, t in plan_views(
+                self.intrinsics_at(camera, level), pts, self.settings.margin_px, start=here,
+                tilt_limits=(s.tilt_min, s.tilt_max))]
             self.lanes[camera].append(Zoom(level - zoom))
             zoom, last = level, []
             for k, target in enumerate(tiles):

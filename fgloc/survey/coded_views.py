@@ -88,3 +88,18 @@ def on_off_centroid(stack: np.ndarray, u: float, v: float, radius: int = 3) -> t
         return None
     ys, xs = np.mgrid[-radius:radius + 1, -radius:radius + 1]
     return cu + float((diff * xs).sum()) / total, cv + float((diff * ys).sum()) / total
+
+
+def into_search_box(pan: float, tilt: float, pan_min: float, pan_max: float, tilt_min: float, tilt_max: float,
+                    ) -> tuple[float, float]:
+    """The head position nearest to (pan, tilt) inside the search box (pan wrapped first, as
+    :meth:`fgloc.camera.led_search.LedLocator.clamp`). A planned view may be centred beyond the
+    box (its tiles reach past it); moved back to the box edge it still covers every target it
+    covered inside the box, and a head that enforces its range accepts it."""
+    if pan_max - pan_min < 2 * math.pi - 1e-9:
+        pan = pan_min + (pan - pan_min) % (2 * math.pi)
+        if pan > pan_max:  # in the gap: the nearer limit
+            pan = pan_max if pan - pan_max <= pan_min + 2 * math.pi - pan else pan_min
+    else:
+        pan = math.remainder(pan, 2 * math.pi)
+    return pan, min(max(tilt, tilt_min), tilt_max)
