@@ -48,6 +48,8 @@ from fgloc.core.head_model import head_pan_tilt
 from fgloc.core.model import CameraPose, NodeMode, Truth
 from fgloc.drivers.imperfect_head import head_view, ideal_equivalent_directions
 from fgloc.drivers.rendered_camera import LedScene, RenderedCamera, RenderSettings
+from fgloc.drivers.tinyos.blink import BlinkBroadcast, BlinkCommand, BlinkField, blink_broadcast, parse_blink_report
+from fgloc.drivers.tinyos.messages import AmPacket
 from fgloc.files.rig_config import RigConfig
 from fgloc.sim.scenes import random_base_rotation
 
@@ -342,7 +344,14 @@ class FaultPlan:
 
 
 class SceneLeds:
-    """A simulated base station (implements :class:`fgloc.core.hardware.LedController`)."""
+    """A simulated base station (implements :class:`fgloc.core.hardware.LedController`).
+
+    Blink codes (coded surveys): :meth:`broadcast_codes` takes the same commands as
+    :meth:`fgloc.drivers.tinyos.network.MoteNetwork.broadcast_codes`, encodes them as the
+    real AM packet (:func:`fgloc.drivers.tinyos.blink.blink_broadcast`) and hands it to the
+    motes' side (:class:`~fgloc.drivers.tinyos.blink.BlinkField`); node k of ``node_ids`` is
+    mote address k + 1 (as on the VISCA twin rig), dead nodes stay silent, and each
+    report is lost at the drop rate."""
 
     def __init__(self, scene: SimScene, rig: RigConfig) -> None:
         self.scene = scene
@@ -350,6 +359,25 @@ class SceneLeds:
         self.time_scale = rig.simulation.time_scale
         self.rng = np.random.default_rng(_stable_seed(rig.simulation.seed, "motes"))
         self.acks_dropped = 0
+        self.addresses = {n: k + 1 for k, n in enumerate(rig.node_ids)}
+        self.blink = BlinkField(nodes=set(self.addresses.values()),
+                                silent={self.addresses[n] for n in rig.simulation.dead_nodes})
+        self.received: list[AmPacket] = []  # blink packets the motes received
+
+    def broadcast_codes(self, command: BlinkBroadcast | BlinkCommand, expect: set[int] | None = None,
+                        wait: float = 0.0) -> dict[int, tuple[bool, int, int]]:
+        """Broadcast a start by address or a stop; the blink reports (address -> (running,
+        length, code)) that came back (``expect`` and ``wait`` as the real driver's, unused here)."""
+        packet = blink_broadcast(command)
+        with self.scene.lock:
+            self.received.append(packet)
+            reports = self.blink.handle(packet)
+        out: dict[int, tuple[bool, int, int]] = {}
+        for r in reports:
+            rep = parse_blink_report(r)
+            if rep is not None and self.rng.uniform() >= self.drop_rate:
+                out[rep[0]] = rep[1:]
+        return out
 
     def set_led(self, node_id: str, on: bool) -> bool:
         if self.time_scale > 0:
@@ -377,10 +405,27 @@ class InProcessRig:
         self.leds = SceneLeds(self.scene, rig)
         self.frames = {c: frame_renderer(self.scene, i, rig) for i, c in enumerate(rig.camera_ids)}
         self._generation: dict[str, int] = {}
+        self.heads: dict[str, SceneHead] = {}  # the head last opened per camera
+        self._blinks: object | None = None
+        self.blink_zoom = True  # record_blinks renders at the head's zoom (coded refinement)
+
+    def record_blinks(self, camera_id: str, n_frames: int, t_start: float, key: str) -> list[tuple[float, np.ndarray]]:
+        """Coded surveys: ``n_frames`` frame periods of blinking-mote video from ``camera_id``'s
+        head where it is now (:class:`fgloc.drivers.blink_scene.SceneBlinks`), timestamps from
+        ``t_start`` (survey-clock seconds), seeded by ``key``."""
+        from fgloc.drivers.blink_scene import SceneBlinks
+
+        if self._blinks is None:
+            self._blinks = SceneBlinks(self.scene, self.rig, self.leds.addresses, self.leds.blink,
+                                       lambda: list(self.leds.received))
+        head = self.heads[camera_id]
+        return self._blinks.record(camera_id, head.pan, head.tilt, n_frames, t_start, key,  # type: ignore[attr-defined]
+                                   head._zoom)
 
     def open_head(self, camera_id: str) -> SceneHead:
         """Open (or reopen, after a disconnect) the head of ``camera_id``."""
         gen = self._generation[camera_id] = self._generation.get(camera_id, -1) + 1
         self.faults.reopen(camera_id)
-        return SceneHead(self.scene, self.rig.camera_ids.index(camera_id), self.rig, gen, self.faults,
-                         self.frames[camera_id])
+        head = self.heads[camera_id] = SceneHead(self.scene, self.rig.camera_ids.index(camera_id), self.rig, gen,
+                                                 self.faults, self.frames[camera_id])
+        return head

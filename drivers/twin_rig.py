@@ -47,6 +47,7 @@ class ViscaTwinRig:
         self.leds: MoteNetwork | None = None  # set once the base-station twin runs
         self.units: dict[str, PanTiltUnits] = {}
         self.twins: dict[str, ViscaSerialTwin] = {}
+        self._blinks: object | None = None  # blinking-mote video (coded surveys), made when first asked
         sim = rig.simulation
         try:
             for i, cam in enumerate(rig.cameras):
@@ -96,6 +97,21 @@ class ViscaTwinRig:
         cam = self.rig.cameras[self.rig.camera_ids.index(camera_id)]
         return open_serial_head(twin.port, self.units[camera_id], address=cam.address, timeouts=self.timeouts,
                                 frames=twin.emulator.frame_source(), settings=HeadSettings())
+
+    def record_blinks(self, camera_id: str, n_frames: int, t_start: float, key: str) -> list:
+        """Coded surveys: ``n_frames`` frame periods of blinking-mote video from ``camera_id``,
+        its head where the VISCA twin says it is (the motes run what the real TinyOS driver
+        commanded through the base-station twin; :class:`fgloc.drivers.blink_scene.SceneBlinks`)."""
+        from fgloc.drivers.blink_scene import SceneBlinks
+
+        assert self.base_station is not None  # the constructor started it
+        if self._blinks is None:
+            mote_field = self.base_station.field
+            self._blinks = SceneBlinks(self.scene, self.rig, self.addresses, mote_field.blink,
+                                       lambda: list(mote_field.received))
+        pose = self.twins[camera_id].emulator.pose()
+        pan, tilt = self.units[camera_id].to_spec(pose.pan_counts, pose.tilt_counts)
+        return self._blinks.record(camera_id, pan, tilt, n_frames, t_start, key)  # type: ignore[attr-defined]
 
     def injected(self) -> dict[str, int]:
         """Faults injected so far, summed over cameras."""

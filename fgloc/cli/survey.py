@@ -28,6 +28,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "at any survey size) or by re-solving everything (batch)")
     p.add_argument("--rerun", metavar="FILE.rrd",
                    help="log every live estimate to a Rerun recording on the 'survey' timeline")
+    p.add_argument("--identify", choices=("sequential", "coded"), default=None,
+                   help="identify motes one lit LED at a time (sequential) or many per view by blink codes "
+                        "(coded); overrides rig.json's identification (default there: sequential)")
     p.add_argument("--quiet", action="store_true", help="no progress bar (as fgloc -q survey, which also hides warnings)")
     p.set_defaults(run=run)
 
@@ -48,7 +51,8 @@ class _SurveyBar:
         if self.bar is None:
             self.bar = progress_bar(self.enabled, total=p.nodes_total, initial=p.nodes_done, desc="survey",
                                     unit="node", leave=True)
-        self.bar.set_postfix_str(f"{p.observations} obs, {p.failures} failed", refresh=False)
+        field = "" if p.field_s is None else f", field {p.field_s:.1f} s"
+        self.bar.set_postfix_str(f"{p.observations} obs, {p.failures} failed{field}", refresh=False)
         self.bar.update(p.nodes_done - self.bar.n)
 
     def close(self) -> None:
@@ -85,7 +89,7 @@ def run(args: argparse.Namespace) -> int:
             rig, args.output, simulate=args.simulate, resume=args.resume,
             estimator=None if args.no_live else (IncrementalEstimator() if args.estimator == "incremental"
                                                  else BatchEstimator()),
-            live_every=args.live_every, on_estimate=show, on_progress=progress,
+            live_every=args.live_every, on_estimate=show, on_progress=progress, identification=args.identify,
         )
     finally:
         progress.close()
@@ -95,4 +99,6 @@ def run(args: argparse.Namespace) -> int:
     print(f"wrote {args.output}/survey.json: {len(survey.node_ids)} nodes, {len(survey.observations)} observations "
           f"({s.nodes_skipped} nodes already done, {s.not_found} not found, {s.led_failed} LED failures, "
           f"{s.head_errors} head errors, {s.reconnects} reconnects)")
+    if runner.field_time is not None:
+        print(f"predicted field time: {runner.field_time.describe()}")
     return 0

@@ -22,6 +22,16 @@ A journal is the primary record of a survey; ``survey.json`` is derived from it
   whose operational fields differ (``changed`` names them); later resumes compare with it.
 * ``survey_stopped`` ``{camera, misses, reason}``: a camera found nothing for too many
   nodes in a row and the run stopped (informational; a resume continues).
+* ``view`` ``{camera, view, attempt, target, head, frames, erased, clock_s, readings,
+  refused}`` (coded surveys, :mod:`fgloc.survey.coded`): one recording of one view and
+  **every** reading decoded from it (``readings[]``: ``{node, index, pan, tilt[, sigma,
+  code, u, v]}``, the same identity as an ``observation``). The record is the commit of the
+  whole view: a kill during a view leaves no record of it, so a resumed survey records the
+  view again and never holds half a view. Each reading keeps the view it came from
+  (:attr:`JournalObservation.view`).
+* ``codes`` ``{action, ...}``: the motes' coded blinking was started or stopped (informational).
+* ``field_time`` ``{scope, phases[, node, total_s]}``: predicted field time per phase
+  (seconds, :mod:`fgloc.survey.clock`) of one fallback node or of the whole survey.
 
 Every record is written with one ``os.write`` of a complete line, then
 ``os.fsync``. A torn last line (power loss or kill mid-write) has no trailing
@@ -102,6 +112,7 @@ class JournalObservation:
     pan: float
     tilt: float
     sigma: float | None = None
+    view: str | None = None  #: coded surveys: ``camera/view`` id of the view the reading was decoded in
 
     @property
     def key(self) -> ObservationKey:
@@ -123,6 +134,9 @@ class JournalState:
     not_found: dict[tuple[str, str], str] = field(default_factory=dict)  # (node, camera) -> reason
     truth: Truth | None = None
     rig_changes: list[dict[str, Any]] = field(default_factory=list)  # rig_changed records, in order
+    views: dict[tuple[str, str, int], dict[str, Any]] = field(default_factory=dict)  # (camera, view, attempt) -> record
+    field_times: list[dict[str, Any]] = field(default_factory=list)  # field_time records, in order
+    codes: list[dict[str, Any]] = field(default_factory=list)  # codes records (coded surveys), in order
     records: int = 0
     torn_tail_bytes: int = 0
     duplicates_ignored: int = 0
@@ -197,7 +211,7 @@ def _plain_observation(rec: dict) -> bool:
 
 
 _TRUTH_BULK: Bulk = {("nodes",): is_vector3}
-_CHECKED = ("header", "observation", "truth", "rig_changed")  # record types with a definition in journal.schema.json
+_CHECKED = ("header", "observation", "truth", "rig_changed", "view", "field_time")  # record types with a definition in journal.schema.json
 _NODE_RECORDS = ("node_started", "observation", "not_found", "led_failed", "node_done")
 
 
@@ -242,10 +256,42 @@ class _Replay:
             state.done.add(node)
         elif kind == "rig_changed":
             state.rig_changes.append(rec)
+        elif kind == "view":
+            self.apply_view(rec, line)
+        elif kind == "codes":
+            state.codes.append(rec)
+        elif kind == "field_time":
+            if rec.get("node") is not None and rec["node"] not in self.nodes:
+                raise self.fail(line, f"field_time.node: unknown node {show_value(rec['node'])}")
+            state.field_times.append(rec)
         elif kind == "truth":
             state.truth = truth_from_json(rec, state.header.mode.value, self.cams, self.nodes,
                                           f"{self.path}: line {line}", JournalError)
         # Unknown record types are ignored (forward compatibility), like unknown fields.
+
+
+    def apply_view(self, rec: dict, line: int) -> None:
+        """A complete view: its readings become observations (first record of a key wins)."""
+        camera = rec["camera"]
+        if camera not in self.cams:
+            raise self.fail(line, f"view.camera: unknown camera {show_value(camera)}")
+        for i, r in enumerate(rec["readings"]):
+            if r["node"] not in self.nodes:
+                raise self.fail(line, f"view.readings[{i}].node: unknown node {show_value(r['node'])}")
+        key = (camera, str(rec["view"]), int(rec["attempt"]))
+        if key in self.state.views:
+            self.state.duplicates_ignored += 1
+            return
+        self.state.views[key] = rec
+        for r in rec["readings"]:
+            self.state.add_observation(view_observation(camera, str(rec["view"]), r))
+
+
+def view_observation(camera: str, view: str, reading: dict[str, Any]) -> JournalObservation:
+    """The observation a ``view`` record's reading stands for (the reading keeps its view id)."""
+    sigma = reading.get("sigma")
+    return JournalObservation(reading["node"], camera, int(reading["index"]), float(reading["pan"]),
+                              float(reading["tilt"]), None if sigma is None else float(sigma), view)
 
 
 def _header(rec: dict, path: str, line: int) -> JournalHeader:
@@ -406,6 +452,18 @@ class JournalWriter:
 
     def node_done(self, node: str) -> None:
         self.append({"type": "node_done", "node": node})
+
+    def view(self, record: dict[str, Any]) -> None:
+        """One recording of a coded view with all its readings, in one durable line (the view's commit)."""
+        self.append({"type": "view"} | record)
+
+    def field_time(self, scope: str, phases: dict[str, float], node: str | None = None) -> None:
+        """Predicted field time per phase (seconds) of a fallback node or of the whole survey."""
+        rec: dict[str, Any] = {"type": "field_time", "scope": scope, "phases": dict(phases),
+                               "total_s": float(sum(phases.values()))}
+        if node is not None:
+            rec["node"] = node
+        self.append(rec)
 
     def rig_changed(self, rig_hash_value: str, changed: list[str], operational: dict[str, Any]) -> None:
         """Record a resume's accepted operational rig.json change (values without credentials)."""

@@ -42,6 +42,7 @@ HEAD_ERROR_FIELDS: dict[str, str] = {
     "pan_scale_percent": "pan_scale", "tilt_scale_percent": "tilt_scale",
     "lever_y_baseline": "lever_y", "lever_z_baseline": "lever_z",
 }
+IDENTIFICATIONS = ("sequential", "coded")  #: one lit LED at a time, or blink codes (fgloc.survey.coded)
 
 
 class RigConfigError(FglocError):
@@ -143,6 +144,7 @@ class RigConfig:
     node_ids: list[str]
     repeats: int = 1
     repeat_budget: int = 0  # readings re-measured after the node loop, chosen by fgloc.plan.repeat
+    identification: str = "sequential"  # "sequential" or "coded" (blink codes, fgloc.survey.coded)
     search: SearchConfig = SearchConfig()
     retry: RetryConfig = RetryConfig()
     simulation: SimulationConfig = SimulationConfig()
@@ -330,6 +332,7 @@ def parse_rig(data: Any, path: str = "rig.json", base: Path | None = None) -> Ri
         node_ids=node_ids,
         repeats=int(top.get("repeats", 1)),
         repeat_budget=repeat_budget,
+        identification=str(top.get("identification", "sequential")),
         search=search,
         retry=retry,
         simulation=simulation,

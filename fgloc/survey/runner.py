@@ -40,6 +40,7 @@ import time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 from fgloc.camera.led_search import LedLocator, PinholePixelModel
 from fgloc.core.errors import FglocError
@@ -50,18 +51,23 @@ from fgloc.files.journal import JournalObservation, JournalState, JournalWriter,
 from fgloc.files.rig_config import RigConfig
 from fgloc.survey.live import MIN_SHARED_NODES, Estimator, LiveEstimate
 
+if TYPE_CHECKING:
+    from fgloc.survey.clock import FieldTime
+
 logger = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
 class Progress:
-    """Survey progress for a progress bar. ``eta_s`` is None until one node was timed."""
+    """Survey progress for a progress bar. ``eta_s`` is None until one node was timed;
+    ``field_s`` is the predicted field time so far (survey clock, coded surveys), else None."""
 
     nodes_done: int
     nodes_total: int
     observations: int
     failures: int
     eta_s: float | None
+    field_s: float | None = None
 
 
 class SurveyStopped(FglocError):
@@ -212,6 +218,7 @@ class SurveyRunner:
         self._node_seconds: list[float] = []
         self.misses: dict[str, int] = {c: 0 for c in rig.camera_ids}  # consecutive not_found per camera
         self._last_miss: dict[str, str] = {}
+        self.field_time: FieldTime | None = None  # predicted field time (coded surveys, fgloc.survey.coded)
 
     # -- journal helpers: every record also updates the in-memory state the same way replay would
     def _record_observation(self, obs: JournalObservation) -> None:
@@ -253,8 +260,9 @@ class SurveyRunner:
         last = self.state.last_observation(camera)
         return None if last is None else (last.pan, last.tilt)
 
-    def run_node(self, node: str, pool: ThreadPoolExecutor) -> None:
-        """Measure one node with every camera that still needs it."""
+    def run_node(self, node: str, pool: ThreadPoolExecutor, check_misses: bool = True) -> None:
+        """Measure one node with every camera that still needs it (``check_misses``: apply
+        ``retry.max_consecutive_misses``; off for a coded survey's fallback nodes)."""
         st = self.state
         if node not in st.started:
             self.journal.node_started(node)
@@ -301,7 +309,8 @@ class SurveyRunner:
                     logger.warning(f"{node}: LED did not acknowledge switching off")
         self.journal.node_done(node)
         st.done.add(node)
-        self._check_misses(node)
+        if check_misses:
+            self._check_misses(node)
 
     def _check_misses(self, node: str) -> None:
         """Stop the survey when a camera reached ``retry.max_consecutive_misses`` misses in a row."""
@@ -318,11 +327,13 @@ class SurveyRunner:
                     f"{self.misses[cam]} nodes in a row (last: {short}); survey stopped after node {node}, "
                     "journal kept: fix the camera, then run again with --resume")
 
-    def estimate(self) -> LiveEstimate | None:
-        """Solve the journal so far (None until MIN_SHARED_NODES nodes are seen by two cameras)."""
+    def estimate(self, nodes_done: int | None = None) -> LiveEstimate | None:
+        """Solve the journal so far (None until MIN_SHARED_NODES nodes are seen by two cameras);
+        ``nodes_done`` is what the estimate reports as done (default: nodes with ``node_done``)."""
         if self.estimator is None or self.state.nodes_seen_by(2) < MIN_SHARED_NODES:
             return None
-        survey = journal_to_survey(self.state)
+        with self._state_lock:  # camera threads of a coded survey may be recording
+            survey = journal_to_survey(self.state)
         t0 = time.perf_counter()
         try:
             result = self.estimator.update(survey)
@@ -333,7 +344,8 @@ class SurveyRunner:
             return None
         if result is None:
             return None
-        live = LiveEstimate(len(self.state.done), survey, result, time.perf_counter() - t0)
+        live = LiveEstimate(len(self.state.done) if nodes_done is None else nodes_done, survey, result,
+                            time.perf_counter() - t0)
         self.latest = live
         self.stats.estimates += 1
         if self.on_estimate is not None:

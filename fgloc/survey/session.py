@@ -29,7 +29,7 @@ from fgloc.core.model import Survey
 from fgloc.core.redact import redact_urls
 from fgloc.files.journal import JournalHeader, JournalState, JournalWriter, journal_to_survey, read_journal
 from fgloc.files.json_io import remove_stale_temps
-from fgloc.files.rig_config import RigConfig, rig_meaning, rig_operational
+from fgloc.files.rig_config import IDENTIFICATIONS, RigConfig, rig_meaning, rig_operational
 from fgloc.files.survey_result import write_result, write_survey
 from fgloc.survey.live import Estimator, LiveEstimate
 from fgloc.survey.lock import SurveyLock
@@ -156,12 +156,18 @@ def run_survey(
     on_estimate: Callable[[LiveEstimate], None] | None = None,
     on_progress: Callable[[Progress], None] | None = None,
     opened: OpenedRig | None = None,
+    identification: str | None = None,
 ) -> tuple[Survey, SurveyRunner]:
     """Run (or resume) a survey and write ``survey.json``; returns it and the runner.
+
+    ``identification`` (``"sequential"`` or ``"coded"``, default: the rig's) picks the node
+    loop of :mod:`fgloc.survey.runner` or the blink-code survey of :mod:`fgloc.survey.coded`.
 
     What goes wrong along the way (LED or camera failures, failed live estimates) is logged
     on the ``fgloc.survey.runner`` logger; ``on_progress`` is called before the first node
     and after every node."""
+    if identification not in (None, *IDENTIFICATIONS):
+        raise FglocError(f"--identify: expected one of {', '.join(IDENTIFICATIONS)}, got {identification!r}")
     check_rig(rig, simulate)
     with SurveyLock(out_dir):
         remove_stale_temps(out_dir)
@@ -174,10 +180,17 @@ def run_survey(
                 check_devices(rig, opened.open_head)
             writer, state = start_journal(rig, out_dir, resume, opened.simulated)
             try:
-                runner = SurveyRunner(rig, opened.open_head, opened.leds, writer, state, estimator=estimator,
-                                      live_every=live_every, on_estimate=on_estimate, on_progress=on_progress)
+                coded = None
+                if (identification or rig.identification) == "coded":
+                    from fgloc.survey.coded import CodedSurvey
+
+                    coded = CodedSurvey(rig, opened.open_head, opened.leds, opened.simulated)
+                runner = SurveyRunner(rig, coded.open_head if coded else opened.open_head,
+                                      coded.leds if coded else opened.leds, writer, state,  # type: ignore[arg-type]
+                                      estimator=estimator, live_every=live_every, on_estimate=on_estimate,
+                                      on_progress=on_progress)
                 try:
-                    survey = runner.run()
+                    survey = coded.run(runner) if coded else runner.run()
                 except SurveyStopped as exc:
                     stopped, survey = exc, journal_to_survey(runner.state)
             finally:

@@ -1,0 +1,505 @@
+"""Coded identification: a survey that reads many motes per view by their blink codes.
+
+``"identification": "coded"`` in rig.json (or ``fgloc survey --identify coded``) runs,
+instead of the node loop of :mod:`fgloc.survey.runner` (docs/survey.md, "Coded identification"):
+
+1. **Start.** One broadcast start by address through the mote driver
+   (:class:`~fgloc.drivers.tinyos.blink.BlinkBroadcast`, ``MoteNetwork.broadcast_codes``):
+   the mote with address ``first + k`` runs word k of the code book
+   (:func:`fgloc.camera.blink_codes.code_book`), one bit per frame period. Sent again (up
+   to :attr:`CodedSettings.start_attempts`) while some mote has not confirmed.
+2. **Views, every camera in parallel.** Each camera's views cover the rig's search box
+   (:func:`fgloc.survey.view_planner.plan_views`; every direction lies at least 8 px inside
+   some view). Per view: the head slews there (the camera worker's retries and
+   reconnects), its position is read back, ``3L + 2`` frames are recorded (the simulated
+   rigs' ``record_blinks``; on hardware ``grab_frame`` with host timestamps) and decoded
+   (:func:`fgloc.camera.blink_decoder.decode_view`). Each decoded LED's centroid is
+   re-measured on its mean lit minus mean dark frame
+   (:func:`~fgloc.survey.coded_views.on_off_centroid`) and becomes (pan, tilt) by
+   :func:`fgloc.camera.pixel_angles.pixel_to_pan_tilt` at the read-back angles
+   (:func:`~fgloc.survey.coded_views.coded_observation`). A camera takes at most
+   ``repeats`` readings of a mote. A view with curable refusals (a word read with
+   conflicts or gaps, a duplicate ID) is recorded once more at once.
+3. **Refinement** (rigs whose ``record_blinks`` renders other zooms: ``blink_zoom``).
+   Blobs no reading explains (:func:`~fgloc.survey.coded_views.unexplained_blob`) are
+   recorded again in tiles at the next zoom of :attr:`CodedSettings.levels` until none is
+   left; then the head zooms back. Refused blobs are journaled and logged, never guessed.
+4. **Stop**, one broadcast.
+5. **Fallback.** For each node a camera has not read: a camera whose views left no blob
+   unexplained journals ``not_found`` without a search; otherwise the node is measured the
+   sequential way (:meth:`SurveyRunner.run_node`: its LED alone) with that camera looking
+   only at the directions of its unexplained blobs (the full grid for motes that never
+   confirmed their code, or after a failed view). Nodes every camera read are journaled
+   ``node_done`` without lighting them.
+
+Crash safety: a view's readings are committed together, as one ``view`` journal record
+(:meth:`fgloc.files.journal.JournalWriter.view`); a kill during a view loses only that
+view. ``--resume`` re-plans the same views (a function of the rig and, for refinement
+rungs, of the journaled views), skips every view with a record, records the rest, and
+never takes a reading twice.
+
+Field time (:mod:`fgloc.survey.clock`): each camera lane is priced from its plan (slew
+from the previous view, settle, position read, the frames of each recording; the second
+recordings as journaled), the lanes run in parallel, plus the radio; fallback nodes are
+priced from the operations their heads performed (:mod:`fgloc.survey.coded_clock`) and
+journaled per node. A resumed survey reports the uninterrupted survey's field time (the
+move back to where it stopped is not priced). Angles radians, times seconds.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import queue
+import time
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from fgloc.camera.blink_codes import CodeBook, code_book
+from fgloc.camera.blink_decoder import DecoderConfig, ViewDecode, decode_view
+from fgloc.camera.intrinsics import CameraIntrinsics
+from fgloc.camera.pixel_angles import pixel_to_pan_tilt
+from fgloc.core.errors import FglocError
+from fgloc.core.hardware import PanTiltHead
+from fgloc.core.model import Survey
+from fgloc.files.journal import journal_to_survey
+from fgloc.files.rig_config import RigConfig
+from fgloc.survey.clock import (
+    CameraTiming,
+    FieldTime,
+    Frames,
+    Op,
+    PositionRead,
+    Radio,
+    Settle,
+    Slew,
+    Zoom,
+    parallel,
+    price,
+    sum_times,
+)
+from fgloc.survey.coded_clock import ClockSink, CountingLeds, clocked_opener, node_field_time, rig_timing
+from fgloc.survey.coded_views import (
+    coded_observation,
+    distinct_directions,
+    into_search_box,
+    needs_second_recording,
+    on_off_centroid,
+    unexplained_blob,
+)
+from fgloc.survey.field_plans import frames_for
+from fgloc.survey.runner import CameraFailed, Progress, SurveyRunner
+from fgloc.survey.view_planner import box_targets, plan_views
+
+logger = logging.getLogger(__name__)
+
+
+Frame = tuple[float, np.ndarray]
+CLUSTER_SPREAD_PX = 6.0  #: refinement tiles also cover this far (px of the coarser view) around a blob
+
+
+@dataclass(frozen=True)
+class CodedSettings:
+    """Coded-survey knobs (radians, seconds, pixels)."""
+
+    periods: int = 3  #: code periods recorded per view (frames = periods x L + 2)
+    retries: int = 1  #: extra recordings of a view with curable refusals
+    start_attempts: int = 3  #: broadcast starts while some mote has not confirmed
+    report_wait_s: float = 0.2  #: how long to collect the motes' blink reports per broadcast
+    margin_px: float = 16.0  #: a view covers a direction this far inside the image
+    #: sampling of the search box for the planner, in units of ``margin_px / fx``: every direction
+    #: is then within half a margin of a covered sample, so >= 8 px inside some view (the decoder
+    #: refuses blobs within 7 px of the border)
+    target_step: float = 0.7
+    decoder: DecoderConfig = field(default_factory=DecoderConfig)
+    #: refinement zooms (fractions of the optical range, ascending; :meth:`CameraIntrinsics.at_zoom`:
+    #: 2x, 4x, 10x), used where the rig can record at other zooms (the in-process rig)
+    levels: tuple[float, ...] = (1 / 9, 3 / 9, 1.0)
+
+
+@dataclass
+class CodedStats:
+    """What the coded phase did in this run."""
+
+    views: int = 0
+    recordings: int = 0
+    second_recordings: int = 0
+    readings: int = 0
+    ambiguous: int = 0
+    duplicate: int = 0
+    rejected: int = 0
+    unassigned: int = 0
+    confirmed: int = 0
+    fallback_nodes: int = 0
+    failed_views: list[str] = field(default_factory=list)
+
+
+class CodedSurvey:
+    """The coded identification phase of one run (see the module docstring)."""
+
+    def __init__(self, rig: RigConfig, open_head: Callable[[str], PanTiltHead], leds: object,
+                 recorder: object | None = None, settings: CodedSettings | None = None) -> None:
+        from fgloc.drivers.tinyos.messages import node_address
+
+        self.rig = rig
+        self.settings = settings or CodedSettings()
+        self.recorder = getattr(recorder, "record_blinks", None)
+        if not callable(getattr(leds, "broadcast_codes", None)):
+            raise FglocError(f"{rig.path}: identification: the base station ({rig.motes.driver}) cannot "
+                             "broadcast blink codes; use \"sequential\"")
+        amap = getattr(leds, "addresses", None) or getattr(leds, "address_map", None) or rig.motes.addresses
+        try:
+            self.addresses = {n: node_address(n, amap) for n in rig.node_ids}
+        except Exception as exc:  # noqa: BLE001 - MoteError names the node
+            raise FglocError(f"{rig.path}: motes.addresses: {exc}") from None
+        self.first = min(self.addresses.values())
+        count = max(self.addresses.values()) - self.first + 1
+        self.book: CodeBook = code_book(count)
+        self.node_of_code = {a - self.first: n for n, a in self.addresses.items()}
+        self.frames = frames_for(self.book.length, self.settings.periods)
+        self.camera = CameraTiming()
+        self.sink = ClockSink(rig.camera_ids)
+        self.open_head = clocked_opener(open_head, self.sink)  # the runner's heads: fallback moves are priced
+        self.leds = CountingLeds(leds)  # type: ignore[arg-type]
+        self.timing = {c.id: rig_timing(c.model) for c in rig.cameras}
+        self.stats = CodedStats()
+        self.lanes: dict[str, list[Op]] = {c: [] for c in rig.camera_ids}
+        self.radio_s = 0.0
+        self.fallback = FieldTime({})
+        self._events: queue.Queue[str] = queue.Queue()
+        self.survey_zoom = {c.id: c.zoom for c in rig.cameras}
+        # refinement needs frames at other zooms: the simulated rigs that render them say so
+        self.levels = self.settings.levels if getattr(recorder, "blink_zoom", False) else ()
+        self.remaining: dict[str, int] = {}  # camera -> unexplained blobs and failed views after its last rung
+        self.blobs: dict[str, list[tuple[float, float]] | None] = {}  # their directions (None: a view failed)
+
+    # ----- plan and clock
+    def plan(self, camera: str) -> list[tuple[float, float]]:
+        """The camera's views (head pan, tilt), in visiting order: a function of the rig only."""
+        s = self.rig.search
+        cam = self.rig.cameras[self.rig.camera_ids.index(camera)]
+        step = self.settings.target_step * self.settings.margin_px / max(cam.intrinsics.fx, cam.intrinsics.fy)
+        targets = box_targets(s.pan_min, s.pan_max, s.tilt_min, s.tilt_max, step)
+        home = (0.0, 0.5 * (s.tilt_min + s.tilt_max))
+        views = plan_views(cam.intrinsics, targets, self.settings.margin_px, start=home,
+                           tilt_limits=(s.tilt_min, s.tilt_max))
+        return [into_search_box(p, t, s.pan_min, s.pan_max, s.tilt_min, s.tilt_max) for p, t in views]
+
+    def field_time(self) -> FieldTime:
+        """Predicted field time so far: radio, the longest camera lane, the fallback nodes."""
+        lanes = [price(ops, self.timing[c]) for c, ops in self.lanes.items()]
+        radio = FieldTime({"radio": self.radio_s})
+        return sum_times([radio, parallel(lanes), FieldTime({"fallback": self.fallback.total})])
+
+    # ----- one camera
+    def _record(self, runner: SurveyRunner, camera: str, vid: str, attempt: int, target: tuple[float, float],
+                head: tuple[float, float], zoom: float, t_start: float) -> dict[str, Any]:
+        worker = runner.workers[camera]
+        key = f"{vid}/{attempt}"
+        if self.recorder is not None:
+            frames: list[Frame] = self.recorder(camera, self.frames, t_start, key)
+        else:  # hardware: consecutive grabs stamped by the host clock
+            frames = []
+            for _ in range(self.frames):
+                img = worker.call(lambda h: h.grab_frame())
+                frames.append((time.monotonic(), np.asarray(img)))
+        intr = self.intrinsics_at(camera, zoom)
+        dec: ViewDecode = decode_view(frames, self.camera.frame_period_s, self.book, intr, head[0], head[1],
+                                      self.settings.decoder)
+        readings, refused = [], [{"kind": r.kind, "u": r.u, "v": r.v, "reason": r.reason} for r in dec.refused]
+        st = runner.state
+        taken: set[str] = set()
+        stack = np.stack([np.asarray(f) for _, f in frames]) if dec.readings else np.zeros((0, 0, 0))
+        for rd in dec.readings:
+            node = self.node_of_code.get(rd.index)
+            if node is None:
+                refused.append({"kind": "unassigned", "u": rd.u, "v": rd.v,
+                                "reason": f"code {rd.index} is run by no mote of this survey"})
+                continue
+            have = len(st.observations_of(node, camera))
+            if node in taken or have >= self.rig.repeats:
+                continue
+            taken.add(node)
+            uv = on_off_centroid(stack, rd.u, rd.v) or (rd.u, rd.v)
+            obs = coded_observation(camera, vid, node, have, rd, intr, head, uv)
+            readings.append({"node": node, "index": obs.index, "pan": obs.pan, "tilt": obs.tilt, "code": rd.index,
+                             "u": uv[0], "v": uv[1]})
+        return {"camera": camera, "view": vid, "attempt": attempt, "target": list(target), "head": list(head),
+                "zoom": zoom, "frames": self.frames, "erased": dec.erased, "clock_s": t_start, "readings": readings,
+                "refused": refused}
+
+    def _commit(self, runner: SurveyRunner, record: dict[str, Any]) -> None:
+        """Journal one view (the commit of all its readings), then apply it to the state."""
+        from fgloc.files.journal import view_observation
+
+        with runner._state_lock:
+            runner.journal.view(record)
+            runner.state.views[(record["camera"], record["view"], record["attempt"])] = {"type": "view"} | record
+            for r in record["readings"]:
+                runner.state.add_observation(view_observation(record["camera"], record["view"], r))
+        s = self.stats
+        s.recordings += 1
+        s.second_recordings += record["attempt"] > 0
+        s.readings += len(record["readings"])
+        runner.stats.observations += len(record["readings"])
+        for r in record["refused"]:
+            setattr(s, r["kind"], getattr(s, r["kind"]) + 1)
+            logger.info(f"{record['camera']} view {record['view']} ({record['attempt']}): {r['kind']} blob at "
+                        f"({r['u']:.1f}, {r['v']:.1f}) px: {r['reason']}")
+
+    def _visit(self, runner: SurveyRunner, camera: str, vid: str, target: tuple[float, float], zoom: float,
+               here: tuple[float, float]) -> dict[str, Any] | None:
+        """Record one view (and its second recording when needed) unless journaled; prices it
+        on the camera's lane. Returns the view's last record (None: the camera failed)."""
+        worker, lane = runner.workers[camera], self.lanes[camera]
+        lane += [Slew(math.remainder(target[0] - here[0], 2 * math.pi), target[1] - here[1]), Settle(),
+                 PositionRead()]
+        head: tuple[float, float] | None = None
+        last = None
+        for attempt in range(1 + self.settings.retries):
+            rec = runner.state.views.get((camera, vid, attempt))
+            if rec is not None and ([float(x) for x in rec.get("target", [])] != list(target)
+                                    or float(rec.get("zoom", self.survey_zoom[camera])) != zoom):
+                rec = None  # another plan (the search box changed): record this view anew
+            if rec is None:
+                try:
+                    if head is None:
+                        def go(h: PanTiltHead) -> None:
+                            h.set_zoom(zoom)  # in the same call: a reconnect resets the survey zoom
+                            h.move_to(*target)
+
+                        worker.call(go)
+                        got = worker.call(lambda h: h.position())
+                        head = (float(got[0]), float(got[1]))  # type: ignore[index]
+                    rec = self._record(runner, camera, vid, attempt, target, head, zoom,
+                                       self.radio_s + price(lane, self.timing[camera]).total)
+                except CameraFailed as exc:
+                    self.stats.failed_views.append(f"{camera}/{vid}")
+                    logger.warning(f"{camera} view {vid}: camera error, view not recorded: {exc}")
+                    return None
+                self._commit(runner, rec)
+                self._events.put(camera)
+            lane.append(Frames(self.frames))
+            last = rec
+            if not needs_second_recording(rec):
+                break
+        return last
+
+    def blob_directions(self, camera: str, records: list[dict[str, Any] | None],
+                        spread_px: float = 0.0) -> np.ndarray:
+        """(M, 2) (pan, tilt) of the unexplained blobs in ``records`` (:func:`unexplained_blob`);
+        with ``spread_px`` each blob also gives the 8 directions ``spread_px`` (pixels of its own
+        recording) around it, so tiles cover every member of a cluster that merged into it."""
+        out = []
+        for rec in records:
+            if rec is None:
+                continue
+            intr = self.intrinsics_at(camera, float(rec.get("zoom", self.survey_zoom[camera])))
+            for r in rec["refused"]:
+                if unexplained_blob(r) and "u" in r:
+                    for du in (-spread_px, 0.0, spread_px) if spread_px else (0.0,):
+                        for dv in (-spread_px, 0.0, spread_px) if spread_px else (0.0,):
+                            p, t = pixel_to_pan_tilt(intr, np.array([r["u"] + du, r["v"] + dv]), *rec["head"])
+                            out.append((float(p), float(t)))
+        return np.array(out, dtype=float).reshape(-1, 2)
+
+    def intrinsics_at(self, camera: str, zoom: float) -> CameraIntrinsics:
+        """The camera's intrinsics at ``zoom`` (its own at the survey zoom; else the idealised
+        :meth:`~fgloc.camera.intrinsics.CameraIntrinsics.at_zoom` model, as the simulator renders)."""
+        intr = self.rig.cameras[self.rig.camera_ids.index(camera)].intrinsics
+        return intr if zoom == self.survey_zoom[camera] else intr.at_zoom(zoom)
+
+    def run_camera(self, runner: SurveyRunner, camera: str, views: list[tuple[float, float]]) -> None:
+        """Record every view of ``camera`` that has no journal record yet (in plan order), then
+        the refinement rungs: tiles over the blobs no reading explains, at the next zoom of the
+        ladder, until none is left or the ladder ends; then zoom back to the survey zoom."""
+        here, zoom0 = runner.workers[camera].home, self.survey_zoom[camera]
+        last: list[dict[str, Any] | None] = []
+        for k, target in enumerate(views):
+            last.append(self._visit(runner, camera, f"w{k:03d}", target, zoom0, here))
+            here = target
+        self.stats.views += len(views)
+        zoom = zoom0
+        s = self.rig.search
+        for rung, level in enumerate(self.levels, start=1):
+            if any(r is None for r in last):
+                break  # a view failed: its blobs are unknown, the fallback covers this camera
+            pts = self.blob_directions(camera, last, spread_px=CLUSTER_SPREAD_PX)
+            if not len(pts):
+                break
+            tiles = [into_search_box(p, t, s.pan_min, s.pan_max, s.tilt_min, s.tilt_max) for p, t in plan_views(
+                self.intrinsics_at(camera, level), pts, self.settings.margin_px, start=here,
+                tilt_limits=(s.tilt_min, s.tilt_max))]
+            self.lanes[camera].append(Zoom(level - zoom))
+            zoom, last = level, []
+            for k, target in enumerate(tiles):
+                last.append(self._visit(runner, camera, f"r{rung}-{k:03d}", target, level, here))
+                here = target
+            self.stats.views += len(tiles)
+        blobs = self.blob_directions(camera, last)
+        self.remaining[camera] = sum(r is None for r in last) + len(blobs)
+        fov = min(runner.workers[camera].locator.pixels.field_of_view())  # at the survey zoom
+        self.blobs[camera] = None if any(r is None for r in last) else distinct_directions(blobs, 0.25 * fov)
+        if zoom != zoom0:
+            self.lanes[camera].append(Zoom(zoom0 - zoom))
+            try:
+                runner.workers[camera].call(lambda h: h.set_zoom(zoom0))
+            except CameraFailed as exc:
+                logger.warning(f"{camera}: could not zoom back to the survey zoom: {exc}")
+
+    # ----- the whole phase
+    def _broadcast(self, command: object, expect: set[int]) -> dict[int, tuple[bool, int, int]]:
+        got: dict[int, tuple[bool, int, int]] = self.leds.broadcast_codes(command, expect, self.settings.report_wait_s)
+        self.radio_s += price([Radio(broadcast=1)], self.timing[self.rig.camera_ids[0]]).total
+        return got
+
+    def start_codes(self, runner: SurveyRunner) -> None:
+        from fgloc.drivers.tinyos.blink import BlinkBroadcast
+
+        command = BlinkBroadcast(self.book.length, self.first, len(self.book), self.camera.frame_period_s)
+        expect = set(self.addresses.values())
+        confirmed: set[int] = set()
+        for _ in range(self.settings.start_attempts):
+            got = self._broadcast(command, expect - confirmed)
+            confirmed |= {a for a, (running, length, _) in got.items() if running and length == self.book.length}
+            if expect <= confirmed:
+                break
+        silent = sorted(n for n, a in self.addresses.items() if a not in confirmed)
+        self.stats.confirmed = len(expect & confirmed)
+        rec = {"type": "codes", "action": "start", "length": self.book.length, "first": self.first,
+               "count": len(self.book), "bit_period_s": command.bit_period_s, "confirmed": self.stats.confirmed,
+               "silent": silent}
+        runner.journal.append(rec)
+        runner.state.codes.append(rec)
+        if silent:
+            logger.warning(f"{len(silent)} motes did not confirm their code (first: {silent[0]}); "
+                           "they are read the sequential way if no camera decodes them")
+
+    def stop_codes(self, runner: SurveyRunner) -> None:
+        from fgloc.drivers.tinyos.blink import BlinkCommand
+
+        self._broadcast(BlinkCommand(start=False), set())
+        runner.journal.append({"type": "codes", "action": "stop"})
+
+    def progress(self, runner: SurveyRunner, views_done: int, views_total: int, t0: float) -> Progress:
+        st, cams = runner.state, self.rig.camera_ids
+        done = sum(1 for n in self.rig.node_ids
+                   if n in st.done or all(st.camera_finished(n, c, self.rig.repeats) for c in cams))
+        eta = None
+        if views_done:
+            eta = (views_total - views_done) * (time.perf_counter() - t0) / views_done
+        failures = len(st.not_found) + len(st.led_failed)
+        return Progress(done, len(self.rig.node_ids), len(st.observations), failures, eta, self.field_time().total)
+
+    def _finished_nodes(self, runner: SurveyRunner) -> int:
+        st = runner.state
+        return sum(1 for n in self.rig.node_ids
+                   if all(st.camera_finished(n, c, self.rig.repeats) for c in self.rig.camera_ids))
+
+    def run(self, runner: SurveyRunner) -> Survey:
+        """Run (or resume) the coded survey on ``runner``'s journal; returns the recorded survey."""
+        plans = {c: self.plan(c) for c in self.rig.camera_ids}
+        total = sum(len(v) for v in plans.values())
+        self.fallback = sum_times(FieldTime({k: float(v) for k, v in r["phases"].items()})
+                                  for r in runner.state.field_times if r.get("scope") == "fallback_node")
+        # the motes blink until the stop, which follows the last view: without a journaled stop
+        # (first run, or killed during the views) they are started (again; the codes need no sync)
+        todo = not any(r.get("action") == "stop" for r in runner.state.codes)
+        t0 = time.perf_counter()
+        emit = runner.on_progress or (lambda _p: None)
+        emit(self.progress(runner, 0, total, t0))
+        try:
+            with ThreadPoolExecutor(max_workers=len(self.rig.camera_ids), thread_name_prefix="camera") as pool:
+                if todo:
+                    self.start_codes(runner)
+                futures = [pool.submit(self.run_camera, runner, c, v) for c, v in plans.items()]
+                done_views = sum(1 for key in runner.state.views if key[2] == 0)
+                since = 0
+                while not all(f.done() for f in futures) or not self._events.empty():
+                    try:
+                        self._events.get(timeout=0.05)
+                    except queue.Empty:
+                        continue
+                    done_views, since = done_views + 1, since + 1
+                    if since >= runner.live_every:
+                        since = 0
+                        runner.estimate(nodes_done=self._finished_nodes(runner))
+                    emit(self.progress(runner, min(done_views, total), total, t0))
+                for f in futures:
+                    f.result()
+                self.stop_codes(runner)
+                self.run_fallback(runner, pool, total, t0)
+                if self.rig.repeat_budget > 0:
+                    from fgloc.survey.repeats import run_repeats
+
+                    run_repeats(runner, pool)
+                runner.estimate(nodes_done=len(runner.state.done))
+        finally:
+            for w in runner.workers.values():
+                try:
+                    w.close()
+                except Exception:  # noqa: BLE001 - closing a dead link must not lose the survey
+                    pass
+        s = self.stats
+        if s.ambiguous or s.duplicate or s.unassigned:
+            logger.warning(f"refused blobs: {s.ambiguous} ambiguous (LEDs closer than the detector separates), "
+                           f"{s.duplicate} duplicate IDs, {s.unassigned} codes no mote runs; never guessed "
+                           f"(recorded again zoomed in where the rig can; {s.fallback_nodes} nodes measured "
+                           "the sequential way)")
+        ft = self.field_time()
+        runner.journal.field_time("survey", dict(ft.phases))
+        runner.field_time = ft
+        emit(self.progress(runner, total, total, t0))
+        return journal_to_survey(runner.state)
+
+    def run_fallback(self, runner: SurveyRunner, pool: ThreadPoolExecutor, total: int, t0: float) -> None:
+        """Finish every node some camera has not read. A camera whose views left no blob
+        unexplained did not see a mote that confirmed its code: that is journaled ``not_found``
+        without a search. The rest (and motes that never confirmed) are measured the
+        sequential way, priced per node."""
+        st = runner.state
+        clean = {c for c in self.rig.camera_ids if self.remaining.get(c, 1) == 0}
+        starts = [set(r.get("silent", [])) for r in st.codes if r.get("action") == "start"]
+        silent = set.intersection(*starts) if starts else set(self.rig.node_ids)  # never confirmed a start
+        for node in self.rig.node_ids:
+            if node in st.done:
+                continue
+            if node not in silent:
+                for cam in sorted(clean):
+                    if not st.camera_finished(node, cam, self.rig.repeats):
+                        reason = "not decoded in any view of the camera, which left no blob unexplained"
+                        runner.journal.not_found(node, cam, reason)
+                        st.not_found[(node, cam)] = reason
+                        runner.stats.not_found += 1
+                        logger.info(f"{node}: not found by {cam}: {reason}")
+            if all(st.camera_finished(node, c, self.rig.repeats) for c in self.rig.camera_ids):
+                runner.journal.node_done(node)
+                st.done.add(node)
+                continue
+            self.stats.fallback_nodes += 1
+            logger.info(f"{node}: not decoded by every camera; measured the sequential way")
+            self.sink.take()
+            self.sink.active, before = True, self.leds.commands
+            grids = {c: w.locator.cells for c, w in runner.workers.items()}
+            try:
+                for cam, worker in runner.workers.items():
+                    blobs = self.blobs.get(cam)
+                    if node not in silent and blobs is not None:
+                        # a mote that blinks its code and was not decoded is in a blob no reading
+                        # explains (or not in view): look there only, not over the whole grid
+                        worker.locator.cells = [worker.locator.clamp(p, t) for p, t in blobs]
+                runner.run_node(node, pool, check_misses=False)
+            finally:
+                self.sink.active = False
+                for cam, worker in runner.workers.items():
+                    worker.locator.cells = grids[cam]
+            node_time = node_field_time(self.sink.take(), self.leds.commands - before, self.rig.search.led_wait_s,
+                                        self.timing)
+            runner.journal.field_time("fallback_node", dict(node_time.phases), node=node)
+            self.fallback = self.fallback + node_time
+            if runner.on_progress is not None:
+                runner.on_progress(self.progress(runner, total, total, t0))
