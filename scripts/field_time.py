@@ -7,7 +7,7 @@ towards the square's centre. Both surveys search the same region: the pan-tilt b
 Camera: 640 x 480, 65 deg horizontal field of view (EVI-D100 wide end).
 
     OPENBLAS_NUM_THREADS=1 .venv/bin/python scripts/field_time.py --miss-rate Q [--frames] [--sync] [--need 2] \
-        [--old] [--unicast] [--head EVI-D100] [--sizes 100x2,1000x4]
+        [--old] [--unicast] [--separate zoom|radio|best] [--head EVI-D100] [--sizes 100x2,1000x4]
 
 ``--miss-rate`` is the per-decode miss rate of isolated motes measured by
 scripts/blink_montecarlo.py for the same video and book. The coded survey (``Variant``):
@@ -24,7 +24,11 @@ scripts/blink_montecarlo.py for the same video and book. The coded survey (``Var
   not), on the cheapest, per camera, of the zoom ladders ``LADDERS`` priced on the
   clock (``--fixed-ladder``: ``--levels`` only); with ``--need 2``, only where fewer
   than two other cameras resolve the mote;
-* ends at its last recording (``--zoom-out``: zooms back out first).
+* ends at its last recording (``--zoom-out``: zooms back out first);
+* ``--separate radio``: separates crowded motes in time instead (colour the conflict graph,
+  pause the other classes by radio, re-record wide views per class,
+  :func:`fgloc.survey.field_plans.radio_separation`); ``--separate best``: the cheapest
+  subset of cameras doing so (the others zoom), on the clock. Default ``zoom``.
 
 ``--old`` prices the previous plan (rotation-free book, burst retries of wide views only,
 separate tiles on the fixed ladder, zoom-out). The sequential column is the same in

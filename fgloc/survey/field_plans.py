@@ -19,6 +19,14 @@ separate at the survey zoom are recorded again in refinement passes at the lowes
 that separates them (:func:`fgloc.survey.view_planner.plan_refinement`,
 :func:`refinement_ops`), retried with ``refine_retry_fraction``.
 
+**Radio separation** (optional, :func:`radio_separation`, ``radio_rounds`` of
+:func:`coded_survey_time`): instead of zooming, crowded motes are separated in time. The
+conflict graph (two motes too close in some camera's wide view) is coloured; per colour
+class one pause-by-bitmap update (``drivers/tinyos/blink.py`` ``BlinkPause``) darkens the
+other classes' conflicting motes and each camera re-records, at the wide zoom, the views
+holding its conflicting motes of that class (:func:`radio_round_time`). Motes beside a
+static light still go to zoom refinement.
+
 Angles radians, times seconds.
 """
 
