@@ -28,7 +28,7 @@ Frames are grayscale uint8 (H, W); timestamps are seconds on the camera host's c
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -99,6 +99,20 @@ def motes_with_codes(
         out.append(BlinkingMote(node, np.asarray(positions[node], float), np.asarray(codes[node], np.uint8),
                                 bit_period_s * (1.0 + 1e-6 * ppm), -rng.uniform(0.0, start_spread_s)))
     return out
+
+
+def motes_lit(
+    lit: Mapping[int, tuple[int, int]], positions: Mapping[int, np.ndarray], bit_period_s: float,
+    rng: np.random.Generator, ppm_sd: float = 50.0, start_spread_s: float = 10.0,
+) -> list[BlinkingMote]:
+    """The motes a blink field shows: ``lit[address] = (length, code)`` (e.g.
+    ``BlinkField.lit()``: running and not paused; a paused mote is dark, so it is not
+    rendered), each at ``positions[address]``, started as in :func:`motes_with_codes`."""
+    nodes = [a for a in sorted(lit) if a in positions]
+    codes = {f"{a}": np.array([(lit[a][1] >> (lit[a][0] - 1 - i)) & 1 for i in range(lit[a][0])], np.uint8)
+             for a in nodes}
+    return motes_with_codes({f"{a}": np.asarray(positions[a], float) for a in nodes}, codes, bit_period_s, rng,
+                            ppm_sd, start_spread_s)
 
 
 def motes_synchronized(

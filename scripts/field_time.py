@@ -7,7 +7,7 @@ towards the square's centre. Both surveys search the same region: the pan-tilt b
 Camera: 640 x 480, 65 deg horizontal field of view (EVI-D100 wide end).
 
     OPENBLAS_NUM_THREADS=1 .venv/bin/python scripts/field_time.py --miss-rate Q [--frames] [--sync] [--need 2] \
-        [--old] [--unicast] [--head EVI-D100] [--sizes 100x2,1000x4]
+        [--old] [--unicast] [--separate zoom|radio|best] [--head EVI-D100] [--sizes 100x2,1000x4]
 
 ``--miss-rate`` is the per-decode miss rate of isolated motes measured by
 scripts/blink_montecarlo.py for the same video and book. The coded survey (``Variant``):
@@ -24,7 +24,11 @@ scripts/blink_montecarlo.py for the same video and book. The coded survey (``Var
   not), on the cheapest, per camera, of the zoom ladders ``LADDERS`` priced on the
   clock (``--fixed-ladder``: ``--levels`` only); with ``--need 2``, only where fewer
   than two other cameras resolve the mote;
-* ends at its last recording (``--zoom-out``: zooms back out first).
+* ends at its last recording (``--zoom-out``: zooms back out first);
+* ``--separate radio``: separates crowded motes in time instead (colour the conflict graph,
+  pause the other classes by radio, re-record wide views per class,
+  :func:`fgloc.survey.field_plans.radio_separation`); ``--separate best``: the cheapest
+  subset of cameras doing so (the others zoom), on the clock. Default ``zoom``.
 
 ``--old`` prices the previous plan (rotation-free book, burst retries of wide views only,
 separate tiles on the fixed ladder, zoom-out). The sequential column is the same in
@@ -46,9 +50,11 @@ from fgloc.core.geometry import bearing_pan_tilt, rot_z, world_to_base
 from fgloc.core.model import CameraPose
 from fgloc.survey.clock import HEAD_MODELS, CameraTiming, RigTiming, price
 from fgloc.survey.field_plans import (
+    CodedTime,
     SequentialTime,
     coded_survey_time,
     frames_for,
+    radio_separation,
     refinement_ops,
     sequential_survey_time,
 )
@@ -88,6 +94,9 @@ class Variant:
     need: int = 0  #: refine a mote only where fewer than this many other cameras resolve it (0: always)
     share_tiles: bool = True  #: a higher-zoom refinement tile also serves lower-zoom targets it covers
     pick_ladder: bool = True  #: per camera, the zoom ladder of LADDERS whose refinement is cheapest on the clock
+    #: crowded motes: "zoom" refinement only; "radio": every camera pauses colour classes and
+    #: re-records its wide views; "best": the cheapest subset of cameras doing so, on the clock
+    separate: str = "zoom"
 
 
 _SEQUENTIAL: dict[tuple[int, int, int, RigTiming], SequentialTime] = {}
@@ -114,13 +123,11 @@ def run(n_motes: int, n_cams: int, timing: RigTiming, miss_rate: float, seed: in
     intr = CameraIntrinsics.from_fov(640, 480, 65.0)
     cams = cameras(n_cams)
     bearings, searches, views = {}, {}, {}
-    refine: dict[str, list[RefinePass]] = {}
     book = sync_code_book(n_motes) if variant.sync else code_book(n_motes)
     k = frames_for(book.length, periods)
     fields = variant.fields and timing.head.interlaced
     coded_timing = replace(timing, camera=timing.camera.at_field_rate()) if fields else timing
-    retry_views = refine_retry = 0.0
-    unresolved = 0
+    retry_views = 0.0
     pts: dict[str, np.ndarray] = {}
     for c, pose in cams.items():
         d = world_to_base(pose.rotation, pose.position, nodes)
@@ -133,41 +140,81 @@ def run(n_motes: int, n_cams: int, timing: RigTiming, miss_rate: float, seed: in
         retry_views += _retry_fraction(intr, pts[c], views[c], miss_rate) / n_cams
     resolved = {c: neighbour_px(pts[c], intr, fields) >= SEPARATION_PX for c in cams}
     needed = needed_from(resolved, variant.need) if variant.need else {c: None for c in cams}
-    n_refine = 0
     extend = variant.extend * book.length
     retry_frames = book.length if variant.continuous_retry else None
-    for c in cams:
+
+    def zoom_refine(c: str, need_c: np.ndarray | None) -> tuple[list[RefinePass], int, float, int]:
+        """The cheapest ladder's refinement of camera ``c``: passes, lost, retry fraction, views."""
         best = math.inf
         for ladder in (LADDERS if variant.pick_ladder else (levels,)):
             passes, lost = plan_refinement(intr, pts[c], SEPARATION_PX, ladder, start=views[c][-1],
-                                           field_rows=fields, needed=needed[c], share_tiles=variant.share_tiles)
+                                           field_rows=fields, needed=need_c, share_tiles=variant.share_tiles)
             nv = sum(len(rp.views) for rp in passes)
             q = sum(_retry_fraction(intr.at_zoom(rp.zoom), pts[c], rp.views, miss_rate) * len(rp.views)
                     for rp in passes) / max(nv, 1)
             cost = price(refinement_ops(passes, k, views[c][-1], q if variant.retry_refinement else 0.0, extend,
                                         retry_frames, variant.zoom_out), coded_timing).total
             if cost < best:  # the cheapest ladder on the clock (ties: the first)
-                best, refine[c], lost_c, q_c, nv_c = cost, passes, lost, q, nv
-        unresolved += lost_c
-        refine_retry += q_c * nv_c
-        n_refine += nv_c
-    refine_retry /= max(n_refine, 1)
+                best, out = cost, (passes, lost, q, nv)
+        return out
+
+    cache: dict[tuple[str, bool], tuple[list[RefinePass], int, float, int]] = {}
+
+    def plan(radio_cams: tuple[str, ...]) -> dict[str, object]:
+        """Refinement (and radio separation for ``radio_cams``) priced on the clock."""
+        sep = radio_separation(intr, pts, views, SEPARATION_PX, radio_cams, fields, needed) if radio_cams else None
+        refine: dict[str, list[RefinePass]] = {}
+        unresolved = n_refine = 0
+        refine_retry = 0.0
+        for c in cams:
+            need_c = needed[c] if sep is None or c not in radio_cams else sep.leftover[c]
+            key = (c, sep is not None and c in radio_cams)  # a camera's leftover depends on it alone
+            if key not in cache:
+                cache[key] = zoom_refine(c, need_c)
+            refine[c], lost_c, q_c, nv_c = cache[key]
+            unresolved += lost_c
+            refine_retry += q_c * nv_c
+            n_refine += nv_c
+        refine_retry /= max(n_refine, 1)
+        radio_retry, n_round = 0.0, 0
+        if sep is not None:
+            for c, rs in sep.rounds.items():
+                for rr in rs:
+                    radio_retry += sum(1.0 - (1.0 - miss_rate) ** m for m in rr.view_targets)
+                    n_round += len(rr.views)
+            radio_retry /= max(n_round, 1)
+        coded = coded_survey_time(
+            views, n_motes, k, coded_timing, retry_fraction=retry_views, refine=refine,
+            broadcast_start=variant.broadcast, start_broadcasts=3, extend_frames=extend, retry_frames=retry_frames,
+            refine_retry_fraction=refine_retry if variant.retry_refinement else 0.0, zoom_out=variant.zoom_out,
+            resync_s=RESYNC_S if variant.sync else None, radio_rounds=sep.rounds if sep else None,
+            pause_broadcasts=sep.pause_broadcasts if sep else 3,
+            radio_retry_fraction=radio_retry if variant.retry_refinement else 0.0)
+        return {"coded": coded, "unresolved": unresolved, "refine_retry": refine_retry, "radio_cams": radio_cams,
+                "classes": sep.classes if sep else 0, "round_views": n_round, "radio_retry": radio_retry}
+
+    if variant.separate == "zoom":
+        choices: list[tuple[str, ...]] = [()]
+    elif variant.separate == "radio":
+        choices = [tuple(cams)]
+    else:  # best: every subset of cameras separating by radio, the cheapest on the clock
+        choices = [tuple(c for i, c in enumerate(cams) if m >> i & 1) for m in range(2 ** len(cams))]
+    plans = [plan(ch) for ch in choices]
+    chosen = min(plans, key=lambda pl: pl["coded"].time.total)  # type: ignore[attr-defined]
+    coded = chosen["coded"]
+    assert isinstance(coded, CodedTime)
     key = (n_motes, n_cams, seed, timing)
     if key not in _SEQUENTIAL:  # the same in every variant
         _SEQUENTIAL[key] = sequential_survey_time(bearings, intr, searches, timing)
     seq = _SEQUENTIAL[key]
-    # the start broadcast is sent three times (a running mote ignores a repeat); a mote that
-    # missed all three is a miss, retried like the decoder's misses
-    coded = coded_survey_time(
-        views, n_motes, k, coded_timing, retry_fraction=retry_views, refine=refine,
-        broadcast_start=variant.broadcast, start_broadcasts=3, extend_frames=extend, retry_frames=retry_frames,
-        refine_retry_fraction=refine_retry if variant.retry_refinement else 0.0, zoom_out=variant.zoom_out,
-        resync_s=RESYNC_S if variant.sync else None)
     return {
         "seq": seq.time.total, "seq_desc": seq.time.describe(), "coded": coded.time.total,  # type: ignore[dict-item]
         "coded_desc": coded.time.describe(), "views": sum(coded.views.values()) / n_cams,  # type: ignore[dict-item]
         "L": book.length, "K": k + variant.extend * book.length, "refine": coded.refinements, "retry": retry_views,
-        "refine_retry": refine_retry, "missing": seq.not_found, "unresolved": unresolved,
+        "refine_retry": chosen["refine_retry"], "missing": seq.not_found,  # type: ignore[dict-item]
+        "unresolved": chosen["unresolved"], "radio_cams": ",".join(chosen["radio_cams"]) or "-",  # type: ignore
+        "classes": chosen["classes"], "round_views": chosen["round_views"],  # type: ignore[dict-item]
+        "radio_retry": chosen["radio_retry"],  # type: ignore[dict-item]
         "rate": coded_timing.camera.frame_rate_hz, "phases": coded.time.phases,  # type: ignore[dict-item]
         "seq_phases": seq.time.phases,  # type: ignore[dict-item]
     }
@@ -187,6 +234,9 @@ def main() -> None:
     ap.add_argument("--zoom-out", action="store_true", help="zoom back out after the last refinement pass")
     ap.add_argument("--separate-tiles", action="store_true", help="each zoom level tiles only its own targets")
     ap.add_argument("--fixed-ladder", action="store_true", help="refine on --levels only, not the cheapest of LADDERS")
+    ap.add_argument("--separate", default="zoom", choices=("zoom", "radio", "best"),
+                    help="crowded motes: zoom refinement, radio separation (pause colour classes, re-record wide "
+                    "views), or per camera the cheaper on the clock")
     ap.add_argument("--need", type=int, default=0,
                     help="refine a mote only where fewer than this many other cameras resolve it (0: always)")
     ap.add_argument("--old", action="store_true", help="the previous plan: rotation-free book, burst retries of "
@@ -200,19 +250,22 @@ def main() -> None:
     variant = Variant(fields=not args.frames, broadcast=not args.unicast, sync=args.sync,
                       extend=args.extend, continuous_retry=not args.burst_retry,
                       retry_refinement=not args.no_refine_retry, zoom_out=args.zoom_out, need=args.need,
-                      share_tiles=not args.separate_tiles, pick_ladder=not args.fixed_ladder)
+                      share_tiles=not args.separate_tiles, pick_ladder=not args.fixed_ladder,
+                      separate=args.separate)
     if args.old:
         variant = replace(OLD, fields=not args.frames, broadcast=not args.unicast)
     print(f"head {args.head}, {args.fps:.2f} frames/s, miss rate {args.miss_rate}, refinement zooms {levels}, {variant}")
     print("| motes | cameras | sequential (s) | coded (s) | speed-up | L | samples/view | decode rate (Hz) | "
-          "views/camera | refinement views | retried views (wide / refinement) | unresolved |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+          "views/camera | refinement views | retried views (wide / refinement) | unresolved | "
+          "radio cameras | colour classes | radio round views (retry) |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for size in args.sizes.split(","):
         n, c = (int(x) for x in size.split("x"))
         r = run(n, c, timing, args.miss_rate, variant=variant, levels=levels, periods=args.periods)
         print(f"| {n} | {c} | {r['seq']:.1f} | {r['coded']:.1f} | {r['seq'] / r['coded']:.1f}x | {r['L']} | "
               f"{r['K']} | {r['rate']:.2f} | {r['views']:.1f} | {r['refine']} | {r['retry']:.2f} / "
-              f"{r['refine_retry']:.2f} | {r['unresolved']} |")
+              f"{r['refine_retry']:.2f} | {r['unresolved']} | {r['radio_cams']} | {r['classes']} | "
+              f"{r['round_views']} ({r['radio_retry']:.2f}) |")
         print(f"|   | sequential phases: {r['seq_desc']} (not found {r['missing']}) |||||||||||")
         print(f"|   | coded phases: {r['coded_desc']} |||||||||||")
 

@@ -117,3 +117,46 @@ def test_continuous_frames_retries_extensions_and_resync_by_hand() -> None:
     wide0 = (0.05 + view0) + 3 * (EVI_D100.slew_time(d10, 0.0) + view0) + 2 * burst0
     fine0 = 0.5 * 2.0 * 2 + 2 * (EVI_D100.slew_time(0.0, d10) + view0)
     assert old.time.total == pytest.approx(wide0 + fine0 + 4 * 0.01)
+
+
+def test_radio_separation_plan_by_hand() -> None:
+    from fgloc.survey.field_plans import coded_survey_time
+    from fgloc.survey.view_planner import RadioRound, RefinePass
+
+    cam = CameraTiming(frame_rate_hz=50.0, grab_latency_s=0.04)
+    timing = RigTiming(head=EVI_D100, camera=cam, radio=RadioTiming(unicast_s=0.03, broadcast_s=0.01))
+    d10 = math.radians(10.0)
+    views = {"a": [(0.0, 0.0), (d10, 0.0)], "b": [(0.0, 0.0)]}
+    # class 0: a re-records its first view, b nothing; class 1: a its second view, b its only view
+    rounds = {"a": [RadioRound(0, [(0.0, 0.0)], (2,)), RadioRound(1, [(d10, 0.0)], (2,))],
+              "b": [RadioRound(0, [], ()), RadioRound(1, [(0.0, 0.0)], (3,))]}
+    refine = {"b": [RefinePass(0.5, [(0.0, -d10)], 1)]}  # a mote beside a lamp, zoomed in b
+    ct = coded_survey_time(views, 100, 20, timing, refine=refine, start_broadcasts=3, retry_frames=8,
+                           zoom_out=False, radio_rounds=rounds, pause_broadcasts=6, radio_retry_fraction=0.5)
+    burst = 0.01 + 20 * 0.02 + 0.04
+    view = 0.1 + 0.04 + burst  # settle, read, frames
+    pan10 = EVI_D100.slew_time(d10, 0.0)
+    wide = max((0.05 + view) + (pan10 + view), 0.05 + view)  # a is the slower lane
+    # round 0: pause update (6 broadcasts), a slews back 10 deg and records; b idle
+    round0 = 6 * 0.01 + (pan10 + view)
+    # round 1: a slews 10 deg and records, b records without moving (command only); a's
+    # retries: round(0.5 x 2) = 1 of its two views, placed on the running count (0 after
+    # round 0, 1 after round 1); b: round(0.5 x 1) = 0 (round half to even)
+    a1 = pan10 + view + 8 * 0.02
+    b1 = 0.05 + view
+    round1 = 6 * 0.01 + max(a1, b1)
+    resume = 6 * 0.01  # one resume update before the zoom refinement
+    fine = 0.5 * 2.0 + EVI_D100.slew_time(0.0, d10) + view  # b zooms in from its last round view
+    radio = 3 * 0.01 + 0.01  # start (three broadcasts) and stop
+    assert ct.time.total == pytest.approx(radio + wide + round0 + round1 + resume + fine)
+    assert sum(ct.time.phases.values()) == pytest.approx(ct.time.total)
+    assert ct.time.phases["separate"] == pytest.approx(round0 + round1 - 2 * 6 * 0.01)
+    assert ct.time.phases["radio"] == pytest.approx(radio + 3 * 6 * 0.01)
+    # no refinement after the rounds: no resume update
+    bare = coded_survey_time(views, 100, 20, timing, start_broadcasts=3, retry_frames=8, radio_rounds=rounds,
+                             pause_broadcasts=6, radio_retry_fraction=0.5)
+    assert bare.time.total == pytest.approx(radio + wide + round0 + round1)
+    # rounds without views change nothing: the plan without radio separation
+    empty = {"a": [RadioRound(0, [], ())]}
+    assert coded_survey_time(views, 100, 20, timing, radio_rounds=empty).time.total == pytest.approx(
+        coded_survey_time(views, 100, 20, timing).time.total)

@@ -122,3 +122,96 @@ def test_needed_from_two_and_four_cameras() -> None:
     crowded = neighbour_px(pt, intr) < 4.0
     passes, lost = plan_refinement(intr, pt, 4.0, needed=~crowded)  # none needed: nothing refined or lost
     assert passes == [] and lost == 0
+
+
+def _scene(seed: int, n: int) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    return np.column_stack([rng.uniform(-0.6, 0.6, n), rng.uniform(-0.3, 0.05, n)])
+
+
+def test_colouring_separates_every_conflicting_pair() -> None:
+    from fgloc.survey.view_planner import colour_conflicts, conflict_pairs
+
+    intr = CameraIntrinsics.from_fov(640, 480, 65.0)
+    for seed in range(40):  # random crowded scenes, frames and fields, plus random extra edges
+        pt = _scene(seed, 60 + 10 * seed)
+        pairs = conflict_pairs(pt, intr, 8.0, field_rows=seed % 2 == 1)
+        d = neighbour_px(pt, intr, field_rows=seed % 2 == 1)
+        in_pair = np.zeros(len(pt), bool)
+        in_pair[pairs.ravel()] = True
+        assert np.array_equal(in_pair, d < 8.0)  # the pairs are exactly the crowded targets' conflicts
+        rng = np.random.default_rng(seed)
+        extra = rng.integers(0, len(pt), (seed, 2))
+        allp = np.vstack([pairs, extra[extra[:, 0] != extra[:, 1]]])
+        colour = colour_conflicts(len(pt), allp)
+        assert np.all(colour[allp[:, 0]] != colour[allp[:, 1]])
+        assert np.all(colour[allp.ravel()] >= 0)
+        lonely = np.setdiff1d(np.arange(len(pt)), allp.ravel())
+        assert np.all(colour[lonely] == -1)
+
+
+def test_bipartite_conflicts_get_two_colours() -> None:
+    from fgloc.survey.view_planner import colour_conflicts
+
+    rng = np.random.default_rng(3)
+    for _ in range(30):
+        n = int(rng.integers(4, 60))
+        side = rng.integers(0, 2, n)
+        a, b = np.flatnonzero(side == 0), np.flatnonzero(side == 1)
+        if not len(a) or not len(b):
+            continue
+        pairs = np.column_stack([rng.choice(a, 3 * n), rng.choice(b, 3 * n)])
+        colour = colour_conflicts(n, pairs)
+        assert colour.max() == 1 and np.all(colour[pairs[:, 0]] != colour[pairs[:, 1]])
+    odd = np.array([[0, 1], [1, 2], [2, 0]])  # a triangle needs three
+    assert sorted(colour_conflicts(3, odd).tolist()) == [0, 1, 2]
+
+
+def test_radio_rounds_cover_each_class_and_pause_separates() -> None:
+    from fgloc.survey.field_plans import radio_separation
+    from fgloc.survey.view_planner import conflict_pairs
+
+    intr = CameraIntrinsics.from_fov(640, 480, 65.0)
+    for seed in range(12):
+        rng = np.random.default_rng(100 + seed)
+        base = _scene(seed, 150)
+        pts = {"a": base, "b": base[:, ::-1] * np.array([1.0, 0.4]) + rng.normal(0, 0.01, base.shape)}
+        views = {c: plan_views(intr, p) for c, p in pts.items()}
+        sep = radio_separation(intr, pts, views, 6.0, ("a", "b"))
+        for c, p in pts.items():
+            pairs = conflict_pairs(p, intr, 6.0)
+            # lit together in no round: the two motes of a pair never share a class
+            assert np.all(sep.colour[pairs[:, 0]] != sep.colour[pairs[:, 1]])
+            assert not sep.leftover[c].any()
+            rounds = sep.rounds[c]
+            assert len(rounds) == sep.classes
+            for rr in rounds:
+                want = np.zeros(len(p), bool)
+                want[pairs.ravel()] = True
+                want &= sep.colour == rr.colour
+                if rr.views:
+                    seen = coverage(intr, p, np.array(rr.views), 12.0).any(axis=0)
+                    assert np.all(seen[want]), "every conflicting mote of the class is re-recorded"
+                else:
+                    assert not want.any()
+                assert len(rr.view_targets) == len(rr.views) and all(k > 0 for k in rr.view_targets)
+
+
+def test_mote_beside_a_lamp_goes_to_zoom() -> None:
+    from fgloc.survey.field_plans import radio_separation
+
+    intr = CameraIntrinsics.from_fov(640, 480, 65.0)
+    px = 1.0 / intr.fx  # about one pixel of pan at tilt 0
+    pt = np.array([[0.0, 0.0], [2 * px, 0.0], [0.3, 0.0], [0.3 + 2 * px, 0.0], [-0.3, 0.0]])
+    lamp = np.array([[-0.3 + 2 * px, 0.0]])
+    views = [(0.0, 0.0)]
+    sep = radio_separation(intr, {"a": pt}, {"a": views}, 4.0, ("a",), lamps={"a": lamp})
+    assert sep.colour[0] != sep.colour[1] and sep.colour[2] != sep.colour[3] and sep.colour[4] == -1
+    assert sep.leftover["a"].tolist() == [False, False, False, False, False]  # no mote crowds mote 4
+    # a lamp beside a crowded pair: both motes of the pair go to zoom, not to a colour class
+    pt2 = np.vstack([pt, [[-0.3 + 4 * px, 0.0]]])
+    sep2 = radio_separation(intr, {"a": pt2}, {"a": views}, 4.0, ("a",), lamps={"a": lamp})
+    assert sep2.leftover["a"].tolist() == [False, False, False, False, True, True]
+    assert sep2.colour[4] == -1 and sep2.colour[5] == -1
+    zoomed = radio_separation(intr, {"a": pt}, {"a": views}, 4.0, ())
+    assert zoomed.leftover["a"].tolist() == [True, True, True, True, False] and not zoomed.rounds

@@ -47,6 +47,27 @@ same word re-aligns its bit clock to that moment (the base station repeats the
 packet at whole words of the nominal schedule, so the re-alignment only removes
 crystal drift). Old payloads (0x00, 0x01, 0x02) are unchanged.
 
+**Pause by bitmap** (radio separation of crowded motes, :class:`BlinkPause`), PC -> all
+nodes, the same AM type ``0x8B``, dest ``0xFFFF`` only, payload ``4 + B`` bytes::
+
+    offset size field
+    0      1    command      0x04 pause by bitmap
+    1      1    B            bitmap length in bytes, 1..24 (payload <= 28 bytes, TinyOS's
+                             default TOSH_DATA_LENGTH)
+    2      2    first        address of bitmap bit 0
+    4      B    bitmap       bit k (byte k // 8, most significant bit first) is address
+                             first + k: 1 paused, 0 running (resumed)
+
+A node whose address the bitmap covers sets its *paused* flag from its bit; others
+ignore the packet. A paused node keeps its word and its bit clock running but keeps
+the LED dark; a resumed node lights its LED again from the current bit (the book is
+rotation-free, so the phase does not matter). "Resume" is the same packet with the
+node's bit 0. Nodes send no report (a pause is repeated instead: nobody waits for
+hundreds of reports); a node that missed every repeat stays lit, its blob stays
+ambiguous and is refused by the decoder, never guessed. A stop or a unicast start
+clears the flag. Up to 192 addresses per packet (:func:`pause_packets` splits a range).
+All earlier payloads (0x00-0x03) are unchanged.
+
 Example (protocols.md 3.4 framing): start node 5 with the 16-bit word 0x0A5F at
 33.37 ms per bit until stopped, seq 0x01::
 
@@ -56,6 +77,7 @@ Example (protocols.md 3.4 framing): start node 5 with the 16-bit word 0x0A5F at
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 from fgloc.camera.blink_codes import CodeBook
@@ -65,6 +87,8 @@ from fgloc.drivers.tinyos.messages import AM_BROADCAST, DEFAULT_GROUP, AmPacket
 AM_BLINK_CODE = 0x8B
 AM_BLINK_REPORT = 0x8C
 BLINK_STOP, BLINK_START, BLINK_START_BY_ADDRESS, BLINK_START_SYNCHRONIZED = 0x00, 0x01, 0x02, 0x03
+BLINK_PAUSE = 0x04
+PAUSE_MAX_BYTES = 24  #: bitmap bytes per pause packet (4 + 24 = 28 bytes of payload)
 MAX_CODE_BITS = 32
 BIT_PERIOD_UNIT_S = 1e-5
 
@@ -156,7 +180,59 @@ class BlinkBroadcast:
         return k if 0 <= k < self.count else None
 
 
-def blink_broadcast(command: BlinkBroadcast | BlinkCommand, src: int = 0, group: int = DEFAULT_GROUP) -> AmPacket:
+@dataclass(frozen=True)
+class BlinkPause:
+    """Pause by bitmap: of addresses ``first .. first + 8 nbytes - 1``, those in ``paused``
+    pause (LED dark, word and bit clock kept) and the others resume."""
+
+    first: int
+    nbytes: int
+    paused: frozenset[int] = frozenset()
+
+    def covers(self, address: int) -> bool:
+        return self.first <= address < self.first + 8 * self.nbytes
+
+    def payload(self) -> bytes:
+        """The ``4 + nbytes``-byte payload (see the module docstring)."""
+        if not 1 <= self.nbytes <= PAUSE_MAX_BYTES:
+            raise ValueError(f"pause bitmap of {self.nbytes} bytes not in 1..{PAUSE_MAX_BYTES}")
+        if not 0 <= self.first or self.first + 8 * self.nbytes > 0xFFFF:
+            raise ValueError(f"pause addresses {self.first} + {8 * self.nbytes} not in 0..0xFFFE")
+        outside = sorted(a for a in self.paused if not self.covers(a))
+        if outside:
+            raise ValueError(f"paused addresses {outside[:3]} outside the bitmap")
+        bits = bytearray(self.nbytes)
+        for a in self.paused:
+            k = a - self.first
+            bits[k // 8] |= 0x80 >> (k % 8)
+        return bytes([BLINK_PAUSE, self.nbytes]) + self.first.to_bytes(2, "big") + bytes(bits)
+
+    @staticmethod
+    def from_payload(payload: bytes) -> BlinkPause:
+        """Inverse of :meth:`payload`; MoteProtocolError on a malformed payload."""
+        if len(payload) < 5 or payload[0] != BLINK_PAUSE or not 1 <= payload[1] <= PAUSE_MAX_BYTES \
+                or len(payload) != 4 + payload[1]:
+            raise MoteProtocolError(f"not a pause payload: {payload.hex(' ')}")
+        nbytes = payload[1]
+        first = int.from_bytes(payload[2:4], "big")
+        if first + 8 * nbytes > 0xFFFF:
+            raise MoteProtocolError(f"pause: addresses beyond 0xFFFE: {payload.hex(' ')}")
+        paused = frozenset(first + k for k in range(8 * nbytes) if payload[4 + k // 8] & (0x80 >> (k % 8)))
+        return BlinkPause(first, nbytes, paused)
+
+
+def pause_packets(paused: set[int] | frozenset[int], addresses: range) -> list[BlinkPause]:
+    """The fewest pause packets that set every address of ``addresses`` (a step-1 range):
+    paused if in ``paused``, resumed otherwise (192 addresses per packet)."""
+    per = 8 * PAUSE_MAX_BYTES
+    out = []
+    for a0 in range(addresses.start, addresses.stop, per):
+        n = min(per, addresses.stop - a0)
+        out.append(BlinkPause(a0, math.ceil(n / 8), frozenset(a for a in paused if a0 <= a < a0 + n)))
+    return out
+
+
+def blink_broadcast(command: BlinkBroadcast | BlinkCommand | BlinkPause, src: int = 0, group: int = DEFAULT_GROUP) -> AmPacket:
     """The AM packet broadcasting a start by address, or a stop (``BlinkCommand(start=False)``), to all nodes."""
     if isinstance(command, BlinkCommand) and command.start:
         raise ValueError("a unicast start carries one node's word; broadcast a BlinkBroadcast instead")
@@ -177,12 +253,14 @@ def blink_command(node: int, command: BlinkCommand, src: int = 0, group: int = D
     return AmPacket(dest=node, src=src, am_type=AM_BLINK_CODE, payload=command.payload(), group=group)
 
 
-def parse_blink_command(packet: AmPacket) -> BlinkCommand | BlinkBroadcast | None:
+def parse_blink_command(packet: AmPacket) -> BlinkCommand | BlinkBroadcast | BlinkPause | None:
     """The command in ``packet``, or None when it is not a (well-formed) blink command.
-    A start by address is only valid broadcast (dest 0xFFFF)."""
+    A start by address and a pause are only valid broadcast (dest 0xFFFF)."""
     if packet.am_type != AM_BLINK_CODE:
         return None
     try:
+        if packet.payload[:1] == bytes([BLINK_PAUSE]):
+            return BlinkPause.from_payload(packet.payload) if packet.dest == AM_BROADCAST else None
         if packet.payload[:1] in (bytes([BLINK_START_BY_ADDRESS]), bytes([BLINK_START_SYNCHRONIZED])):
             return BlinkBroadcast.from_payload(packet.payload) if packet.dest == AM_BROADCAST else None
         return BlinkCommand.from_payload(packet.payload)
@@ -213,13 +291,20 @@ class BlinkField:
     ``running[node] = (length, code)`` for every node blinking. A unicast start runs the
     word it carries, a start by address runs the node's word of the generated book table,
     a stop (unicast or broadcast) stops; every node that acted sends its blink report.
-    ``nodes``: the addresses present (None: any address a command names exists).
+    A pause (:class:`BlinkPause`) sets ``paused`` for the addresses it covers (no report):
+    a paused node stays in ``running`` (its bit clock runs) but its LED is dark
+    (:meth:`lit`). ``nodes``: the addresses present (None: any address a command names exists).
     """
 
     def __init__(self, nodes: set[int] | None = None, silent: set[int] | None = None) -> None:
         self.nodes = nodes
         self.silent = silent or set()
         self.running: dict[int, tuple[int, int]] = {}
+        self.paused: set[int] = set()
+
+    def lit(self) -> dict[int, tuple[int, int]]:
+        """``(length, code)`` of the nodes whose LED blinks now: running and not paused."""
+        return {a: w for a, w in self.running.items() if a not in self.paused}
 
     def _present(self, node: int) -> bool:
         return (self.nodes is None or node in self.nodes) and node not in self.silent
@@ -228,6 +313,15 @@ class BlinkField:
         """Reports for one received AM packet (empty when it is no blink command)."""
         cmd = parse_blink_command(packet)
         if cmd is None:
+            return []
+        if isinstance(cmd, BlinkPause):
+            for a in range(cmd.first, cmd.first + 8 * cmd.nbytes):
+                if not self._present(a):
+                    continue
+                if a in cmd.paused:
+                    self.paused.add(a)
+                else:
+                    self.paused.discard(a)
             return []
         if isinstance(cmd, BlinkBroadcast):
             from fgloc.camera.blink_codes import code_book, sync_code_book
@@ -247,6 +341,7 @@ class BlinkField:
         for node in targets:
             if not self._present(node):
                 continue
+            self.paused.discard(node)
             if cmd.start:
                 self.running[node] = (cmd.length, cmd.code)
             else:

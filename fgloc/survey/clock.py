@@ -54,7 +54,7 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 
 #: Phase names used in reports, in display order.
-PHASES = ("slew", "settle", "centring", "frames", "position", "zoom", "radio", "led_wait")
+PHASES = ("slew", "settle", "centring", "frames", "position", "zoom", "radio", "led_wait", "separate")
 
 
 @dataclass(frozen=True)

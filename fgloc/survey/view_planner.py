@@ -189,3 +189,90 @@ def needed_from(resolved: dict[str, np.ndarray], cameras_needed: int = 2) -> dic
     cams = list(resolved)
     count = np.sum([np.asarray(resolved[c], dtype=bool) for c in cams], axis=0)
     return {c: count - np.asarray(resolved[c], dtype=int) < cameras_needed for c in cams}
+
+
+# ----- radio separation: crowded motes separated in time (pause by colour class) -------------------
+def conflict_pairs(pan_tilt: np.ndarray, intr: CameraIntrinsics, separation_px: float,
+                   field_rows: bool = False) -> np.ndarray:
+    """(E, 2) index pairs ``i < j`` of targets closer than ``separation_px`` to each other at
+    ``intr``'s focal lengths (tangent-plane distance, as :func:`neighbour_px`)."""
+    pt = np.asarray(pan_tilt, dtype=float)
+    if len(pt) < 2:
+        return np.zeros((0, 2), dtype=int)
+    fy = intr.fy / (2.0 if field_rows else 1.0)
+    dpan = np.remainder(pt[:, None, 0] - pt[None, :, 0] + math.pi, 2.0 * math.pi) - math.pi
+    dx = dpan * np.cos(0.5 * (pt[:, None, 1] + pt[None, :, 1])) * intr.fx
+    dy = (pt[:, None, 1] - pt[None, :, 1]) * fy
+    i, j = np.nonzero(np.triu(np.hypot(dx, dy) < separation_px, k=1))
+    return np.column_stack([i, j]).astype(int)
+
+
+def colour_conflicts(n: int, pairs: np.ndarray) -> np.ndarray:
+    """Greedy colouring (DSatur: next the target whose neighbours already use the most
+    colours, ties by degree then index; smallest free colour) of the conflict graph on
+    ``n`` targets with edges ``pairs``: (n,) colour per target, -1 for targets in no pair.
+    Adjacent targets always get different colours; a 2-colourable graph gets 2."""
+    colour = np.full(n, -1, dtype=int)
+    adj: dict[int, set[int]] = {}
+    for a, b in np.asarray(pairs, dtype=int).reshape(-1, 2).tolist():
+        if a != b:
+            adj.setdefault(a, set()).add(b)
+            adj.setdefault(b, set()).add(a)
+    seen: dict[int, set[int]] = {v: set() for v in adj}
+    left = set(adj)
+    while left:
+        v = max(left, key=lambda u: (len(seen[u]), len(adj[u]), -u))
+        c = next(c for c in range(len(seen[v]) + 1) if c not in seen[v])
+        colour[v] = c
+        left.discard(v)
+        for u in adj[v]:
+            seen[u].add(c)
+    return colour
+
+
+@dataclass(frozen=True)
+class RadioRound:
+    """One colour class of a radio separation, seen by one camera: the wide views it records
+    again while every other class's conflicting motes are paused."""
+
+    colour: int
+    views: list[tuple[float, float]]
+    view_targets: tuple[int, ...]  #: per view, the class's conflicting targets it is recorded for
+
+
+def plan_radio_rounds(
+    intr: CameraIntrinsics, pan_tilt: np.ndarray, views: list[tuple[float, float]], colour: np.ndarray,
+    targets: np.ndarray, margin_px: float = 12.0, start: tuple[float, float] = (0.0, 0.0),
+    replan: bool = True,
+) -> list[RadioRound]:
+    """Per colour class (ascending), the views at the wide zoom that together cover the
+    camera's ``targets`` (bool per target: the conflicting targets this camera must read)
+    of that class: a greedy set cover over its wide ``views``, or, with ``replan`` and when
+    it needs fewer views, new wide-zoom views planned around the class's targets alone
+    (:func:`plan_views`). Views in nearest-neighbour order from the head position (the
+    last view of the previous round). Classes with nothing to read here give a round
+    without views. Targets no wide view covers are left out (as :func:`plan_views`)."""
+    pt = np.asarray(pan_tilt, dtype=float)
+    if not views:
+        return []
+    rounds = []
+    here = start
+    for c in range(int(colour.max()) + 1 if colour.size else 0):
+        mine = np.asarray(targets, dtype=bool) & (colour == c)
+        cov = coverage(intr, pt, np.array(views), margin_px)
+        todo = mine & cov.any(axis=0)
+        chosen: list[tuple[float, float]] = []
+        while todo.any():
+            best = int(np.argmax((cov & todo).sum(axis=1)))
+            chosen.append(views[best])
+            todo &= ~cov[best]
+        if replan and mine.any():
+            fresh = plan_views(intr, pt[mine], margin_px, start=here)
+            if len(fresh) < len(chosen):
+                chosen = fresh
+        picked = _order(chosen, here)
+        counts = (tuple(int(x) for x in (coverage(intr, pt, np.array(picked), margin_px) & mine).sum(axis=1))
+                  if picked else ())
+        rounds.append(RadioRound(c, picked, counts))
+        here = picked[-1] if picked else here
+    return rounds
