@@ -132,6 +132,21 @@ def test_fisher_rank_per_parameter_group(mode: NodeMode, n_cameras: int) -> None
         assert np.all(np.isfinite(data_std[cid]))
 
 
+def test_observability_with_a_node_whose_readings_are_all_excluded() -> None:
+    """A node left with no reading after outlier exclusion (it stays in the estimate) used to make
+    GTSAM refuse the Jacobian's ordering: ``fgloc solve --head-model full`` died with a traceback."""
+    s = random_scene(RandomScene(n_cameras=3, n_nodes=60, visibility=1.0, ceiling_share=0.0,
+                                 height_range=(0.3, 0.6), seed=4))
+    est = InitialEstimate(cameras=dict(s.truth.cameras), nodes=dict(s.truth.nodes))
+    lost = s.observations[0].node
+    exclude = frozenset(i for i, o in enumerate(s.observations) if o.node == lost)
+    ranks, data_std = head_observability(s, est, exclude=exclude)
+    full, _ = head_observability(s, est)
+    assert ranks == full
+    for cid in s.camera_ids:
+        assert np.all(np.isfinite(data_std[cid]))
+
+
 def test_full_refuses_what_the_survey_cannot_determine_and_auto_pins_it() -> None:
     """Nine nodes, two cameras: 36 readings cannot fix 26 geometry and 14 head unknowns."""
     s = paper_scenario(PaperScenario(n_nodes=9, heights=(0.3, 0.3), seed=2))

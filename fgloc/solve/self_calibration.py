@@ -251,14 +251,18 @@ def build_self_calibration_problem(
 
 def _dense_jacobian(problem: SelfCalibrationProblem, values: gtsam.Values, n_factors: int) -> tuple[
         FloatArray, dict[int, slice]]:
-    """Whitened Jacobian of the first ``n_factors`` factors, columns per key (sorted keys)."""
+    """Whitened Jacobian of the first ``n_factors`` factors, columns per key (sorted keys).
+
+    Only keys those factors touch get columns: a node whose every reading was excluded as
+    an outlier is in ``values`` but in no factor, and GTSAM refuses an ordering naming it."""
     problem.prepare(values)
     sub = gtsam.NonlinearFactorGraph()
     for i in range(n_factors):
         sub.add(problem.graph.at(i))
     linear = sub.linearize(values)
     ordering = gtsam.Ordering()
-    keys = sorted(values.keys())
+    used = set(linear.keys())
+    keys = sorted(k for k in values.keys() if k in used)
     for k in keys:
         ordering.push_back(k)
     A, _ = linear.jacobian(ordering)
