@@ -152,3 +152,30 @@ def test_replace_by_consensus_scales_linearly_with_repeats() -> None:
         err = max(np.linalg.norm(estimate.nodes[n] - truth.nodes[n]) for n in truth.nodes)
         assert err < 0.01  # re-placed where the readings agree (0.017 off before, z included)
     assert peaks[1] < 3 * peaks[0]  # quadratic would be 10x per reading
+
+
+@pytest.mark.parametrize("eliminate_nodes", [True, False])
+def test_3d_node_left_with_one_camera_after_flagging_is_unlocalized_not_fatal(eliminate_nodes: bool) -> None:
+    """A 3d survey (4 cameras, 100 nodes, head errors the ideal model does not know) in which outlier
+    flagging leaves node n0050 with readings from one camera only. The final solve used to raise
+    (singular information, no marginals) and ``fgloc solve`` wrote no result; now the node is
+    reported unlocalized and every other node is solved with its covariance."""
+    from dataclasses import replace
+
+    from fgloc.sim.head_errors import inject_head_errors, sample_head_errors
+    from fgloc.sim.scenes import RandomScene, observe, random_scene
+
+    base = random_scene(RandomScene(n_cameras=4, n_nodes=100, mode=NodeMode.THREE_D, visibility=1.0,
+                                    ceiling_share=0.0, height_range=(0.3, 0.6), seed=3))
+    assert base.truth is not None
+    obs = observe(base.camera_ids, [base.truth.cameras[c] for c in base.camera_ids], base.node_ids,
+                  np.array([base.truth.nodes[n] for n in base.node_ids]), base.sigma, np.random.default_rng(1020))
+    survey = inject_head_errors(replace(base, observations=obs),
+                                sample_head_errors(base.camera_ids, np.random.default_rng(1)))
+    result = solve_survey(survey, SolverOptions(eliminate_nodes=eliminate_nodes))
+    assert "one camera" in result.unlocalized["n0050"]
+    left = {o.camera for i, o in enumerate(survey.observations)
+            if o.node == "n0050" and i not in {f.index for f in result.flagged}}
+    assert len(left) == 1
+    assert len(result.nodes) == 99 and "n0050" not in result.nodes
+    assert all(np.all(np.isfinite(e.covariance)) for e in result.nodes.values())

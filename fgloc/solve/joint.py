@@ -491,6 +491,22 @@ REFERENCE_GRAPH = SolveSteps(
 )
 
 
+def _one_camera_nodes(survey: Survey, exclude: frozenset[int]) -> set[str]:
+    """3d surveys: nodes whose readings outside ``exclude`` come from exactly one camera.
+
+    One camera's bearings fix a free node only along a ray, so such a node would leave the
+    final solve's information singular and no marginal (no result at all) could be written;
+    it is reported unlocalized instead. Planar nodes are fixed by one camera (ray meets ground).
+    """
+    if survey.mode is NodeMode.PLANAR:
+        return set()
+    cameras: dict[str, set[str]] = {}
+    for i, o in enumerate(survey.observations):
+        if i not in exclude:
+            cameras.setdefault(o.node, set()).add(o.camera)
+    return {nid for nid, cams in cameras.items() if len(cams) == 1}
+
+
 def run_flagging_pipeline(
     survey: Survey, options: SolverOptions, on_iteration: IterationCallback | None, steps: SolveSteps
 ) -> Result:
@@ -529,8 +545,14 @@ def run_flagging_pipeline(
         loop_problem = steps.build(survey, start, robust, frozenset(f.index for f in flagged))
         start = steps.estimate(loop_problem, steps.optimize(loop_problem, options, None, stages).values)
     exclude = frozenset(f.index for f in flagged)
-    final_problem = steps.build(survey, start, replace(options, robust=RobustKernel.NONE), exclude)
+    one_camera = _one_camera_nodes(survey, exclude)
+    unused = frozenset(i for i, o in enumerate(survey.observations) if o.node in one_camera)
+    final_problem = steps.build(survey, start, replace(options, robust=RobustKernel.NONE), exclude | unused)
     final_problem.unlocalized.update(ambiguous)
+    for nid in one_camera:
+        if nid in start.nodes and nid not in final_problem.unlocalized:
+            final_problem.unlocalized[nid] = ("the readings left after outlier flagging come from one camera "
+                                              "(a 3d node needs two)")
     kept = set(steps.node_ids(final_problem))
     for nid in start.nodes:
         if nid not in kept and nid not in final_problem.unlocalized:
