@@ -219,30 +219,28 @@ class CodeBook:
         return best
 
 
-def code_book(n_motes: int, length: int | None = None) -> CodeBook:
-    """The book for ``n_motes`` motes: at ``length`` bits, or the shortest length that fits."""
+def _shortest_book(n_motes: int, length: int | None, synchronized: bool) -> CodeBook:
+    """The first book of ``length`` bits (or of the lengths MIN_LENGTH..MAX_LENGTH) that holds ``n_motes``."""
     if n_motes < 1:
         raise CodeBookError(f"code book: motes: need at least one ({n_motes})")
     lengths = [length] if length is not None else list(range(MIN_LENGTH, MAX_LENGTH + 1))
+    greedy = _greedy_sync_book if synchronized else _greedy_book
     for ln in lengths:
         if not MIN_LENGTH <= ln <= MAX_LENGTH:
             raise CodeBookError(f"code book: length: must be {MIN_LENGTH}..{MAX_LENGTH} bits ({ln})")
-        words = _greedy_book(ln, n_motes)
+        words = greedy(ln, n_motes)
         if len(words) >= n_motes:
-            return CodeBook(ln, words[:n_motes])
-    raise CodeBookError(f"code book: motes: more than a {lengths[-1]}-bit book holds ({n_motes})")
+            return CodeBook(ln, words[:n_motes], synchronized=synchronized)
+    kind = "synchronized book" if synchronized else "book"
+    raise CodeBookError(f"code book: motes: more than a {lengths[-1]}-bit {kind} holds ({n_motes})")
+
+
+def code_book(n_motes: int, length: int | None = None) -> CodeBook:
+    """The book for ``n_motes`` motes: at ``length`` bits, or the shortest length that fits."""
+    return _shortest_book(n_motes, length, synchronized=False)
 
 
 def sync_code_book(n_motes: int, length: int | None = None) -> CodeBook:
     """The synchronized book for ``n_motes`` motes (see the module docstring): at ``length``
     bits, or the shortest length that fits. Word ``k`` is the same for every book size."""
-    if n_motes < 1:
-        raise CodeBookError(f"code book: motes: need at least one ({n_motes})")
-    lengths = [length] if length is not None else list(range(MIN_LENGTH, MAX_LENGTH + 1))
-    for ln in lengths:
-        if not MIN_LENGTH <= ln <= MAX_LENGTH:
-            raise CodeBookError(f"code book: length: must be {MIN_LENGTH}..{MAX_LENGTH} bits ({ln})")
-        words = _greedy_sync_book(ln, n_motes)
-        if len(words) >= n_motes:
-            return CodeBook(ln, words[:n_motes], synchronized=True)
-    raise CodeBookError(f"code book: motes: more than a {lengths[-1]}-bit synchronized book holds ({n_motes})")
+    return _shortest_book(n_motes, length, synchronized=True)
