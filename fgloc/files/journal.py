@@ -458,7 +458,8 @@ class JournalWriter:
         self.append({"type": "view"} | record)
 
     def field_time(self, scope: str, phases: dict[str, float], node: str | None = None) -> None:
-        """Predicted field time per phase (seconds) of a fallback node or of the whole survey."""
+        """Predicted field time per phase (seconds) of one node (``node``: a sequential survey's; ``fallback_node``:
+        a coded survey's), of the repeat phase (``repeats``) or of the whole survey (``survey``)."""
         rec: dict[str, Any] = {"type": "field_time", "scope": scope, "phases": dict(phases),
                                "total_s": float(sum(phases.values()))}
         if node is not None:

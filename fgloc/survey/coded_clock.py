@@ -116,3 +116,29 @@ def node_field_time(ops: dict[str, list[Op]], led_commands: int, led_wait_s: flo
     first = timing[next(iter(timing))]
     lanes = [price(ops.get(c, []), t) for c, t in timing.items()]
     return price([Radio(unicast=led_commands), Wait(led_wait_s)], first) + parallel(lanes)
+
+
+class SequentialClock:
+    """Prices a sequential survey node by node on the survey clock (nothing sleeps).
+
+    :attr:`open_head` and :attr:`leds` are the runner's devices wrapped so that every
+    move, position read, frame and LED command is recorded; :meth:`begin` and :meth:`end`
+    bracket one node (or the repeat phase) and return its :class:`FieldTime`: the LED
+    commands and wait, then the cameras' lanes in parallel (:func:`node_field_time`).
+    """
+
+    def __init__(self, rig: Any, open_head: Callable[[str], PanTiltHead], leds: LedController) -> None:
+        self.sink = ClockSink(list(rig.camera_ids))
+        self.open_head = clocked_opener(open_head, self.sink)
+        self.leds = CountingLeds(leds)
+        self.timing = {c.id: rig_timing(c.model) for c in rig.cameras}
+        self.led_wait_s = float(rig.search.led_wait_s)
+        self._before = 0
+
+    def begin(self) -> None:
+        self.sink.take()
+        self.sink.active, self._before = True, self.leds.commands
+
+    def end(self) -> FieldTime:
+        self.sink.active = False
+        return node_field_time(self.sink.take(), self.leds.commands - self._before, self.led_wait_s, self.timing)

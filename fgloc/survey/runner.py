@@ -53,6 +53,7 @@ from fgloc.survey.live import MIN_SHARED_NODES, Estimator, LiveEstimate
 
 if TYPE_CHECKING:
     from fgloc.survey.clock import FieldTime
+    from fgloc.survey.coded_clock import SequentialClock
 
 logger = logging.getLogger(__name__)
 
@@ -60,7 +61,7 @@ logger = logging.getLogger(__name__)
 @dataclass(frozen=True)
 class Progress:
     """Survey progress for a progress bar. ``eta_s`` is None until one node was timed;
-    ``field_s`` is the predicted field time so far (survey clock, coded surveys), else None."""
+    ``field_s`` is the predicted field time so far (survey clock), None when not priced."""
 
     nodes_done: int
     nodes_total: int
@@ -199,7 +200,10 @@ class SurveyRunner:
         live_every: int = 1,
         on_estimate: Callable[[LiveEstimate], None] | None = None,
         on_progress: Callable[[Progress], None] | None = None,
+        clock: SequentialClock | None = None,
     ) -> None:
+        """``clock`` prices each node on the survey clock (its ``open_head`` and ``leds`` must be
+        the ones passed here); the coded survey prices itself and passes none."""
         if state.header.camera_ids != rig.camera_ids or state.header.node_ids != rig.node_ids:
             raise FglocError(f"{journal.path}: header: cameras or node ids differ from {rig.path}")
         self.rig = rig
@@ -218,7 +222,8 @@ class SurveyRunner:
         self._node_seconds: list[float] = []
         self.misses: dict[str, int] = {c: 0 for c in rig.camera_ids}  # consecutive not_found per camera
         self._last_miss: dict[str, str] = {}
-        self.field_time: FieldTime | None = None  # predicted field time (coded surveys, fgloc.survey.coded)
+        self.clock = clock
+        self.field_time: FieldTime | None = None  # predicted field time (survey clock), set at the end
 
     # -- journal helpers: every record also updates the in-memory state the same way replay would
     def _record_observation(self, obs: JournalObservation) -> None:
@@ -359,7 +364,35 @@ class SurveyRunner:
             recent = self._node_seconds[-20:]
             eta = remaining * sum(recent) / len(recent)
         failures = len(self.state.not_found) + len(self.state.led_failed)
-        return Progress(len(self.state.done), len(self.rig.node_ids), len(self.state.observations), failures, eta)
+        field_s = self.priced().total if self.clock is not None else None
+        return Progress(len(self.state.done), len(self.rig.node_ids), len(self.state.observations), failures, eta,
+                        field_s)
+
+    def priced(self) -> FieldTime:
+        """Predicted field time of the nodes and repeat phase journaled so far (this run and earlier ones)."""
+        from fgloc.survey.clock import FieldTime, sum_times
+
+        return sum_times(FieldTime(r["phases"]) for r in self.state.field_times if r.get("scope") in ("node", "repeats"))
+
+    def _priced_node(self, node: str, pool: ThreadPoolExecutor) -> None:
+        """:meth:`run_node`, priced on the survey clock when there is one."""
+        if self.clock is None:
+            self.run_node(node, pool)
+            return
+        self.clock.begin()
+        try:
+            self.run_node(node, pool)
+        finally:
+            cost = self.clock.end()
+            if node in self.state.done:
+                self._journal_field_time("node", dict(cost.phases), node)
+
+    def _journal_field_time(self, scope: str, phases: dict[str, float], node: str | None = None) -> None:
+        self.journal.field_time(scope, phases, node=node)
+        rec: dict[str, object] = {"type": "field_time", "scope": scope, "phases": phases}
+        if node is not None:
+            rec["node"] = node
+        self.state.field_times.append(rec)
 
     def run(self) -> Survey:
         """Survey every node not yet done; returns the survey recorded in the journal."""
@@ -372,7 +405,7 @@ class SurveyRunner:
                 for k, node in enumerate(todo):
                     t0 = time.perf_counter()
                     try:
-                        self.run_node(node, pool)
+                        self._priced_node(node, pool)
                     finally:
                         self.stats.nodes_measured += node in self.state.done
                     self._node_seconds.append(time.perf_counter() - t0)
@@ -383,7 +416,12 @@ class SurveyRunner:
                 if self.rig.repeat_budget > 0:  # the repeat phase, fgloc.survey.repeats (docs/survey.md)
                     from fgloc.survey.repeats import run_repeats
 
-                    if run_repeats(self, pool):
+                    if self.clock is not None:
+                        self.clock.begin()
+                    took = run_repeats(self, pool)
+                    if self.clock is not None:
+                        self._journal_field_time("repeats", dict(self.clock.end().phases))
+                    if took:
                         self.estimate()
         finally:
             for w in self.workers.values():
@@ -391,6 +429,9 @@ class SurveyRunner:
                     w.close()
                 except Exception:  # noqa: BLE001 - closing a dead link must not lose the survey
                     pass
+        if self.clock is not None:
+            self.field_time = self.priced()
+            self.journal.field_time("survey", dict(self.field_time.phases))
         return journal_to_survey(self.state)
 
 

@@ -22,6 +22,7 @@ import os
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Any
 
 from fgloc.core.errors import FglocError
 from fgloc.core.hardware import LedController, PanTiltHead
@@ -185,10 +186,14 @@ def run_survey(
                     from fgloc.survey.coded import CodedSurvey
 
                     coded = CodedSurvey(rig, opened.open_head, opened.leds, opened.simulated)
-                runner = SurveyRunner(rig, coded.open_head if coded else opened.open_head,
-                                      coded.leds if coded else opened.leds, writer, state,  # type: ignore[arg-type]
+                    devices: Any = coded
+                else:
+                    from fgloc.survey.coded_clock import SequentialClock
+
+                    devices = clock = SequentialClock(rig, opened.open_head, opened.leds)
+                runner = SurveyRunner(rig, devices.open_head, devices.leds, writer, state,
                                       estimator=estimator, live_every=live_every, on_estimate=on_estimate,
-                                      on_progress=on_progress)
+                                      on_progress=on_progress, clock=None if coded else clock)
                 try:
                     survey = coded.run(runner) if coded else runner.run()
                 except SurveyStopped as exc:
