@@ -225,9 +225,11 @@ class CodedSurvey:
                 continue
             taken.add(node)
             uv = on_off_centroid(stack, rd.u, rd.v) or (rd.u, rd.v)
-            obs = coded_observation(camera, vid, node, have, rd, intr, head, uv)
+            obs = coded_observation(camera, vid, node, have, rd, intr, head, uv, self.rig.sigma,
+                                    self.rig.head_repeatability)
             readings.append({"node": node, "index": obs.index, "pan": obs.pan, "tilt": obs.tilt, "code": rd.index,
-                             "u": uv[0], "v": uv[1]})
+                             "u": uv[0], "v": uv[1]}
+                            | ({} if obs.view_sigma is None else {"sigma": obs.sigma, "view_sigma": obs.view_sigma}))
         return {"camera": camera, "view": vid, "attempt": attempt, "target": list(target), "head": list(head),
                 "zoom": zoom, "frames": self.frames, "erased": dec.erased, "clock_s": t_start, "readings": readings,
                 "refused": refused}
@@ -240,7 +242,8 @@ class CodedSurvey:
             runner.journal.view(record)
             runner.state.views[(record["camera"], record["view"], record["attempt"])] = {"type": "view"} | record
             for r in record["readings"]:
-                runner.state.add_observation(view_observation(record["camera"], record["view"], r))
+                runner.state.add_observation(view_observation(record["camera"], record["view"], r,
+                                                              float(record["head"][0])))
         s = self.stats
         s.recordings += 1
         s.second_recordings += record["attempt"] > 0
