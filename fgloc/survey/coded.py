@@ -17,7 +17,10 @@ instead of the node loop of :mod:`fgloc.survey.runner` (docs/survey.md, "Coded i
    re-measured on its mean lit minus mean dark frame
    (:func:`~fgloc.survey.coded_views.on_off_centroid`) and becomes (pan, tilt) by
    :func:`fgloc.camera.pixel_angles.pixel_to_pan_tilt` at the read-back angles
-   (:func:`~fgloc.survey.coded_views.coded_observation`). A camera takes at most
+   (:func:`~fgloc.survey.coded_views.coded_observation`). With a head repeatability
+   (rig.json ``head_repeatability_deg``) each reading also carries its total sigma and the
+   view's shared one, and survey.json names its view (``views``: the readings of one
+   settle share the head's pointing error; the solver estimates one per view). A camera takes at most
    ``repeats`` readings of a mote. A view with curable refusals (a word read with
    conflicts or gaps, a duplicate ID) is recorded once more at once.
 3. **Refinement** (rigs whose ``record_blinks`` renders other zooms: ``blink_zoom``).
