@@ -104,7 +104,8 @@ class SceneBlinks:
     def record(self, camera_id: str, pan: float, tilt: float, n_frames: int, t_start: float, key: str,
                zoom: float | None = None) -> list[tuple[float, np.ndarray]]:
         """``(timestamp s, uint8 frame)`` of ``n_frames`` frame periods recorded by ``camera_id``
-        with its head at (pan, tilt) radians, from ``t_start`` on the survey clock (dropped frames
+        with its head truly pointing at (pan, tilt) radians (the in-process rig passes the
+        reported angles plus the settle's pointing error, ``SceneHead.pointing``), from ``t_start`` on the survey clock (dropped frames
         missing). ``zoom`` other than the camera's survey zoom renders through the idealised
         :meth:`~fgloc.camera.intrinsics.CameraIntrinsics.at_zoom` model of its intrinsics."""
         i = self.scene.camera_ids.index(camera_id)

@@ -16,6 +16,17 @@ camera pipeline's rendering (``rendered``, :class:`RenderedFrames`: textured
 background, a few static bright lights, sensor noise) with the LED spot at the
 same apparent bearing. Heads quantize moves to 1/14.4 degree (the EVI-D100's count).
 
+Head repeatability (rig.json ``head_repeatability_deg``, :attr:`RigConfig.head_repeatability`,
+default 0): each time a head settles after a move to a new position, its true pointing differs
+from the position it reports by a random (pan, tilt) error N(0, head_repeatability) per axis.
+Every frame is drawn from the true pointing while the head reports the commanded (quantized)
+angles, so all readings taken from one settle (a coded view's motes) share that error and a
+sequential centring reading gets the error of its last settle. The error is seeded by (rig
+seed, camera, the position's counts, how often that camera settled there before in this
+rig's life), so runs and resumes are deterministic. The pairs' fixed errors then take the rest
+of ``sigma``: N(0, sqrt(sigma^2 - head_repeatability^2)), so a reading's total noise stays
+``sigma``. At 0 (the default) nothing changes: the same draws, readings and frames as before.
+
 Head errors (``simulation.head_errors``, :mod:`fgloc.core.head_model`): a camera with
 errors is an imperfect head. The pair's apparent bearing becomes a point at the node's
 range along it, and every frame is drawn where the imperfect head at the current
@@ -86,6 +97,8 @@ class SimScene:
     def __post_init__(self) -> None:
         self.lit: set[str] = set()
         self.lock = threading.Lock()
+        #: (camera index, pan counts, tilt counts) -> settles there so far (head repeatability seeds)
+        self.settles: dict[tuple[int, int, int], int] = {}
         #: (n_cam, N) pan the imperfect head reads for each pair (fgloc.core.head_model), NaN for ideal heads
         self.head_pan = np.full(self.visible.shape, np.nan)
         for i in range(len(self.cameras)):
@@ -145,6 +158,14 @@ class SimScene:
                 if self.visible[i, j] and n not in self.dead}
 
 
+def pair_noise_sigma(rig: RigConfig) -> float:
+    """Radians: the fixed per-(camera, node) error's sigma, ``sigma`` less the head's repeatability
+    (in quadrature); exactly ``rig.sigma`` when the rig declares none."""
+    if rig.head_repeatability <= 0.0:
+        return rig.sigma
+    return math.sqrt(rig.sigma**2 - rig.head_repeatability**2)
+
+
 def build_scene(rig: RigConfig) -> SimScene:
     """The simulated scene of a rig (deterministic by ``rig.simulation.seed``)."""
     if rig.mode is not NodeMode.PLANAR:
@@ -163,10 +184,11 @@ def build_scene(rig: RigConfig) -> SimScene:
     nodes = np.column_stack([rng.uniform(0.0, 1.0, size=(n, 2)), np.zeros(n)])
     visible = rng.uniform(size=(len(ids), n)) >= sim.occlusion
     apparent = np.empty((len(ids), n, 2))
+    pair_sigma = pair_noise_sigma(rig)
     for i, cam in enumerate(cameras):
         pan, tilt = project_pan_tilt(cam.rotation, cam.position, nodes)
-        apparent[i, :, 0] = pan + rng.normal(0.0, rig.sigma, n)
-        apparent[i, :, 1] = tilt + rng.normal(0.0, rig.sigma, n)
+        apparent[i, :, 0] = pan + rng.normal(0.0, pair_sigma, n)
+        apparent[i, :, 1] = tilt + rng.normal(0.0, pair_sigma, n)
     lights = np.zeros((0, 3))
     if sim.frames == "rendered":  # own generator: the rest of the scene is the same for either kind of frame
         lrng = np.random.default_rng(_stable_seed(sim.seed, "static-lights"))
@@ -257,6 +279,10 @@ class SceneHead:
         self.frames = frames or frame_renderer(scene, index, rig)
         self.pan = 0.0
         self.tilt = 0.0
+        #: (pan, tilt) radians: true pointing minus the reported angles since the last settle
+        self.pointing_error = (0.0, 0.0)
+        self.repeatability = rig.head_repeatability
+        self.seed = rig.simulation.seed
         self._zoom = rig.cameras[index].zoom
         self.time_scale = rig.simulation.time_scale
         self.faults = faults
@@ -274,7 +300,27 @@ class SceneHead:
         new_tilt = round(tilt * COUNTS_PER_RAD) / COUNTS_PER_RAD
         if self.time_scale > 0:
             time.sleep(self.time_scale * (0.002 + 0.01 * math.hypot(new_pan - self.pan, new_tilt - self.tilt)))
+        if self.repeatability > 0 and (new_pan, new_tilt) != (self.pan, self.tilt):
+            self.pointing_error = self._settle_error(new_pan, new_tilt)
         self.pan, self.tilt = new_pan, new_tilt
+
+    def _settle_error(self, pan: float, tilt: float) -> tuple[float, float]:
+        """The pointing error of a settle at (pan, tilt): N(0, repeatability) per axis, seeded by
+        the rig seed, the camera, the position's counts and the settles there before."""
+        key = (self.index, round(pan * COUNTS_PER_RAD), round(tilt * COUNTS_PER_RAD))
+        with self.scene.lock:
+            visit = self.scene.settles[key] = self.scene.settles.get(key, -1) + 1
+        rng = np.random.default_rng(_stable_seed(self.seed, self.scene.camera_ids[self.index], "settle", *key[1:],
+                                                 visit))
+        e = rng.normal(0.0, self.repeatability, 2)
+        return float(e[0]), float(e[1])
+
+    @property
+    def pointing(self) -> tuple[float, float]:
+        """(pan, tilt) radians the head truly points at (the reported angles plus the settle's error)."""
+        if self.pointing_error == (0.0, 0.0):
+            return self.pan, self.tilt
+        return self.pan + self.pointing_error[0], self.tilt + self.pointing_error[1]
 
     def position(self) -> tuple[float, float]:
         self._command()
@@ -296,7 +342,7 @@ class SceneHead:
 
     def grab_frame(self) -> np.ndarray:
         self._command()
-        return self.frames(self.pan, self.tilt)
+        return self.frames(*self.pointing)
 
     def close(self) -> None:
         self.closed = True
@@ -419,7 +465,7 @@ class InProcessRig:
             self._blinks = SceneBlinks(self.scene, self.rig, self.leds.addresses, self.leds.blink,
                                        lambda: list(self.leds.received))
         head = self.heads[camera_id]
-        return self._blinks.record(camera_id, head.pan, head.tilt, n_frames, t_start, key,  # type: ignore[attr-defined]
+        return self._blinks.record(camera_id, *head.pointing, n_frames, t_start, key,  # type: ignore[attr-defined]
                                    head._zoom)
 
     def open_head(self, camera_id: str) -> SceneHead:

@@ -13,9 +13,19 @@ Reported per mode: predicted field time (median over seeds, and per phase for th
 seed), readings decoded in views and measured by the fallback, mislabelled readings (a
 decoded reading whose nearest visible node bearing is another node's), readings more than
 0.05 deg from their node's bearing, and the RMS node position error of the joint solve
-(baseline units). Usage::
+(baseline units).
 
-    OPENBLAS_NUM_THREADS=1 python scripts/coded_survey.py --seeds 5 --motes 30
+``--repeatability-deg`` > 0 gives the rig that head repeatability (rig.json
+``head_repeatability_deg``, part of ``sigma_deg``): the simulated heads settle with a seeded
+pointing error per move, shared by a coded view's readings, and the coded survey writes
+views. The coded survey is then also solved with its views ignored (each reading
+independent with its total sigma), and every solve is scored by the node NEES (planar, 2
+dof) against truth: ANEES over all nodes of all seeds with its two-sided 95 % chi-square
+bounds (independent nodes assumed), and per seed, with the mean of the seeds' ANEES and its
+95 % interval over seeds (the honest spread: one scene's nodes share its camera-pose errors,
+so they are not independent samples). Usage::
+
+    OPENBLAS_NUM_THREADS=1 python scripts/coded_survey.py --seeds 5 --motes 30 [--repeatability-deg 0.07]
 """
 
 from __future__ import annotations
@@ -30,11 +40,14 @@ import time
 from pathlib import Path
 
 import numpy as np
+from scipy.stats import chi2
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from fgloc.core.model import Survey  # noqa: E402
 from fgloc.drivers.inprocess_rig import InProcessRig  # noqa: E402
+from fgloc.evaluate.score import nees  # noqa: E402
 from fgloc.files.journal import read_journal  # noqa: E402
 from fgloc.files.rig_config import parse_rig  # noqa: E402
 from fgloc.solve.joint import solve_survey  # noqa: E402
@@ -45,7 +58,7 @@ from fgloc.survey.session import OpenedRig, run_survey  # noqa: E402
 EXAMPLE = ROOT / "examples" / "rig-simulated.json"
 
 
-def rig_for(seed: int, motes: int, width: int, mode: str, fx: float | None = None):
+def rig_for(seed: int, motes: int, width: int, mode: str, fx: float | None = None, repeatability_deg: float = 0.0):
     data = json.loads(EXAMPLE.read_text())
     data["node_ids"] = [f"n{j:03d}" for j in range(motes)]
     f = fx or width / 2.0
@@ -55,6 +68,8 @@ def rig_for(seed: int, motes: int, width: int, mode: str, fx: float | None = Non
     data["simulation"] = {"seed": seed, "heights": [0.1, 0.12], "occlusion": 0.05, "dead_nodes": ["n003"]}
     data["retry"] = {"backoff_s": 0.0}
     data["identification"] = mode
+    if repeatability_deg > 0:
+        data["head_repeatability_deg"] = repeatability_deg
     return parse_rig(data, str(EXAMPLE), EXAMPLE.parent)
 
 
@@ -73,8 +88,26 @@ def labels(rig, scene, state) -> tuple[int, int, int]:
     return len(decoded), wrong, far
 
 
-def run(seed: int, motes: int, width: int, mode: str, out: Path, fx: float | None = None) -> dict:
-    rig = rig_for(seed, motes, width, mode, fx)
+def without_views(survey: Survey) -> Survey:
+    """The survey as a version-1 reader sees it: each reading independent with its total sigma."""
+    from dataclasses import replace
+
+    return replace(survey, observations=[replace(o, view=None, view_sigma=None, view_pan=None)
+                                         for o in survey.observations])
+
+
+def errors(survey: Survey, truth) -> tuple[list[float], list[float]]:  # noqa: ANN001
+    """(position errors, NEES) of the joint solve's nodes (planar, 2 dof)."""
+    result = solve_survey(survey)
+    ids = list(result.nodes)
+    e = np.array([result.nodes[n].position[:2] - truth.nodes[n][:2] for n in ids])
+    cov = np.array([result.nodes[n].covariance for n in ids])
+    return list(np.linalg.norm(e, axis=1)), list(nees(e, cov))
+
+
+def run(seed: int, motes: int, width: int, mode: str, out: Path, fx: float | None = None,
+        repeatability_deg: float = 0.0) -> dict:
+    rig = rig_for(seed, motes, width, mode, fx, repeatability_deg)
     sim = InProcessRig(rig)
     times: list[FieldTime] = []
     if mode == "sequential":
@@ -100,13 +133,22 @@ def run(seed: int, motes: int, width: int, mode: str, out: Path, fx: float | Non
     wall = time.perf_counter() - t0
     state = read_journal(out / "journal.jsonl")
     decoded, wrong, far = labels(rig, sim.scene, state)
-    result = solve_survey(survey)
     truth = sim.scene.truth
-    err = [np.linalg.norm(result.nodes[n].position[:2] - truth.nodes[n][:2]) for n in result.nodes]
+    err, nv = errors(survey, truth)
+    err_iv, nv_iv = errors(without_views(survey), truth)
     seen = {(c, n) for (n, c, _) in state.observations}
     return {"field": ft, "wall": wall, "readings": len(state.observations), "decoded": decoded, "wrong": wrong,
             "far": far, "missing": len(sim.scene.visible_pairs() - seen), "rms": float(np.sqrt(np.mean(np.square(err)))),
-            "views": len(state.views)}
+            "views": len(state.views), "err": err, "nees": nv, "err_iv": err_iv, "nees_iv": nv_iv,
+            "named_views": len({o.view for o in survey.observations if o.view is not None})}
+
+
+def anees_line(name: str, err: list[float], values: list[float]) -> str:
+    n = len(values)
+    lo, hi = chi2.ppf([0.025, 0.975], 2 * n) / n
+    a = float(np.mean(values))
+    return (f"  {name}: RMS {float(np.sqrt(np.mean(np.square(err)))):.5f} over {n} nodes; ANEES {a:.2f} "
+            f"(95 % bounds {lo:.2f}-{hi:.2f}: {'inside' if lo <= a <= hi else 'OUTSIDE'})")
 
 
 def main() -> None:
@@ -115,12 +157,15 @@ def main() -> None:
     ap.add_argument("--motes", type=int, default=30)
     ap.add_argument("--width", type=int, default=320)
     ap.add_argument("--fx", type=float, default=None, help="focal length, px (default width / 2: 90 deg wide)")
+    ap.add_argument("--repeatability-deg", type=float, default=0.0,
+                    help="head repeatability (rig.json head_repeatability_deg, part of sigma_deg 0.1)")
     args = ap.parse_args()
     rows: dict[str, list[dict]] = {"sequential": [], "coded": []}
     with tempfile.TemporaryDirectory() as tmp:
         for seed in range(1, args.seeds + 1):
             for mode in rows:
-                rows[mode].append(run(seed, args.motes, args.width, mode, Path(tmp) / f"{mode}{seed}", args.fx))
+                rows[mode].append(run(seed, args.motes, args.width, mode, Path(tmp) / f"{mode}{seed}", args.fx,
+                                      args.repeatability_deg))
     for mode, rs in rows.items():
         med = statistics.median
         print(f"{mode}: field time median {med(r['field'].total for r in rs):.1f} s "
@@ -133,6 +178,25 @@ def main() -> None:
     speed = [s["field"].total / c["field"].total for c, s in zip(rows["coded"], rows["sequential"])]
     print(f"coded / sequential: RMS ratio median {statistics.median(ratio):.3f} (range {min(ratio):.3f}-{max(ratio):.3f}); "
           f"field-time speed-up median {statistics.median(speed):.2f}x (range {min(speed):.2f}-{max(speed):.2f})")
+    print(f"accuracy over {args.seeds} seeds, head repeatability {args.repeatability_deg} deg "
+          f"({sum(r['named_views'] for r in rows['coded'])} views named in the coded survey.json files):")
+    for name, mode, key in (("sequential", "sequential", ""), ("coded, views solved", "coded", ""),
+                            ("coded, views ignored", "coded", "_iv")):
+        rs = rows[mode]
+        print(anees_line(name, [e for r in rs for e in r["err" + key]], [v for r in rs for v in r["nees" + key]]))
+        per_seed = [float(np.mean(r["nees" + key])) for r in rs]
+        half = 1.96 * statistics.stdev(per_seed) / math.sqrt(len(per_seed)) if len(per_seed) > 1 else float("nan")
+        print(f"    per-seed ANEES {' '.join(f'{a:.2f}' for a in per_seed)}; mean {statistics.mean(per_seed):.2f} "
+              f"+- {half:.2f} (95 %, seeds as independent samples: a scene's nodes share its pose errors)")
+    print(f"  pooled RMS ratio coded / sequential: views solved {_ratio(rows, 'err'):.3f}, "
+          f"views ignored {_ratio(rows, 'err_iv'):.3f}")
+
+
+def _ratio(rows: dict[str, list[dict]], key: str) -> float:
+    """Pooled RMS of the coded survey's ``key`` errors over the sequential survey's."""
+    def rms(errs: list[float]) -> float:
+        return float(np.sqrt(np.mean(np.square(errs))))
+    return rms([e for r in rows["coded"] for e in r[key]]) / rms([e for r in rows["sequential"] for e in r["err"]])
 
 
 if __name__ == "__main__":

@@ -112,14 +112,23 @@ class JournalObservation:
     pan: float
     tilt: float
     sigma: float | None = None
-    view: str | None = None  #: coded surveys: ``camera/view`` id of the view the reading was decoded in
+    view: str | None = None  #: coded surveys: id (in the camera's plan) of the view the reading was decoded in
+    #: coded surveys with a head repeatability: the view's shared head sigma (radians, part of ``sigma``)
+    view_sigma: float | None = None
+    view_pan: float | None = None  #: radians, the head pan the view was read at (with ``view_sigma``)
 
     @property
     def key(self) -> ObservationKey:
         return (self.node, self.camera, self.index)
 
     def to_observation(self) -> Observation:
-        return Observation(camera=self.camera, node=self.node, pan=self.pan, tilt=self.tilt, sigma=self.sigma)
+        """The survey reading; with ``view_sigma`` it names its view ``camera/view`` (unique
+        across cameras) with that shared sigma and head pan (survey.json ``views``)."""
+        shared = self.view is not None and self.view_sigma is not None
+        return Observation(camera=self.camera, node=self.node, pan=self.pan, tilt=self.tilt, sigma=self.sigma,
+                           view=f"{self.camera}/{self.view}" if shared else None,
+                           view_sigma=self.view_sigma if shared else None,
+                           view_pan=self.view_pan if shared else None)
 
 
 @dataclass
@@ -284,14 +293,24 @@ class _Replay:
             return
         self.state.views[key] = rec
         for r in rec["readings"]:
-            self.state.add_observation(view_observation(camera, str(rec["view"]), r))
+            self.state.add_observation(view_observation(camera, str(rec["view"]), r, _head_pan(rec)))
 
 
-def view_observation(camera: str, view: str, reading: dict[str, Any]) -> JournalObservation:
-    """The observation a ``view`` record's reading stands for (the reading keeps its view id)."""
-    sigma = reading.get("sigma")
+def _head_pan(record: dict[str, Any]) -> float | None:
+    """The read-back head pan (radians) of a ``view`` record, None without one."""
+    head = record.get("head")
+    return float(head[0]) if isinstance(head, list) and head else None
+
+
+def view_observation(camera: str, view: str, reading: dict[str, Any],
+                     head_pan: float | None = None) -> JournalObservation:
+    """The observation a ``view`` record's reading stands for (the reading keeps its view id;
+    with a ``view_sigma`` also that shared sigma and the view's read-back ``head_pan``)."""
+    sigma, shared = reading.get("sigma"), reading.get("view_sigma")
     return JournalObservation(reading["node"], camera, int(reading["index"]), float(reading["pan"]),
-                              float(reading["tilt"]), None if sigma is None else float(sigma), view)
+                              float(reading["tilt"]), None if sigma is None else float(sigma), view,
+                              None if shared is None else float(shared),
+                              None if shared is None or head_pan is None else float(head_pan))
 
 
 def _header(rec: dict, path: str, line: int) -> JournalHeader:

@@ -133,7 +133,16 @@ class SimulationConfig:
 
 @dataclass(frozen=True)
 class RigConfig:
-    """A whole rig. ``sigma`` in radians; ``path`` is where it was read from."""
+    """A whole rig. ``sigma`` in radians; ``path`` is where it was read from.
+
+    ``head_repeatability`` (radians, rig.json ``head_repeatability_deg``, default 0) is the
+    part of ``sigma`` that is the head's pointing repeatability: after each move the head
+    settles pointing this far (per axis, standard deviation) from the position it reports.
+    Every reading taken from one settle shares that error: a coded survey declares it as
+    each view's shared sigma (survey.json ``views``), the simulated in-process heads draw it
+    per settle, and the rest of ``sigma``, ``sqrt(sigma^2 - head_repeatability^2)``, is a
+    reading's own noise. It must be below ``sigma``.
+    """
 
     path: str
     mode: NodeMode
@@ -148,6 +157,7 @@ class RigConfig:
     search: SearchConfig = SearchConfig()
     retry: RetryConfig = RetryConfig()
     simulation: SimulationConfig = SimulationConfig()
+    head_repeatability: float = 0.0
     hash: str = ""
     raw: dict[str, Any] = field(default_factory=dict)
 
@@ -322,10 +332,16 @@ def parse_rig(data: Any, path: str = "rig.json", base: Path | None = None) -> Ri
     if repeat_budget and top.get("nodes", "planar") != "planar":
         raise _fail(path, "repeat_budget", f"repeat planning supports planar surveys only, got {repeat_budget} "
                     f"with nodes {show_value(top.get('nodes'))}")
+    sigma = math.radians(top.get("sigma_deg", 0.1))
+    repeatability = math.radians(float(top.get("head_repeatability_deg", 0.0)))
+    if repeatability >= sigma:
+        raise _fail(path, "head_repeatability_deg", f"the head's share of sigma_deg must be below sigma_deg "
+                    f"({math.degrees(sigma):g}), got {show_value(top.get('head_repeatability_deg'))}")
     return RigConfig(
         path=path,
         mode=NodeMode(top.get("nodes", "planar")),
-        sigma=math.radians(top.get("sigma_deg", 0.1)),
+        sigma=sigma,
+        head_repeatability=repeatability,
         gauge=Gauge(origin=origin, baseline=baseline),
         cameras=cameras,
         motes=motes,
@@ -347,7 +363,7 @@ def parse_rig(data: Any, path: str = "rig.json", base: Path | None = None) -> Ri
 # The repeat plan is greedy on the readings of the node loop alone, so a plan for budget B is a
 # prefix of the plan for any larger budget: a resume with another budget extends or cuts the
 # same list, and every reading already journaled stays valid.
-_MEANING_TOP = ("format", "nodes", "sigma_deg", "gauge", "repeats", "node_ids")
+_MEANING_TOP = ("format", "nodes", "sigma_deg", "gauge", "repeats", "node_ids", "head_repeatability_deg")
 _MEANING_CAMERA = ("id", "model", "mounting", "zoom")
 _SCENE = ("seed", "heights", "occlusion", "dead_nodes", "head_errors")
 _INTRINSICS = ("fx", "fy", "cx", "cy", "width", "height", "k1", "k2", "p1", "p2", "k3")
@@ -379,6 +395,8 @@ def rig_meaning(rig: RigConfig, simulated: bool = False) -> dict[str, Any]:
               "simulation.occlusion": sim.occlusion, "simulation.dead_nodes": list(sim.dead_nodes)}
         if sim.head_errors:
             m["simulation.head_errors"] = {c: list(v) for c, v in sim.head_errors.items()}
+    if rig.head_repeatability:  # absent at 0, so journals of rigs without it compare as before
+        m["head_repeatability_deg"] = math.degrees(rig.head_repeatability)
     return m
 
 

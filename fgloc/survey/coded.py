@@ -17,7 +17,10 @@ instead of the node loop of :mod:`fgloc.survey.runner` (docs/survey.md, "Coded i
    re-measured on its mean lit minus mean dark frame
    (:func:`~fgloc.survey.coded_views.on_off_centroid`) and becomes (pan, tilt) by
    :func:`fgloc.camera.pixel_angles.pixel_to_pan_tilt` at the read-back angles
-   (:func:`~fgloc.survey.coded_views.coded_observation`). A camera takes at most
+   (:func:`~fgloc.survey.coded_views.coded_observation`). With a head repeatability
+   (rig.json ``head_repeatability_deg``) each reading also carries its total sigma and the
+   view's shared one, and survey.json names its view (``views``: the readings of one
+   settle share the head's pointing error; the solver estimates one per view). A camera takes at most
    ``repeats`` readings of a mote. A view with curable refusals (a word read with
    conflicts or gaps, a duplicate ID) is recorded once more at once.
 3. **Refinement** (rigs whose ``record_blinks`` renders other zooms: ``blink_zoom``).
@@ -225,9 +228,11 @@ class CodedSurvey:
                 continue
             taken.add(node)
             uv = on_off_centroid(stack, rd.u, rd.v) or (rd.u, rd.v)
-            obs = coded_observation(camera, vid, node, have, rd, intr, head, uv)
+            obs = coded_observation(camera, vid, node, have, rd, intr, head, uv, self.rig.sigma,
+                                    self.rig.head_repeatability)
             readings.append({"node": node, "index": obs.index, "pan": obs.pan, "tilt": obs.tilt, "code": rd.index,
-                             "u": uv[0], "v": uv[1]})
+                             "u": uv[0], "v": uv[1]}
+                            | ({} if obs.view_sigma is None else {"sigma": obs.sigma, "view_sigma": obs.view_sigma}))
         return {"camera": camera, "view": vid, "attempt": attempt, "target": list(target), "head": list(head),
                 "zoom": zoom, "frames": self.frames, "erased": dec.erased, "clock_s": t_start, "readings": readings,
                 "refused": refused}
@@ -240,7 +245,8 @@ class CodedSurvey:
             runner.journal.view(record)
             runner.state.views[(record["camera"], record["view"], record["attempt"])] = {"type": "view"} | record
             for r in record["readings"]:
-                runner.state.add_observation(view_observation(record["camera"], record["view"], r))
+                runner.state.add_observation(view_observation(record["camera"], record["view"], r,
+                                                              float(record["head"][0])))
         s = self.stats
         s.recordings += 1
         s.second_recordings += record["attempt"] > 0

@@ -26,14 +26,24 @@ _NOT_RETRIED = ("too close to the image border", "never dark")
 
 def coded_observation(camera: str, view: str, node: str, index: int, reading: DecodedReading,
                       intr: CameraIntrinsics, head: tuple[float, float],
-                      centroid: tuple[float, float] | None = None) -> JournalObservation:
+                      centroid: tuple[float, float] | None = None, sigma: float | None = None,
+                      view_sigma: float = 0.0) -> JournalObservation:
     """The one place a decoded reading becomes a survey reading: the LED's centroid (``centroid``,
     the on-off refined one, else the decoder's) through the exact pixel -> pan-tilt composition
     (:func:`fgloc.camera.pixel_angles.pixel_to_pan_tilt`) at the head's read-back angles
-    ``head``; pan wrapped to [-pi, pi], the survey's sigma, the id of the view it came from."""
+    ``head``; pan wrapped to [-pi, pi], the id of the view it came from.
+
+    ``view_sigma`` (radians, the rig's ``head_repeatability``): the head error every reading of
+    the view shares. When > 0 the reading carries it (and the view's head pan) and its ``sigma``
+    as its **total** noise (``sigma``, default the survey's, of which ``view_sigma`` is the
+    shared part), so survey.json names the view and a reader that ignores views still sees the
+    reading's full noise. At 0 the reading is as before: the survey's sigma, no shared part."""
     u, v = (reading.u, reading.v) if centroid is None else centroid
     pan, tilt = pixel_to_pan_tilt(intr, np.array([u, v]), head[0], head[1])
-    return JournalObservation(node, camera, index, math.remainder(float(pan), 2 * math.pi), float(tilt), None, view)
+    shared = view_sigma > 0.0
+    return JournalObservation(node, camera, index, math.remainder(float(pan), 2 * math.pi), float(tilt),
+                              sigma if shared else None, view, view_sigma if shared else None,
+                              float(head[0]) if shared else None)
 
 
 def unexplained_blob(refused: dict[str, Any]) -> bool:
