@@ -77,13 +77,12 @@ def scenario_from_args(args: argparse.Namespace) -> PaperScenario:
 
 
 def run(args: argparse.Namespace) -> int:
-    from fgloc.files.survey_result import write_survey
-    from fgloc.sim.scenes import paper_scenario
-
     import numpy as np
 
     from fgloc.cli._args import finite
+    from fgloc.files.survey_result import write_survey
     from fgloc.sim.head_errors import inject_head_errors, parse_head_errors
+    from fgloc.sim.scenes import paper_scenario
 
     pan_range = None
     if args.pan_range_deg is not None:
