@@ -54,14 +54,23 @@ from fgloc.solve.self_calibration import (  # noqa: E402
     solve_with_head_model,
 )
 
-SCENES = ("paper", "three", "3d4")
+SCENES = ("paper", "paper-facing", "three", "3d4")
 Z95 = 1.959964
 
 
 def scene(name: str, height: float = 0.3) -> Survey:
-    """paper: the paper's planar two-camera scene; three: planar, 3 cameras; 3d4: 3d, 4 cameras (100 nodes)."""
+    """paper: the paper's planar two-camera scene; paper-facing: the same with cam0's base turned 180 degrees
+    about the vertical (its pans then span about +-75 degrees instead of crossing the +-180 degree seam);
+    three: planar, 3 cameras; 3d4: 3d, 4 cameras (100 nodes)."""
     if name == "paper":
         return paper_scenario(PaperScenario(heights=(height, height), seed=3))
+    if name == "paper-facing":
+        s = paper_scenario(PaperScenario(heights=(height, height), seed=3))
+        assert s.truth is not None
+        cam0 = s.truth.cameras["cam0"]
+        turned = replace(cam0, rotation=np.diag([-1.0, -1.0, 1.0]) @ cam0.rotation)
+        s = replace(s, truth=replace(s.truth, cameras={**s.truth.cameras, "cam0": turned}))
+        return redraw(s, 3)
     n_cam, mode = (3, NodeMode.PLANAR) if name == "three" else (4, NodeMode.THREE_D)
     return random_scene(RandomScene(n_cameras=n_cam, n_nodes=100, mode=mode, visibility=1.0, ceiling_share=0.0,
                                     height_range=(0.3, 0.6), seed=3))
