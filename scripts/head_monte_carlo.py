@@ -16,6 +16,12 @@ dominate the prior (``--scene 3d4``: 3d, four cameras).
 
     OPENBLAS_NUM_THREADS=1 .venv/bin/python scripts/head_monte_carlo.py --runs 500 --out build/head_mc.json
     OPENBLAS_NUM_THREADS=1 .venv/bin/python scripts/head_monte_carlo.py --experiment fixed --scene 3d4 --runs 400
+    OPENBLAS_NUM_THREADS=1 .venv/bin/python scripts/head_monte_carlo.py --pan-range-deg 170 --fast-check --runs 400
+
+``--pan-range-deg``: the heads turn only +-that far; readings whose true mechanical pan lies
+beyond are dropped (from the clean and the head-error survey alike). ``--fast-check``: also
+solve ``full`` (and ``auto``, population) on the node-eliminated fast path and record how far
+its result lies from the reference graph's.
 
 Prints a JSON summary (the numbers in docs/head-calibration.md).
 """
@@ -39,7 +45,7 @@ from fgloc.core.head_model import HEAD_DIM, HEAD_PARAMETERS  # noqa: E402
 from fgloc.core.model import NodeMode, Result, Survey  # noqa: E402
 from fgloc.evaluate.crlb import cramer_rao_bound  # noqa: E402
 from fgloc.init.start import InitialEstimate  # noqa: E402
-from fgloc.sim.head_errors import inject_head_errors, sample_head_errors  # noqa: E402
+from fgloc.sim.head_errors import inject_head_errors, limit_pan_range, sample_head_errors  # noqa: E402
 from fgloc.sim.scenes import PaperScenario, RandomScene, observe, paper_scenario, random_scene  # noqa: E402
 from fgloc.solve.self_calibration import (  # noqa: E402
     HeadCalibrationReport,
@@ -48,14 +54,23 @@ from fgloc.solve.self_calibration import (  # noqa: E402
     solve_with_head_model,
 )
 
-SCENES = ("paper", "three", "3d4")
+SCENES = ("paper", "paper-facing", "three", "3d4")
 Z95 = 1.959964
 
 
 def scene(name: str, height: float = 0.3) -> Survey:
-    """paper: the paper's planar two-camera scene; three: planar, 3 cameras; 3d4: 3d, 4 cameras (100 nodes)."""
+    """paper: the paper's planar two-camera scene; paper-facing: the same with cam0's base turned 180 degrees
+    about the vertical (its pans then span about +-75 degrees instead of crossing the +-180 degree seam);
+    three: planar, 3 cameras; 3d4: 3d, 4 cameras (100 nodes)."""
     if name == "paper":
         return paper_scenario(PaperScenario(heights=(height, height), seed=3))
+    if name == "paper-facing":
+        s = paper_scenario(PaperScenario(heights=(height, height), seed=3))
+        assert s.truth is not None
+        cam0 = s.truth.cameras["cam0"]
+        turned = replace(cam0, rotation=np.diag([-1.0, -1.0, 1.0]) @ cam0.rotation)
+        s = replace(s, truth=replace(s.truth, cameras={**s.truth.cameras, "cam0": turned}))
+        return redraw(s, 3)
     n_cam, mode = (3, NodeMode.PLANAR) if name == "three" else (4, NodeMode.THREE_D)
     return random_scene(RandomScene(n_cameras=n_cam, n_nodes=100, mode=mode, visibility=1.0, ceiling_share=0.0,
                                     height_range=(0.3, 0.6), seed=3))
@@ -155,23 +170,55 @@ def head_z(report: HeadCalibrationReport, heads: dict[str, np.ndarray]) -> dict[
     return out
 
 
-def one_run(args: tuple[str, str, int]) -> dict:
+def fast_vs_reference(fast: tuple[Result, HeadCalibrationReport], ref: tuple[Result, HeadCalibrationReport],
+                      survey: Survey, ref_joint: float) -> dict:
+    """How far the fast path's result lies from the reference graph's: the largest node position
+    difference (in units of the reference node's largest marginal std), the largest head-value
+    difference (in units of the reference std), the joint NEES of each and the decisions."""
+    d_ = _dim(survey)
+    dn = 0.0
+    for nid, e in ref[0].nodes.items():
+        f = fast[0].nodes.get(nid)
+        if f is None:
+            return {"missing_node": nid}
+        std = float(np.sqrt(np.max(np.linalg.eigvalsh(e.covariance[:d_, :d_]))))
+        dn = max(dn, float(np.linalg.norm(f.position[:d_] - e.position[:d_])) / std)
+    dh = 0.0
+    for c, e in ref[1].cameras.items():
+        fe = fast[1].cameras[c]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            z = np.where(e.std > 0, np.abs(fe.values - e.values) / e.std, 0.0)
+        dh = max(dh, float(np.max(z)))
+    fast_joint = joint_nees(*fast, survey)[0] if fast[1].model is HeadModel.FULL or any(
+        e.estimated for e in fast[1].cameras.values()) else float("nan")
+    return {"node_diff_over_std": dn, "head_diff_over_std": dh, "joint_nees_fast": fast_joint,
+            "joint_nees_ref": ref_joint, "flagged_fast": len(fast[0].flagged), "flagged_ref": len(ref[0].flagged),
+            "estimated_same": all(fast[1].cameras[c].estimated == e.estimated for c, e in ref[1].cameras.items())}
+
+
+def one_run(args: tuple[str, str, int, float | None, bool]) -> dict:
     try:
         return _one_run(*args)
     except FglocError as exc:  # reported and counted, not hidden
         return {"seed": args[2], "failed": str(exc)}
 
 
-def _one_run(experiment: str, name: str, seed: int) -> dict:
+def _one_run(experiment: str, name: str, seed: int, pan_range: float | None = None, fast: bool = False) -> dict:
     base = scene(name)
     rng_seed = 1 if experiment == "fixed" else 2000 + seed
     heads = sample_head_errors(base.camera_ids, np.random.default_rng(rng_seed))
     clean = redraw(base, 1000 + seed)
-    dirty = inject_head_errors(clean, heads)
     out: dict = {"seed": seed, "heads": {c: v.tolist() for c, v in heads.items()}}
+    if pan_range is not None:  # the readings the true heads could take, with and without head errors
+        clean, dropped = limit_pan_range(clean, pan_range, heads)
+        out["dropped"] = len(dropped)
+    dirty = inject_head_errors(clean, heads)
     full, rep = solve_with_head_model(dirty, HeadModel.FULL)
     out["full"] = node_errors(full, dirty) + joint_nees(full, rep, dirty)
     out["full_z"] = head_z(rep, heads)
+    if fast:
+        out["fast_full"] = fast_vs_reference(solve_with_head_model(dirty, HeadModel.FULL, fast_path=True),
+                                             (full, rep), dirty, out["full"][3])
     if experiment == "fixed":  # the frequentist check of the full model only
         return out
     ideal, irep = solve_with_head_model(dirty, HeadModel.IDEAL)
@@ -180,6 +227,9 @@ def _one_run(experiment: str, name: str, seed: int) -> dict:
     out["auto"] = node_errors(auto, dirty) + joint_nees(auto, arep, dirty, (full, rep))
     out["auto_cameras"] = sum(bool(c.estimated) for c in arep.cameras.values())
     out["auto_lr"] = [arep.lr_statistic, arep.lr_threshold]
+    if fast:
+        out["fast_auto"] = fast_vs_reference(solve_with_head_model(dirty, HeadModel.AUTO, fast_path=True),
+                                             (auto, arep), dirty, out["auto"][3])
     if experiment == "population":
         cideal, cirep = solve_with_head_model(clean, HeadModel.IDEAL)
         out["clean_ideal"] = node_errors(cideal, clean) + joint_nees(cideal, cirep, clean)
@@ -231,18 +281,26 @@ def main() -> None:
     ap.add_argument("--scene", choices=SCENES, default="paper")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--out", default=None)
+    ap.add_argument("--pan-range-deg", type=float, default=None,
+                    help="heads turn only +-this far; readings beyond are dropped (default: unlimited)")
+    ap.add_argument("--fast-check", action="store_true",
+                    help="also solve on the node-eliminated fast path and compare with the reference graph")
     a = ap.parse_args()
     base = scene(a.scene)
-    jobs = [(a.experiment, a.scene, s) for s in range(a.runs)]
+    pan_range = None if a.pan_range_deg is None else float(np.deg2rad(a.pan_range_deg))
+    jobs = [(a.experiment, a.scene, s, pan_range, a.fast_check) for s in range(a.runs)]
     with ProcessPoolExecutor(a.workers) as pool:
         all_runs = list(pool.map(one_run, jobs, chunksize=4))
     runs = [r for r in all_runs if "failed" not in r]
     dim = _dim(base)
+    if pan_range is not None:  # the bounds of the readings a head with that range takes
+        base = limit_pan_range(base, pan_range)[0]
     crb_i = float(np.sqrt(np.mean([np.trace(c) for c in cramer_rao_bound(base).values()])))
     zero = {c: np.zeros(HEAD_DIM) for c in base.camera_ids}
     crb_e = extended_crb(base, zero)
     keys = ("ideal", "full", "auto", "clean_ideal", "clean_auto") if a.experiment == "population" else ("full",)
     summary: dict = {"experiment": a.experiment, "runs": len(runs), "scene": a.scene, "crb_ideal": crb_i,
+                     "pan_range_deg": a.pan_range_deg,
                      "crb_extended": crb_e, "failed": [r for r in all_runs if "failed" in r]}
     summary.update(summarize(runs, keys, dim))
     for key in keys:
@@ -259,6 +317,19 @@ def main() -> None:
         summary["auto_ideal_kept_share"] = float(np.mean([r["auto_cameras"] == 0 for r in runs]))
         summary["clean_auto_picks_ideal"] = float(np.mean([r["clean_auto_ideal"] for r in runs]))
         summary["clean_auto_rms_ratio"] = summary["clean_auto"]["rms"] / summary["clean_ideal"]["rms"]
+    if pan_range is not None:
+        summary["dropped_readings_mean"] = float(np.mean([r["dropped"] for r in runs]))
+    for key in ("fast_full", "fast_auto"):
+        fr = [r[key] for r in runs if key in r]
+        if fr:
+            same = [("missing_node" not in f and f["node_diff_over_std"] < 1e-3 and f["head_diff_over_std"] < 1e-3
+                     and f["estimated_same"] and f["flagged_fast"] == f["flagged_ref"]) for f in fr]
+            summary[key] = {
+                "runs": len(fr), "same_within_1e-3_std": int(sum(same)),
+                "max_node_diff_over_std": max(f.get("node_diff_over_std", np.inf) for f in fr),
+                "max_head_diff_over_std": max(f.get("head_diff_over_std", np.inf) for f in fr),
+                "differing_seeds": [r["seed"] for r, ok in zip((r for r in runs if key in r), same) if not ok],
+            }
     if a.out:
         os.makedirs(os.path.dirname(a.out) or ".", exist_ok=True)
         with open(a.out, "w") as f:

@@ -35,6 +35,11 @@ def register(sub: argparse._SubParsersAction) -> None:
         "or name=value,... (degrees, percent, baseline units); "
         "see docs/head-calibration.md",
     )
+    p.add_argument(
+        "--pan-range-deg", type=float, default=None, metavar="DEG",
+        help="the heads turn only +-DEG (e.g. 170 for an EVI-D70, 100 for an EVI-D100): readings whose true "
+        "mechanical pan lies beyond are left out (default: unlimited)",
+    )
     p.set_defaults(run=run)
 
 
@@ -72,17 +77,25 @@ def scenario_from_args(args: argparse.Namespace) -> PaperScenario:
 
 
 def run(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from fgloc.cli._args import finite
     from fgloc.files.survey_result import write_survey
+    from fgloc.sim.head_errors import inject_head_errors, parse_head_errors
     from fgloc.sim.scenes import paper_scenario
 
+    pan_range = None
+    if args.pan_range_deg is not None:
+        pan_range = float(np.deg2rad(finite("--pan-range-deg", args.pan_range_deg, above=0.0, at_most=180.0)))
     survey = paper_scenario(scenario_from_args(args))
-    if args.head_errors is not None:
-        import numpy as np
-
-        from fgloc.sim.head_errors import inject_head_errors, parse_head_errors
-
-        heads = parse_head_errors(args.head_errors, survey.camera_ids, np.random.default_rng(args.seed + 1))
-        survey = inject_head_errors(survey, heads)
+    n_readings = len(survey.observations)
+    heads = {} if args.head_errors is None else parse_head_errors(
+        args.head_errors, survey.camera_ids, np.random.default_rng(args.seed + 1))
+    if heads or pan_range is not None:
+        survey = inject_head_errors(survey, heads, pan_range)
+    if pan_range is not None:
+        print(f"--pan-range-deg {args.pan_range_deg:g}: left out {n_readings - len(survey.observations)} "
+              f"of {n_readings} readings beyond the pan range")
     write_survey(survey, args.output)
     print(f"wrote {args.output}: {len(survey.node_ids)} nodes, {len(survey.camera_ids)} cameras, "
           f"{len(survey.observations)} observations")

@@ -11,10 +11,17 @@ draws a head from the population those sizes are the one-sigma spread of (zero-m
 Gaussian, :data:`fgloc.core.head_model.DEFAULT_PRIOR_SIGMAS`), the population the
 self-calibration's prior describes: Monte Carlo runs that check its covariances
 draw each run's heads from it.
+
+A real head also has a limited pan range (an EVI-D70 or SNC-RZ25N turns +-170 degrees,
+an EVI-D100 +-100 degrees): ``pan_range`` of :func:`inject_head_errors` drops the readings
+whose mechanical pan the head could not take (:func:`mechanical_pan`,
+:func:`limit_pan_range`). Without it a simulated head can look straight behind itself,
+across the +-180 degree seam where the model's pan-scale reading jumps.
 """
 
 from __future__ import annotations
 
+import logging
 from dataclasses import replace
 
 import numpy as np
@@ -23,6 +30,8 @@ from fgloc.core.errors import FglocError
 from fgloc.core.geometry import FloatArray, bearing_pan_tilt, wrap_angle
 from fgloc.core.head_model import HEAD_DIM, HEAD_PARAMETERS, head_pan_tilt
 from fgloc.core.model import Survey
+
+log = logging.getLogger(__name__)
 
 #: Magnitudes of typical head errors (rad, rad, rad, 1, 1, baseline units for the lever arm's length):
 #: the population's one-sigma spread, equal to the self-calibration prior.
@@ -77,8 +86,61 @@ def parse_head_errors(text: str, camera_ids: list[str], rng: np.random.Generator
     return {cid: p.copy() for cid in camera_ids}
 
 
-def inject_head_errors(survey: Survey, heads: dict[str, FloatArray]) -> Survey:
-    """The survey with each camera's readings as its head ``heads[cid]`` (7,) would give them."""
+def mechanical_pan(survey: Survey, heads: dict[str, FloatArray] | None = None) -> FloatArray:
+    """Per observation the true mechanical pan phi (rad, in (-pi, pi]) at which the camera's head
+    (``heads[cid]``, ideal when absent) looks at the node: the encoder reading divided by
+    ``1 + pan_scale``, from the survey's truth."""
+    truth = survey.truth
+    if truth is None:
+        raise FglocError("a mechanical pan needs a survey with truth")
+    obs = survey.observations
+    if not obs:
+        return np.zeros(0)
+    heads = heads or {}
+    R = np.array([truth.cameras[o.camera].rotation for o in obs])
+    c = np.array([truth.cameras[o.camera].position for o in obs])
+    x = np.array([truth.nodes[o.node] for o in obs], dtype=float)
+    q = np.einsum("nji,nj->ni", R, x - c)  # R^T (x - c): base frame
+    params = np.array([heads.get(o.camera, np.zeros(HEAD_DIM)) for o in obs], dtype=float)
+    pan, _, _, _ = head_pan_tilt(q, params, jacobians=False)
+    return np.asarray(pan / (1.0 + params[:, 3]), dtype=float)
+
+
+def limit_pan_range(
+    survey: Survey, pan_range: float, heads: dict[str, FloatArray] | None = None
+) -> tuple[Survey, list[int]]:
+    """The survey without the readings whose true mechanical pan ``|phi|`` exceeds ``pan_range``
+    (rad; a head limited to +-pan_range cannot take them), and the indices of the dropped
+    readings in ``survey.observations``. ``heads`` as in :func:`mechanical_pan`."""
+    if not pan_range > 0.0:
+        raise FglocError(f"pan range must be positive ({pan_range!r} rad)")
+    phi = mechanical_pan(survey, heads)
+    dropped = [int(j) for j in np.flatnonzero(np.abs(phi) > pan_range)]
+    if not dropped:
+        return survey, []
+    gone = set(dropped)
+    kept = [o for j, o in enumerate(survey.observations) if j not in gone]
+    return replace(survey, observations=kept), dropped
+
+
+def inject_head_errors(
+    survey: Survey, heads: dict[str, FloatArray], pan_range: float | None = None
+) -> Survey:
+    """The survey with each camera's readings as its head ``heads[cid]`` (7,) would give them.
+
+    ``pan_range`` (rad, None = unlimited): readings whose true mechanical pan lies beyond
+    +-pan_range are dropped first (:func:`limit_pan_range`, logged at INFO with their count),
+    as a head with that range could not take them.
+    """
+    if pan_range is not None:
+        survey, dropped = limit_pan_range(survey, pan_range, heads)
+        if dropped:
+            log.info("pan range +-%.1f deg: dropped %d of %d readings", np.rad2deg(pan_range), len(dropped),
+                     len(survey.observations) + len(dropped))
+    return _inject(survey, heads)
+
+
+def _inject(survey: Survey, heads: dict[str, FloatArray]) -> Survey:
     truth = survey.truth
     if truth is None:
         raise FglocError("head errors can only be injected into a survey with truth")
