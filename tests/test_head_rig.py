@@ -151,7 +151,10 @@ def test_rendered_simulated_head_with_errors_centres_at_the_head_models_readings
 
 # -- surveys: readings and the self-calibrating solve ----------------------------------------------
 
-@pytest.mark.parametrize("twin", ["inprocess", "visca"])
+# The VISCA twin runs on a compressed clock (as in tests/test_survey_acceptance.py, TWIN_TIMING):
+# on a loaded 2-core machine a reading was once missing (35 of 36, seen once in a fresh-clone run,
+# never when re-run); the re-run keeps the assertions, and the message names the journal's reasons.
+@pytest.mark.parametrize("twin", ["inprocess", pytest.param("visca", marks=pytest.mark.flaky(reruns=2, reruns_delay=1))])
 def test_survey_readings_are_the_imperfect_heads(tmp_path, twin):
     """Through the survey runner (and for ``visca`` the real VISCA driver reading Pan-tiltPosInq
     bytes from the pty twin), every reading is what the imperfect head reads, to within the
@@ -165,7 +168,11 @@ def test_survey_readings_are_the_imperfect_heads(tmp_path, twin):
         scene = opened.simulated.scene  # type: ignore[attr-defined]
     finally:
         opened.close()
-    assert len(survey.observations) == 36
+    if len(survey.observations) != 36:
+        from fgloc.files.journal import read_journal
+
+        state = read_journal(tmp_path / "s" / "journal.jsonl")
+        pytest.fail(f"{len(survey.observations)} of 36 readings; not_found: {state.not_found}")
     far, worst, checked = 0, 0.0, 0
     for o in survey.observations:
         i, j = rig.camera_ids.index(o.camera), rig.node_ids.index(o.node)
