@@ -37,12 +37,15 @@ from __future__ import annotations
 
 import enum
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import gtsam
 import numpy as np
 
 from fgloc.core.geometry import PAN_SINGULARITY_EPS, FloatArray, wrap_angle
-from fgloc.factors.camera_side import CameraSide, SideState
+
+if TYPE_CHECKING:
+    from fgloc.factors.camera_side import CameraSide, SideState
 
 
 class Kernel(str, enum.Enum):

@@ -30,12 +30,9 @@ import gtsam
 import numpy as np
 
 from fgloc.core.geometry import FloatArray
-from fgloc.core.head_model import HEAD_DIM
 from fgloc.core.model import CameraPose, NodeEstimate, NodeMode, Result, SolveStats, Survey
 from fgloc.factors.baseline_prior import BaselinePrior
-from fgloc.factors.camera_side import CameraSide
 from fgloc.factors.eliminated_readings import EliminatedReadings, Kernel
-from fgloc.factors.pan_tilt_head_factor import head_prior_factor
 from fgloc.init.start import InitialEstimate
 from fgloc.solve.joint import (
     RobustKernel,
@@ -149,18 +146,25 @@ def build_eliminated(
                 if views else None)
     head_keys: dict[str, int] = {}
     active: dict[str, tuple[int, ...]] = {}
-    fixed = np.zeros((len(camera_keys), HEAD_DIM))
-    if heads is not None:
+    side = fixed = None
+    if heads is not None or views:
+        # Imported here: an ideal survey without views (the common case) needs neither.
+        from fgloc.core.head_model import HEAD_DIM
+        from fgloc.factors.camera_side import CameraSide
+
+        fixed = np.zeros((len(camera_keys), HEAD_DIM))
+    if heads is not None and fixed is not None:
         for slot, cid in enumerate(camera_keys):
             idx = tuple(sorted(heads.active.get(cid, ())))
             if heads.start is not None and cid in heads.start:
                 fixed[slot] = heads.start[cid]
             if idx:
                 head_keys[cid], active[cid] = head_key(survey.camera_ids.index(cid)), idx
-    side = CameraSide(
-        len(camera_keys), cam_slot[table.camera_index[used]],
-        head_keys=[head_keys.get(c, -1) for c in camera_keys], head_active=[active.get(c, ()) for c in camera_keys],
-        head_fixed=fixed, view_keys=[view_key(v) for v in views], view=obs_view, view_pan=table.view_pan[used])
+    if fixed is not None:
+        side = CameraSide(
+            len(camera_keys), cam_slot[table.camera_index[used]],
+            head_keys=[head_keys.get(c, -1) for c in camera_keys], head_active=[active.get(c, ()) for c in camera_keys],
+            head_fixed=fixed, view_keys=[view_key(v) for v in views], view=obs_view, view_pan=table.view_pan[used])
     readings = EliminatedReadings(
         list(camera_keys.values()),
         cam_slot[table.camera_index[used]],
@@ -187,7 +191,9 @@ def build_eliminated(
         values.insert(view_key(v), np.zeros(2))
         graph.add(gtsam.PriorFactorVector(view_key(v), np.zeros(2), gtsam.noiseModel.Isotropic.Sigma(2, s_v)))
     for cid, key in head_keys.items():
-        assert heads is not None
+        assert heads is not None and fixed is not None
+        from fgloc.factors.pan_tilt_head_factor import head_prior_factor
+
         values.insert(key, fixed[list(camera_keys).index(cid)][list(active[cid])].copy())
         if heads.with_prior:
             graph.add(head_prior_factor(key, active[cid], None, heads.prior_sigmas))
