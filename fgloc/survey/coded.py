@@ -85,7 +85,7 @@ from fgloc.survey.clock import (
     price,
     sum_times,
 )
-from fgloc.survey.coded_clock import ClockSink, CountingLeds, clocked_opener, node_field_time, rig_timing
+from fgloc.survey.coded_clock import SequentialClock
 from fgloc.survey.coded_views import (
     coded_observation,
     distinct_directions,
@@ -165,10 +165,9 @@ class CodedSurvey:
         self.node_of_code = {a - self.first: n for n, a in self.addresses.items()}
         self.frames = frames_for(self.book.length, self.settings.periods)
         self.camera = CameraTiming()
-        self.sink = ClockSink(rig.camera_ids)
-        self.open_head = clocked_opener(open_head, self.sink)  # the runner's heads: fallback moves are priced
-        self.leds = CountingLeds(leds)  # type: ignore[arg-type]
-        self.timing = {c.id: rig_timing(c.model) for c in rig.cameras}
+        # the runner's heads and LEDs: fallback nodes are priced as a sequential survey's nodes are
+        self.clock = SequentialClock(rig, open_head, leds)  # type: ignore[arg-type]
+        self.open_head, self.leds, self.timing = self.clock.open_head, self.clock.leds, self.clock.timing
         self.stats = CodedStats()
         self.lanes: dict[str, list[Op]] = {c: [] for c in rig.camera_ids}
         self.radio_s = 0.0
@@ -488,8 +487,7 @@ class CodedSurvey:
                 continue
             self.stats.fallback_nodes += 1
             logger.info(f"{node}: not decoded by every camera; measured the sequential way")
-            self.sink.take()
-            self.sink.active, before = True, self.leds.commands
+            self.clock.begin()
             grids = {c: w.locator.cells for c, w in runner.workers.items()}
             try:
                 for cam, worker in runner.workers.items():
@@ -500,11 +498,9 @@ class CodedSurvey:
                         worker.locator.cells = [worker.locator.clamp(p, t) for p, t in blobs]
                 runner.run_node(node, pool, check_misses=False)
             finally:
-                self.sink.active = False
+                node_time = self.clock.end()
                 for cam, worker in runner.workers.items():
                     worker.locator.cells = grids[cam]
-            node_time = node_field_time(self.sink.take(), self.leds.commands - before, self.rig.search.led_wait_s,
-                                        self.timing)
             runner.journal.field_time("fallback_node", dict(node_time.phases), node=node)
             self.fallback = self.fallback + node_time
             if runner.on_progress is not None:
