@@ -254,52 +254,72 @@ def build_self_calibration_problem(
     )
 
 
-def _dense_jacobian(problem: SelfCalibrationProblem, values: gtsam.Values, n_factors: int) -> tuple[
-        FloatArray, dict[int, slice]]:
-    """Whitened Jacobian of the first ``n_factors`` factors, columns per key (sorted keys).
-
-    Only keys those factors touch get columns: a node whose every reading was excluded as
-    an outlier is in ``values`` but in no factor, and GTSAM refuses an ordering naming it."""
-    problem.prepare(values)
-    sub = gtsam.NonlinearFactorGraph()
-    for i in range(n_factors):
-        sub.add(problem.graph.at(i))
-    linear = sub.linearize(values)
-    ordering = gtsam.Ordering()
-    used = set(linear.keys())
-    keys = sorted(k for k in values.keys() if k in used)
-    for k in keys:
-        ordering.push_back(k)
-    A, _ = linear.jacobian(ordering)
-    cols: dict[int, slice] = {}
-    offset = 0
-    dims = values.dims()
-    for k in keys:
-        cols[k] = slice(offset, offset + int(dims[k]))
-        offset += int(dims[k])
-    return np.asarray(A), cols
-
-
 def head_information(problem: SelfCalibrationProblem, values: gtsam.Values) -> tuple[FloatArray, list[tuple[str, int]]]:
     """Data-only Fisher information of the head parameters with poses and nodes eliminated.
 
     Returns the matrix (in the whitened units of the parameters themselves) and
     its rows as (camera id, parameter index). Uses the bearings and the gauge, no head prior.
+
+    ``J_h' (I - P_x) J_h`` with ``P_x`` the projection on the pose and node columns, computed
+    by block elimination instead of a dense least squares (4 s at 1000 nodes x 4 cameras):
+    each node's 2x2 / 3x3 block is eliminated from the sum of its readings' normal equations,
+    then the poses from the small pose-and-head system. The gauge prior pins the poses' null
+    space; it does not change the heads' information (at the ideal head, where this is
+    linearized, the gauge moves no head parameter).
     """
     assert problem.heads is not None
-    n_data = problem.graph.size() - len(problem.head_keys)
-    A, cols = _dense_jacobian(problem, values, n_data)
-    head_cols: list[int] = []
+    problem.prepare(values)
+    head_keys = set(problem.head_keys.values())
+    sub = gtsam.NonlinearFactorGraph()
+    for i in range(problem.graph.size()):
+        f = problem.graph.at(i)
+        if not set(f.keys()) <= head_keys:  # every factor but the head priors
+            sub.add(f)
+    linear = sub.linearize(values)
+    node_keys = set(problem.node_keys.values())
+    dims = values.dims()
+    # Global columns: cameras first, then heads (rows of the result), in a fixed order.
+    global_keys = list(problem.camera_keys.values()) + list(problem.head_keys.values())
+    offset, gcol = 0, {}
+    for k in global_keys:
+        gcol[k] = slice(offset, offset + int(dims[k]))
+        offset += int(dims[k])
+    n_cam = sum(int(dims[k]) for k in problem.camera_keys.values())
+    lam = np.zeros((offset, offset))
+    per_node: dict[int, list[tuple[FloatArray, FloatArray]]] = {}
+    for i in range(linear.size()):
+        f = linear.at(i)
+        if f is None:
+            continue
+        A = np.asarray(f.jacobian()[0])
+        keys = list(f.keys())
+        A_g = np.zeros((A.shape[0], offset))
+        A_n = None
+        node = None
+        col = 0
+        for k in keys:
+            d = int(dims[k])
+            if k in node_keys:
+                node, A_n = k, A[:, col:col + d]
+            else:
+                A_g[:, gcol[k]] = A[:, col:col + d]
+            col += d
+        if node is None:
+            lam += A_g.T @ A_g
+        else:
+            per_node.setdefault(node, []).append((A_n, A_g))
+    for blocks in per_node.values():
+        A_n = np.vstack([b[0] for b in blocks])
+        A_g = np.vstack([b[1] for b in blocks])
+        h_ng = A_n.T @ A_g
+        lam += A_g.T @ A_g - h_ng.T @ np.linalg.pinv(A_n.T @ A_n) @ h_ng
+    lam = 0.5 * (lam + lam.T)
+    c, h = slice(0, n_cam), slice(n_cam, offset)
+    info = lam[h, h] - lam[h, c] @ np.linalg.solve(lam[c, c], lam[c, h])
     labels: list[tuple[str, int]] = []
-    for cid, key in problem.head_keys.items():
-        s = cols[key]
-        head_cols += list(range(s.start, s.stop))
+    for cid in problem.head_keys:
         labels += [(cid, i) for i in problem.active[cid]]
-    other = np.setdiff1d(np.arange(A.shape[1]), head_cols)
-    J_h, J_x = A[:, head_cols], A[:, other]
-    coef, *_ = np.linalg.lstsq(J_x, J_h, rcond=None)
-    R = J_h - J_x @ coef
-    return R.T @ R, labels
+    return 0.5 * (info + info.T), labels
 
 
 def head_observability(
