@@ -213,7 +213,7 @@ def _one_run(experiment: str, name: str, seed: int, pan_range: float | None = No
         clean, dropped = limit_pan_range(clean, pan_range, heads)
         out["dropped"] = len(dropped)
     dirty = inject_head_errors(clean, heads)
-    full, rep = solve_with_head_model(dirty, HeadModel.FULL)
+    full, rep = solve_with_head_model(dirty, HeadModel.FULL, fast_path=False)
     out["full"] = node_errors(full, dirty) + joint_nees(full, rep, dirty)
     out["full_z"] = head_z(rep, heads)
     if fast:
@@ -223,7 +223,7 @@ def _one_run(experiment: str, name: str, seed: int, pan_range: float | None = No
         return out
     ideal, irep = solve_with_head_model(dirty, HeadModel.IDEAL)
     out["ideal"] = node_errors(ideal, dirty) + joint_nees(ideal, irep, dirty)
-    auto, arep = solve_with_head_model(dirty, HeadModel.AUTO)
+    auto, arep = solve_with_head_model(dirty, HeadModel.AUTO, fast_path=False)
     out["auto"] = node_errors(auto, dirty) + joint_nees(auto, arep, dirty, (full, rep))
     out["auto_cameras"] = sum(bool(c.estimated) for c in arep.cameras.values())
     out["auto_lr"] = [arep.lr_statistic, arep.lr_threshold]
@@ -235,8 +235,8 @@ def _one_run(experiment: str, name: str, seed: int, pan_range: float | None = No
     if experiment == "population":
         cideal, cirep = solve_with_head_model(clean, HeadModel.IDEAL)
         out["clean_ideal"] = node_errors(cideal, clean) + joint_nees(cideal, cirep, clean)
-        cauto, crep = solve_with_head_model(clean, HeadModel.AUTO)
-        cfull, cfrep = solve_with_head_model(clean, HeadModel.FULL)
+        cauto, crep = solve_with_head_model(clean, HeadModel.AUTO, fast_path=False)
+        cfull, cfrep = solve_with_head_model(clean, HeadModel.FULL, fast_path=False)
         out["clean_auto"] = node_errors(cauto, clean) + joint_nees(cauto, crep, clean, (cfull, cfrep))
         out["clean_auto_ideal"] = all(not c.estimated for c in crep.cameras.values())
         out["clean_full"] = node_errors(cfull, clean) + joint_nees(cfull, cfrep, clean)

@@ -25,6 +25,7 @@ from fgloc.solve.self_calibration import (
     HeadModel,
     SelfCalibrationError,
     chi2_quantile,
+    fast_path_is_safe,
     head_observability,
     solve_self_calibrated,
     solve_with_head_model,
@@ -278,6 +279,22 @@ def test_fast_path_matches_the_reference_graph_when_heads_have_a_pan_range() -> 
         np.testing.assert_allclose(fast.result.nodes[nid].position, est.position, atol=1e-6)
     value, dof = joint_nees(ref, survey)
     assert value / dof < 3.0
+
+
+def test_default_takes_the_fast_path_only_when_no_reading_is_near_the_pan_seam() -> None:
+    """Seed 4 again: with unlimited pan some readings lie beyond 170 degrees and the default is the
+    reference graph (bit for bit); limited to +-170 degrees the default is the fast path."""
+    s = random_scene(RandomScene(n_cameras=3, n_nodes=40, visibility=1.0, ceiling_share=0.0,
+                                 height_range=(0.3, 0.6), seed=4))
+    heads = sample_head_errors(s.camera_ids, np.random.default_rng(4 + 50))
+    for pan_range, safe in ((None, False), (np.deg2rad(170.0), True)):
+        survey = inject_head_errors(s, heads, pan_range=pan_range)
+        assert fast_path_is_safe(survey) is safe
+        default, _ = solve_with_head_model(survey, HeadModel.FULL)
+        forced, _ = solve_with_head_model(survey, HeadModel.FULL, fast_path=safe)
+        for nid, est in forced.nodes.items():
+            np.testing.assert_array_equal(default.nodes[nid].position, est.position)
+            np.testing.assert_array_equal(default.nodes[nid].covariance, est.covariance)
 
 
 def _facing_paper_scene(seed: int):

@@ -494,12 +494,33 @@ def _report(model: HeadModel, fit: SelfCalibratedSolve | None, survey: Survey, d
     return HeadCalibrationReport(model, cams, decision, ranks=ranks)
 
 
+#: The fast path is taken by default only when every reading's pan lies within this (rad) of
+#: zero. A head that turns +-170 degrees (EVI-D70, SNC-RZ25N) reads up to 170 (1 + k_p); with
+#: |k_p| <= 2 % (four prior sigmas) a reading of 175 degrees is a mechanical pan >= 1.4 degrees
+#: from the +-180 degree seam where the pan scale's reading jumps, ~10x what a node's estimate
+#: moves between the ideal start and the head model's optimum (docs/head-calibration.md).
+FAST_PATH_PAN_LIMIT = math.radians(175.0)
+
+
+def fast_path_is_safe(survey: Survey, exclude: frozenset[int] = frozenset()) -> bool:
+    """True when no reading kept (``exclude``: indices into ``survey.observations``) lies
+    beyond :data:`FAST_PATH_PAN_LIMIT` in |pan|."""
+    pan = np.asarray(survey.observation_table.pan)
+    keep = np.ones(len(pan), dtype=bool)
+    keep[[i for i in exclude if 0 <= i < len(pan)]] = False
+    return bool(np.all(np.abs(pan[keep]) <= FAST_PATH_PAN_LIMIT))
+
+
 def solve_with_head_model(
     survey: Survey, model: HeadModel = HeadModel.AUTO, options: SolverOptions = SolverOptions(),
-    prior_sigmas: FloatArray = DEFAULT_PRIOR_SIGMAS, fast_path: bool = False,
+    prior_sigmas: FloatArray = DEFAULT_PRIOR_SIGMAS, fast_path: bool | None = None,
 ) -> tuple[Result, HeadCalibrationReport]:
-    """Solve ``survey`` with the ideal, the full or the data-selected head model
-    (``fast_path``: see :func:`solve_self_calibrated`).
+    """Solve ``survey`` with the ideal, the full or the data-selected head model.
+
+    ``fast_path`` (see :func:`solve_self_calibrated`): ``None`` (default) takes the
+    node-eliminated fast path when ``options.eliminate_nodes`` and every reading the ideal
+    solve kept has |pan| <= 175 degrees (:func:`fast_path_is_safe`), the reference graph
+    otherwise; ``True`` / ``False`` force one.
 
     The ideal solve (:func:`fgloc.solve.joint.solve_survey`, outlier flagging
     included) gives the start; the extended model judges every reading again
@@ -508,6 +529,8 @@ def solve_with_head_model(
     """
     ideal = solve_survey(survey, options)
     exclude = frozenset(f.index for f in ideal.flagged)
+    if fast_path is None:
+        fast_path = options.eliminate_nodes and fast_path_is_safe(survey, exclude)
     start = InitialEstimate(cameras=dict(ideal.cameras),
                             nodes={n: e.position for n, e in ideal.nodes.items()}, unlocalized=dict(ideal.unlocalized))
     if model is HeadModel.IDEAL:
