@@ -303,6 +303,7 @@ def _facing_paper_scene(seed: int):
     from fgloc.sim.scenes import observe
 
     s = paper_scenario(PaperScenario(heights=(0.3, 0.3), seed=3))
+    assert s.truth is not None
     cams = dict(s.truth.cameras)
     cams["cam0"] = replace(cams["cam0"], rotation=np.diag([-1.0, -1.0, 1.0]) @ cams["cam0"].rotation)
     nodes = np.array([s.truth.nodes[n] for n in s.node_ids])

@@ -288,16 +288,15 @@ def head_information(problem: SelfCalibrationProblem, values: gtsam.Values) -> t
     lam = np.zeros((offset, offset))
     per_node: dict[int, list[tuple[FloatArray, FloatArray]]] = {}
     for i in range(linear.size()):
-        f = linear.at(i)
-        if f is None:
+        factor: gtsam.JacobianFactor = linear.at(i)  # type: ignore[assignment]
+        if factor is None:
             continue
-        A = np.asarray(f.jacobian()[0])
-        keys = list(f.keys())
+        A = np.asarray(factor.jacobian()[0])
         A_g = np.zeros((A.shape[0], offset))
-        A_n = None
+        A_n: FloatArray = np.zeros((A.shape[0], 0))
         node = None
         col = 0
-        for k in keys:
+        for k in factor.keys():
             d = int(dims[k])
             if k in node_keys:
                 node, A_n = k, A[:, col:col + d]
