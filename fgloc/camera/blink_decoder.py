@@ -364,8 +364,8 @@ def _pair_readings(
     head_tilt: float, cfg: PairConfig,
 ) -> tuple[list[RefusedBlob], list[DecodedReading]]:
     """Try the refused blobs that may be two LEDs as pairs. Refusals within ``cfg.group_px``
-    of each other form one candidate (at most two refusals; none with a decoded reading
-    that close), centred on the changed light (max - min over the samples); a decoded
+    of each other form one candidate, centred at their mean (none with a decoded reading
+    within ``cfg.single_px``: that blob is one LED); a decoded
     pair replaces the candidate's refusals by two readings that name each other
     (``partner``); a refused pair leaves them as they were."""
     cand = [k for k, rf in enumerate(refused) if rf.kind != "duplicate" and any(s in rf.reason for s in _PAIR_KINDS)]
@@ -375,23 +375,13 @@ def _pair_readings(
                                          <= cfg.group_px for j in g)]
         merged = [k] + [j for g in near for j in g]
         groups = [g for g in groups if g not in near] + [merged]
-    good = stack[valid]
-    change = good.max(axis=0) - good.min(axis=0)
     drop: set[int] = set()
     out: list[DecodedReading] = []
     for g in groups:
         u0 = float(np.mean([refused[j].u for j in g]))
         v0 = float(np.mean([refused[j].v for j in g]))
-        if len(g) > 2 or any(math.hypot(rd.u - u0, rd.v - v0) <= cfg.group_px for rd in readings):
+        if any(math.hypot(rd.u - u0, rd.v - v0) <= cfg.single_px for rd in readings):
             continue
-        cu, cv, r = int(round(u0)), int(round(v0)), cfg.radius_px
-        if not (r <= cu < change.shape[1] - r and r <= cv < change.shape[0] - r):
-            continue
-        win = change[cv - r: cv + r + 1, cu - r: cu + r + 1]
-        win = np.clip(win - np.median(win), 0.0, None)
-        if win.sum() > 0:
-            ys, xs = np.mgrid[-r: r + 1, -r: r + 1]
-            u0, v0 = cu + float((win * xs).sum() / win.sum()), cv + float((win * ys).sum() / win.sum())
         res = decode_pair(stack, valid, positions, u0, v0, book, noise_sigma, cfg)
         if res.index is None or res.uv is None:
             continue

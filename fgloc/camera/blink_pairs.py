@@ -53,7 +53,8 @@ class PairConfig:
     """Pair-decoding thresholds (pixels; fractions of the one-LED flux step)."""
 
     radius_px: int = 5  #: aperture half-width around the blob centre (both LEDs inside)
-    group_px: float = 6.0  #: refused blobs this close form one candidate pair
+    group_px: float = 4.0  #: refused blobs this close form one candidate pair
+    single_px: float = 2.5  #: no candidate pair this close to a decoded single LED
     level_band: float = 0.3  #: a sample within this x step of a level is that count
     max_level_skew: float = 0.2  #: |one-LED level - midpoint of off and two-LED| over the step
     min_snr: float = 12.0  #: one-LED step in flux-noise sigmas
