@@ -32,6 +32,7 @@ from scipy.stats import chi2
 
 from fgloc.camera.intrinsics import CameraIntrinsics
 from fgloc.survey.coded_readings import CodedNoise, accuracy_trial
+from fgloc.survey.field_plans import pair_rate_table
 
 
 def main() -> None:
@@ -44,8 +45,9 @@ def main() -> None:
     ap.add_argument("--fx-error", type=float, default=0.0, help="relative focal-length calibration error")
     ap.add_argument("--miss-rate", type=float, default=0.0, help="decoder miss rate per recording")
     ap.add_argument("--fields", action="store_true", help="decode single fields (half vertical resolution)")
-    ap.add_argument("--pair-rate", type=float, default=0.0,
-                    help="pair decoding: share of crowded groups of exactly two read as a pair in the wide view")
+    ap.add_argument("--pair-rate", default="", metavar="RATE|PX:RATE,...,inf:RATE",
+                    help="pair decoding: share of crowded groups of exactly two read as a pair in the wide view, or "
+                    "per bound on the distance to the nearest third mote (px), as field_time.py --pair-decode")
     ap.add_argument("--pair-pan", type=float, default=None, help="deg, pair-decoded centroid error RMS (pan x cos tilt)")
     ap.add_argument("--pair-tilt", type=float, default=None, help="deg, pair-decoded centroid error RMS (tilt)")
     ap.add_argument("--independent-head", action="store_true",
@@ -53,10 +55,15 @@ def main() -> None:
     ap.add_argument("--no-views", action="store_true",
                     help="readings do not name their views: the solver takes them as independent (total sigma)")
     args = ap.parse_args()
+    try:
+        table = pair_rate_table(args.pair_rate) if args.pair_rate else ((math.inf, 0.0),)
+    except ValueError as exc:
+        ap.error(f"--pair-rate: {exc} ({args.pair_rate})")
     noise = CodedNoise(decoder_sigma_pan=math.radians(args.decoder_pan),
                        decoder_sigma_tilt=math.radians(args.decoder_tilt), fx_error=args.fx_error,
                        miss_rate=args.miss_rate, field_rows=args.fields,
-                       shared_head=not args.independent_head, views=not args.no_views, pair_rate=args.pair_rate,
+                       shared_head=not args.independent_head, views=not args.no_views,
+                       pair_rate=table[0][1] if len(table) == 1 else table,
                        pair_sigma_pan=None if args.pair_pan is None else math.radians(args.pair_pan),
                        pair_sigma_tilt=None if args.pair_tilt is None else math.radians(args.pair_tilt))
     intr = CameraIntrinsics.from_fov(640, 480, 65.0)

@@ -32,7 +32,8 @@ scripts/blink_montecarlo.py for the same video and book. The coded survey (``Var
 
 ``--pair-decode RATE``: crowded groups of exactly two motes in a camera's wide view are
 labelled by the pair decoder (:mod:`fgloc.camera.blink_pairs`) with the measured success
-``RATE`` (seeded draw per pair, :func:`fgloc.survey.field_plans.pair_decoding`) and need
+``RATE`` (or, as ``PX:RATE,...,inf:RATE``, the rate by the distance to the pair's nearest
+third mote; seeded draw per pair, :func:`fgloc.survey.field_plans.pair_decoding`) and need
 no refinement or radio round from that camera; the rest as before.
 
 ``--old`` prices the previous plan (rotation-free book, burst retries of wide views only,
@@ -60,6 +61,7 @@ from fgloc.survey.field_plans import (
     coded_survey_time,
     frames_for,
     pair_decoding,
+    pair_rate_table,
     radio_separation,
     refinement_ops,
     sequential_survey_time,
@@ -105,7 +107,7 @@ class Variant:
     separate: str = "zoom"
     #: pair decoding: share of crowded groups of exactly two that the pair decoder resolves in
     #: the wide view (measured, scripts/blink_montecarlo.py --pairs); 0: off
-    pair_rate: float = 0.0
+    pair_rate: float | tuple[tuple[float, float], ...] = 0.0
 
 
 _SEQUENTIAL: dict[tuple[int, int, int, RigTiming], SequentialTime] = {}
@@ -154,7 +156,7 @@ def run(n_motes: int, n_cams: int, timing: RigTiming, miss_rate: float, seed: in
         resolved[c] = resolved[c] | pairs[c].resolved
     needed: dict[str, np.ndarray | None] = (
         dict(needed_from(resolved, variant.need)) if variant.need else {c: None for c in cams})
-    if variant.pair_rate > 0.0:  # pair-decoded motes need nothing more from that camera
+    if variant.pair_rate:  # pair-decoded motes need nothing more from that camera
         needed = {c: (np.ones(n_motes, bool) if needed[c] is None else needed[c]) & ~pairs[c].resolved  # type: ignore[operator]
                   for c in cams}
     extend = variant.extend * book.length
@@ -258,9 +260,10 @@ def main() -> None:
     ap.add_argument("--separate", default="zoom", choices=("zoom", "radio", "best"),
                     help="crowded motes: zoom refinement, radio separation (pause colour classes, re-record wide "
                     "views), or per camera the cheaper on the clock")
-    ap.add_argument("--pair-decode", type=float, default=0.0, metavar="RATE",
+    ap.add_argument("--pair-decode", default="", metavar="RATE|PX:RATE,...,inf:RATE",
                     help="crowded groups of exactly two motes are resolved by the pair decoder in the wide view with "
-                    "this measured success rate (scripts/blink_montecarlo.py --pairs); 0: off")
+                    "this measured success rate (scripts/blink_montecarlo.py --pairs), or per bound on the distance "
+                    "to the nearest third mote (px); default off")
     ap.add_argument("--need", type=int, default=0,
                     help="refine a mote only where fewer than this many other cameras resolve it (0: always)")
     ap.add_argument("--old", action="store_true", help="the previous plan: rotation-free book, burst retries of "
@@ -275,9 +278,13 @@ def main() -> None:
                       extend=args.extend, continuous_retry=not args.burst_retry,
                       retry_refinement=not args.no_refine_retry, zoom_out=args.zoom_out, need=args.need,
                       share_tiles=not args.separate_tiles, pick_ladder=not args.fixed_ladder,
-                      separate=args.separate, pair_rate=args.pair_decode)
-    if args.pair_decode and not 0.0 < args.pair_decode <= 1.0:
-        ap.error(f"--pair-decode: must be a share in (0, 1] ({args.pair_decode})")
+                      separate=args.separate)
+    if args.pair_decode:
+        try:
+            table = pair_rate_table(args.pair_decode)
+        except ValueError as exc:
+            ap.error(f"--pair-decode: {exc} ({args.pair_decode})")
+        variant = replace(variant, pair_rate=table[0][1] if len(table) == 1 else table)
     if args.old:
         variant = replace(OLD, fields=not args.frames, broadcast=not args.unicast)
     print(f"head {args.head}, {args.fps:.2f} frames/s, miss rate {args.miss_rate}, refinement zooms {levels}, {variant}")

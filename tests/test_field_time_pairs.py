@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from fgloc.camera.intrinsics import CameraIntrinsics
-from fgloc.survey.field_plans import pair_decoding
+from fgloc.survey.field_plans import pair_decoding, pair_rate_table
 from fgloc.survey.view_planner import neighbour_px, plan_refinement
 
 INTR = CameraIntrinsics.from_fov(640, 480, 65.0)
@@ -59,3 +59,19 @@ def test_resolved_pairs_leave_the_refinement() -> None:
     before = plan_refinement(INTR, SCENE, 4.0, share_tiles=True)[0]
     after = plan_refinement(INTR, SCENE, 4.0, needed=~pd.resolved, share_tiles=True)[0]
     assert sum(rp.targets for rp in after) == sum(rp.targets for rp in before) - 4 == 3
+
+
+def test_rate_by_third_mote_distance() -> None:
+    near = np.vstack([SCENE, _at_px([(306.0, 0.0)])])  # a third mote 6 px from the pair (6, 7)
+    pd = pair_decoding(INTR, near, 4.0, ((8.0, 0.0), (math.inf, 1.0)), np.random.default_rng(0))
+    third = dict(zip(map(tuple, pd.pairs.tolist()), pd.third_px.tolist()))
+    assert third[(6, 7)] == pytest.approx(6.0, abs=0.05)
+    assert pd.resolved[[0, 1]].all() and not pd.resolved[[6, 7]].any()  # 9 px: rate 1; 6 px: rate 0
+
+
+def test_rate_table_parsing() -> None:
+    assert pair_rate_table("0.8") == ((math.inf, 0.8),)
+    assert pair_rate_table("6:0.1,8:0.4,inf:0.9") == ((6.0, 0.1), (8.0, 0.4), (math.inf, 0.9))
+    for bad in ("1.2", "8:0.4,6:0.1,inf:0.9", "6:0.1", ""):
+        with pytest.raises(ValueError):
+            pair_rate_table(bad)

@@ -75,7 +75,7 @@ class CodedNoise:
     levels: tuple[float, ...] = (1 / 9, 3 / 9, 1.0)
     views: bool = True  #: name each reading's view (with view_sigma = head_sigma) when the head error is shared
     #: pair decoding: share of crowded groups of exactly two read in the wide view as a pair (0: off)
-    pair_rate: float = 0.0
+    pair_rate: float | tuple[tuple[float, float], ...] = 0.0  #: or by third-mote distance (pair_rate_table)
     pair_sigma_pan: float | None = None  #: pair-decoded centroid error (radians at the survey zoom; None: decoder's)
     pair_sigma_tilt: float | None = None
 
@@ -108,7 +108,7 @@ def coded_observations(
         pt = np.column_stack(bearing_pan_tilt(d / np.linalg.norm(d, axis=1, keepdims=True)))
         wide = plan_views(intr, region)
         paired = np.zeros(len(pt), bool)  # crowded motes the pair decoder reads in the wide views
-        if noise.pair_rate > 0.0:
+        if noise.pair_rate:
             from fgloc.survey.field_plans import pair_decoding
 
             paired = pair_decoding(intr, pt, noise.separation_px, noise.pair_rate, rng, noise.field_rows).resolved

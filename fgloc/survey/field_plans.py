@@ -437,14 +437,36 @@ class PairDecoding:
         return int(self.resolved.sum()) // 2
 
 
-def pair_decoding(intr: CameraIntrinsics, pan_tilt: np.ndarray, separation_px: float, rate: float,
-                  rng: np.random.Generator, field_rows: bool = False) -> PairDecoding:
+def pair_rate_table(text: str) -> tuple[tuple[float, float], ...]:
+    """Parse ``"RATE"`` or ``"MAX_PX:RATE,...,inf:RATE"`` (ascending bounds on the distance
+    to the nearest third mote, px) into :func:`pair_decoding`'s rate table; ValueError when
+    malformed or a rate is outside [0, 1]."""
+    parts = [p for p in text.split(",") if p.strip()]
+    out = []
+    for p in parts:
+        bound, _, rate = p.rpartition(":")
+        r = float(rate)
+        b = math.inf if not bound else float(bound)
+        if not 0.0 <= r <= 1.0:
+            raise ValueError(f"rate {r} not in [0, 1]")
+        out.append((b, r))
+    if not out or any(a[0] >= b[0] for a, b in zip(out, out[1:])) or out[-1][0] != math.inf:
+        raise ValueError(f"bounds must ascend and end with inf ({text})")
+    return tuple(out)
+
+
+def pair_decoding(intr: CameraIntrinsics, pan_tilt: np.ndarray, separation_px: float,
+                  rate: float | Sequence[tuple[float, float]], rng: np.random.Generator,
+                  field_rows: bool = False) -> PairDecoding:
     """Crowded motes (``pan_tilt`` (N, 2) radians, closer than ``separation_px`` at the wide
     zoom, tangent plane as :func:`fgloc.survey.view_planner.conflict_pairs`) that form a
     group of **exactly two** (connected components of the conflict graph) are labelled by
     the pair decoder (:mod:`fgloc.camera.blink_pairs`) in the wide view with probability
     ``rate`` each (the resolved share measured by ``scripts/blink_montecarlo.py --pairs``,
-    drawn from ``rng``): those need no refinement. Larger groups, and the pairs not drawn,
+    drawn from ``rng``): those need no refinement. ``rate`` may be a table
+    ``((max_px, rate), ..., (inf, rate))``: the rate of the first bound above the pair's
+    distance to its nearest third mote (px, either LED; :func:`pair_rate_table`), since
+    a third LED near the aperture spoils the pair's levels. Larger groups, and the pairs not drawn,
     are refined as before."""
     pt = np.asarray(pan_tilt, float)
     n = len(pt)
@@ -465,6 +487,10 @@ def pair_decoding(intr: CameraIntrinsics, pan_tilt: np.ndarray, separation_px: f
                 for s in (a, b):
                     dp = math.remainder(pt[m, 0] - pt[s, 0], 2 * math.pi) * math.cos(0.5 * (pt[m, 1] + pt[s, 1]))
                     third[k] = min(third[k], math.hypot(dp * intr.fx, (pt[m, 1] - pt[s, 1]) * fy))
-        hit = rng.random(len(pairs)) < rate
+        if isinstance(rate, (int, float)):
+            p = np.full(len(pairs), float(rate))
+        else:
+            p = np.array([next(r for b, r in rate if t < b) for t in third])
+        hit = rng.random(len(pairs)) < p
         resolved[pairs[hit].ravel()] = True
     return PairDecoding(pairs, resolved, third)
