@@ -490,7 +490,7 @@ def pair_decoding(intr: CameraIntrinsics, pan_tilt: np.ndarray, separation_px: f
         if isinstance(rate, (int, float)):
             p = np.full(len(pairs), float(rate))
         else:
-            p = np.array([next(r for b, r in rate if t < b) for t in third])
+            p = np.array([next((r for b, r in rate if t < b), rate[-1][1]) for t in third])
         hit = rng.random(len(pairs)) < p
         resolved[pairs[hit].ravel()] = True
     return PairDecoding(pairs, resolved, third)
