@@ -67,8 +67,8 @@ def test_rate_by_third_mote_distance() -> None:
     third = dict(zip(map(tuple, pd.pairs.tolist()), pd.third_px.tolist()))
     assert third[(6, 7)] == pytest.approx(6.0, abs=0.05)
     assert pd.resolved[[0, 1]].all() and not pd.resolved[[6, 7]].any()  # 9 px: rate 1; 6 px: rate 0
-    alone = pair_decoding(INTR, SCENE, 4.0, ((8.0, 1.0), (math.inf, 0.0)), np.random.default_rng(0))
-    assert not alone.resolved[[6, 7]].any() and alone.resolved[[0, 1]].all()  # no third at all: the last bin
+    alone = pair_decoding(INTR, SCENE, 4.0, ((8.0, 0.0), (math.inf, 1.0)), np.random.default_rng(0))
+    assert alone.resolved[[6, 7]].all()  # no third mote at all (inf): the last bin
 
 
 def test_rate_table_parsing() -> None:
