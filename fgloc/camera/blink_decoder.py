@@ -24,7 +24,9 @@ period, and the :class:`~fgloc.camera.blink_codes.CodeBook`. Steps:
 5. **Refusals.** A blob whose on-frame fluxes or centroids vary more than one LED's
    can (two LEDs closer than the detector separates) is reported *ambiguous*. An ID
    decoded from two blobs is reported *duplicate* for both. Unknown words, conflicts
-   and incomplete words are *rejected* with the reason. Nothing is ever guessed.
+   and incomplete words are *rejected* with the reason. Nothing is ever guessed. With
+   ``pairs`` (off by default) refused blobs are tried as two LEDs and labelled by both
+   code words when that is unique (:mod:`fgloc.camera.blink_pairs`).
 6. **Angles.** The decoded centroid (mean over on frames) becomes (pan, tilt) by the
    exact composition :func:`fgloc.camera.pixel_angles.pixel_to_pan_tilt`.
 

@@ -4,37 +4,32 @@ Two motes closer than the detector separates merge into one blob, which the view
 decoder (:func:`fgloc.camera.blink_decoder.decode_view`) refuses as ambiguous. The blob
 blinks the **sum** of the two code words: per sample 0, 1 or 2 LEDs are lit. Where the
 words differ, samples exist in which only one of the two LEDs is lit (its *exclusive*
-samples). This module labels such a blob as a pair, never by guessing:
+samples). :func:`decode_pair` labels such a blob as a pair, never by guessing:
 
-1. **Levels.** The blob's flux per sample (a ``2 radius_px + 1`` square aperture minus
-   the median of a surrounding ring, as the view decoder does with a smaller
-   aperture) must show three equally spaced levels: off, one LED, two LEDs (the two
-   LEDs are assumed equally bright within ``max_level_skew`` of the one-LED step; a
-   pair whose LEDs differ more, or whose words are never both on, is refused). Each
-   sample within ``level_band`` x step of a level gets that count, anything between is
-   an erasure; samples above the two-LED level (a third LED) refuse the blob.
-2. **Count word.** Counts are folded modulo the book's length L like bits: every
-   position needs a sample, the samples of a position must agree.
-3. **Uniqueness against the whole book** (:func:`explain_counts`). The count word must
-   equal ``bits(rot(w_a, r_a)) + bits(rot(w_b, r_b))`` for exactly one pair of book words
-   at one pair of rotations (every rotation of every word is tried: the rotation-free
-   book needs no frame sync), and every other explanation (another pair of words or
-   rotations, the same word twice, or a single word alone) must lie at least
-   ``margin`` count errors away (L1 distance of count words). With ``margin`` 3, as the
-   book's Hamming distance 3 gives single words, up to two wrong counts are detected,
-   never corrected: two wrong counts can make the blob unexplained, never another pair.
-4. **Exclusive samples.** LED A's exclusive samples are the clean one-LED samples at
-   positions where A's rotated word is 1 and B's is 0 (and vice versa); both-off
-   samples are the clean zero samples. Each LED needs ``min_exclusive`` of them.
-5. **Centroids.** LED A's centroid is that of the mean of its exclusive samples minus
-   the mean of the both-off samples (window of the view decoder, 7 x 7, centred on a
-   coarse estimate); per-sample centroids of its exclusive samples must agree within
-   ``max_centroid_spread_px`` (robust spread; one LED, not two), and the mean of the
-   both-on samples must be centred between A and B within ``max_both_px`` (two LEDs, not
-   three).
+1. **Levels.** The blob's flux per sample in a ``2 radius_px + 1`` square aperture, the
+   static background measured per pixel on the both-off samples and scaled by each
+   sample's ambient gain (:func:`_background_free`), must show three equally spaced
+   levels: off, one LED, two LEDs (equally bright within ``max_level_skew`` of the step).
+   Each sample within ``level_band`` x step of a level gets that count, anything between
+   is an erasure; more than one sample above the two-LED level (a third LED) refuses.
+2. **Which LED.** The centroids of the one-LED samples (minus the mean both-off image)
+   must form two compact clusters (:func:`_sides`); a sample between them is an erasure.
+3. **Each LED's word.** Per LED: count 2 -> 1, count 0 -> 0, a one-LED sample -> 1 on its
+   side and 0 on the other, folded modulo L (complete, no conflicts). Each word must
+   **exactly** equal a rotation of a book word and the two words must differ: each LED
+   keeps the book's distance 3 (another labelling needs three wrong bits in one word).
+4. **LEDs too close to tell apart** (step 2 finds no two clusters): the count word
+   alone, which must equal ``bits(rot(w_a, r_a)) + bits(rot(w_b, r_b))`` for exactly one
+   pair of book words at one pair of rotations, with every other explanation (another
+   pair, the same word twice, a single word; every rotation) at least ``margin`` count
+   errors away (:func:`explain_counts`, :func:`unique_pair`; exhaustive over the book).
+5. **Centroids.** Each LED needs ``min_exclusive`` exclusive samples (and the blob as
+   many both-off samples); its centroid is that of its mean exclusive image minus the
+   mean both-off image; its per-sample centroids must agree within
+   ``max_centroid_spread_px`` (one LED), and the both-on image must be centred between
+   the two within ``max_both_px`` (two LEDs, not three).
 
-Rotation-free books only (a synchronized book's alignment rules are not implemented
-here). Pixels: OpenCV convention; sample fluxes in DN.
+Rotation-free books only. Pixels: OpenCV convention; fluxes DN.
 """
 
 from __future__ import annotations
