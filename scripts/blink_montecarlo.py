@@ -22,7 +22,7 @@ within 6 px of the pair's centre) and is decoded with pair decoding on
 both its motes are read within 2 px; mislabels are counted over all readings as above.
 
     OPENBLAS_NUM_THREADS=1 .venv/bin/python scripts/blink_montecarlo.py --trials 250 [--fields] [--sync] [--slide 1]
-        [--pairs 40]
+        [--pairs 40 [--time-decode]]
 """
 
 from __future__ import annotations
@@ -49,13 +49,15 @@ from fgloc.survey.field_plans import frames_for
 
 def trial(seed: int, n_motes: int, book_size: int, glints: int, fields: bool = False,
           frames: int | None = None, extend: int = 0, sync: bool = False, resync_s: float = 10.0,
-          slide: int = 0, pairs: int = 0) -> dict[str, float]:
+          slide: int = 0, pairs: int = 0, time_decode: bool = False) -> dict[str, float]:
     """One view. ``frames`` recorded (default 3L + 2); with ``extend`` > 0 the recording
     goes on for ``extend`` more frames and the whole stack is decoded again (keys ``ext_*``):
     the retry of a view whose motes were missed, without moving the head. ``slide``:
     ``slide`` more code lengths decoded in sliding windows (keys ``sl_*``). ``sync``: the
     synchronized book and a synchronized start (see the module docstring). ``pairs``: that many
-    crowded pairs more, decoded with pair decoding (keys ``pair_*``)."""
+    crowded pairs more, decoded with pair decoding (keys ``pair_*``). ``time_decode``: the
+    first window is decoded once more without pair decoding, both timed (keys ``t_off``,
+    ``t_on``, seconds)."""
     rng = np.random.default_rng(seed)
     intr = CameraIntrinsics.from_fov(640, 480, 65.0)
     if fields:
@@ -107,8 +109,14 @@ def trial(seed: int, n_motes: int, book_size: int, glints: int, fields: bool = F
             res = decode_windows(stack, 1.0 / cfg.frame_rate_hz, book, intr, head_pan, head_tilt, k0, sync=timing,
                                  pairs=pc)
         else:
+            t_on = time.perf_counter()
             res = decode_view(within(k0 + (extend if prefix else 0)), 1.0 / cfg.frame_rate_hz, book, intr,
                               head_pan, head_tilt, sync=timing, pairs=pc)
+            t_on = time.perf_counter() - t_on
+            if time_decode and not prefix:
+                t_off = time.perf_counter()
+                decode_view(within(k0), 1.0 / cfg.frame_rate_hz, book, intr, head_pan, head_tilt, sync=timing)
+                out.update({"t_off": time.perf_counter() - t_off, "t_on": t_on})
         correct = mislabelled = 0
         ex: list[float] = []
         ey: list[float] = []
@@ -215,13 +223,19 @@ def main() -> None:
     ap.add_argument("--resync", type=float, default=10.0, help="seconds between synchronized (re)starts")
     ap.add_argument("--slide", type=int, default=0, help="record this many more code lengths, sliding windows")
     ap.add_argument("--pairs", type=int, default=0, help="crowded pairs per view, decoded with pair decoding on")
+    ap.add_argument("--time-decode", action="store_true",
+                    help="also decode each first window without pair decoding; print both medians (s per view)")
     args = ap.parse_args()
     tot: dict[str, float] = {}
+    times: dict[str, list[float]] = {"t_off": [], "t_on": []}
     t0 = time.perf_counter()
     for k in range(args.trials):
         for key, v in trial(args.seed + k, args.motes, args.book, args.glints, args.fields, args.frames,
-                             args.extend, args.sync, args.resync, args.slide, args.pairs).items():
-            tot[key] = tot.get(key, 0.0) + v
+                             args.extend, args.sync, args.resync, args.slide, args.pairs, args.time_decode).items():
+            if key in times:
+                times[key].append(v)
+            else:
+                tot[key] = tot.get(key, 0.0) + v
     dt = time.perf_counter() - t0
     d = tot["decodes"]
     book = sync_code_book(args.book) if args.sync else code_book(args.book)
@@ -247,6 +261,9 @@ def main() -> None:
               f" deg, tilt {math.degrees(math.sqrt(tot[prefix + 'sq_y'] / n_xy)):.5f} deg")
         if args.pairs:
             _print_pairs(tot, prefix)
+    if times["t_on"]:
+        print(f"decode_view per view, median of {len(times['t_on'])}: without pair decoding "
+              f"{1e3 * float(np.median(times['t_off'])):.0f} ms, with {1e3 * float(np.median(times['t_on'])):.0f} ms")
 
 
 def _print_pairs(tot: dict[str, float], p: str) -> None:
