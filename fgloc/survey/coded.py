@@ -57,13 +57,13 @@ import queue
 import time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 
 from fgloc.camera.blink_codes import CodeBook, code_book
-from fgloc.camera.blink_decoder import DecoderConfig, ViewDecode, decode_view
+from fgloc.camera.blink_decoder import DecoderConfig, ViewDecode, decode_view, decode_windows
 from fgloc.camera.intrinsics import CameraIntrinsics
 from fgloc.camera.pixel_angles import pixel_to_pan_tilt
 from fgloc.core.errors import FglocError
@@ -122,6 +122,35 @@ class CodedSettings:
     #: refinement zooms (fractions of the optical range, ascending; :meth:`CameraIntrinsics.at_zoom`:
     #: 2x, 4x, 10x), used where the rig can record at other zooms (the in-process rig)
     levels: tuple[float, ...] = (1 / 9, 3 / 9, 1.0)
+    #: how a view with curable refusals is recorded again: ``"continue"`` goes on recording L more
+    #: frames without moving and decodes the whole recording in sliding windows
+    #: (:func:`~fgloc.camera.blink_decoder.decode_windows`); ``"burst"`` records a new 3L + 2
+    retry: str = "burst"
+    #: crowded motes: ``"zoom"`` refinement ladder only; ``"radio"`` first pauses colour classes by
+    #: radio and records the wide views again (:mod:`fgloc.survey.coded_separation`), then zooms
+    #: on what is left
+    separate: str = "zoom"
+
+
+RETRY_MODES = ("burst", "continue")
+SEPARATE_MODES = ("zoom", "radio")
+
+
+def coded_settings(rig: RigConfig, retry: str | None = None, separate: str | None = None) -> CodedSettings:
+    """The rig's coded-survey levers: rig.json ``"coded": {"retry": "burst"|"continue",
+    "separate": "zoom"|"radio"}`` (optional; defaults of :class:`CodedSettings`), overridden by
+    ``retry`` / ``separate`` (the CLI flags). One-line :class:`FglocError` on a bad value."""
+    raw = rig.raw.get("coded", {}) if isinstance(rig.raw, dict) else {}
+    if not isinstance(raw, dict):
+        raise FglocError(f"{rig.path}: coded: expected an object, got {raw!r}")
+    out = CodedSettings()
+    for key, flag, allowed in (("retry", retry, RETRY_MODES), ("separate", separate, SEPARATE_MODES)):
+        value = flag if flag is not None else raw.get(key, getattr(out, key))
+        if value not in allowed:
+            where = f"--{key}" if flag is not None else f"{rig.path}: coded.{key}"
+            raise FglocError(f"{where}: expected one of {', '.join(allowed)}, got {value!r}")
+        out = replace(out, **{key: value})
+    return out
 
 
 @dataclass
@@ -149,7 +178,7 @@ class CodedSurvey:
         from fgloc.drivers.tinyos.messages import node_address
 
         self.rig = rig
-        self.settings = settings or CodedSettings()
+        self.settings = settings or coded_settings(rig)
         self.recorder = getattr(recorder, "record_blinks", None)
         if not callable(getattr(leds, "broadcast_codes", None)):
             raise FglocError(f"{rig.path}: identification: the base station ({rig.motes.driver}) cannot "
@@ -178,6 +207,7 @@ class CodedSurvey:
         self.levels = self.settings.levels if getattr(recorder, "blink_zoom", False) else ()
         self.remaining: dict[str, int] = {}  # camera -> unexplained blobs and failed views after its last rung
         self.blobs: dict[str, list[tuple[float, float]] | None] = {}  # their directions (None: a view failed)
+        self._continue_at: dict[tuple[str, str], float] = {}  # (camera, view) -> clock s its recording ends
 
     # ----- plan and clock
     def plan(self, camera: str) -> list[tuple[float, float]]:
@@ -191,6 +221,10 @@ class CodedSurvey:
                            tilt_limits=(s.tilt_min, s.tilt_max))
         return [into_search_box(p, t, s.pan_min, s.pan_max, s.tilt_min, s.tilt_max) for p, t in views]
 
+    def _lane_start(self, camera: str) -> float:
+        """Survey-clock seconds at which the camera's next operation starts."""
+        return self.radio_s + price(self.lanes[camera], self.timing[camera]).total
+
     def field_time(self) -> FieldTime:
         """Predicted field time so far: radio, the longest camera lane, the fallback nodes."""
         lanes = [price(ops, self.timing[c]) for c, ops in self.lanes.items()]
@@ -199,19 +233,33 @@ class CodedSurvey:
 
     # ----- one camera
     def _record(self, runner: SurveyRunner, camera: str, vid: str, attempt: int, target: tuple[float, float],
-                head: tuple[float, float], zoom: float, t_start: float) -> dict[str, Any]:
+                head: tuple[float, float], zoom: float, t_start: float,
+                before: list[Frame] | None = None) -> tuple[dict[str, Any], list[Frame]]:
+        """Record and decode one recording of a view; returns its journal record and the view's
+        frames so far. ``before``: this process's frames of the view's earlier recordings, which
+        this one continues (L more frames from where they ended, decoded with them in sliding
+        windows); None: a new burst of 3L + 2."""
         worker = runner.workers[camera]
         key = f"{vid}/{attempt}"
+        count = self.book.length if before else self.frames
+        if before:  # the recording goes on: the next frame period after the last one
+            t_start = self._continue_at[(camera, vid)]
         if self.recorder is not None:
-            frames: list[Frame] = self.recorder(camera, self.frames, t_start, key)
+            frames: list[Frame] = self.recorder(camera, count, t_start, key)
         else:  # hardware: consecutive grabs stamped by the host clock
             frames = []
-            for _ in range(self.frames):
+            for _ in range(count):
                 img = worker.call(lambda h: h.grab_frame())
                 frames.append((time.monotonic(), np.asarray(img)))
+        self._continue_at[(camera, vid)] = t_start + count * self.camera.frame_period_s
         intr = self.intrinsics_at(camera, zoom)
-        dec: ViewDecode = decode_view(frames, self.camera.frame_period_s, self.book, intr, head[0], head[1],
-                                      self.settings.decoder)
+        if before:
+            frames = before + frames
+            dec: ViewDecode = decode_windows(frames, self.camera.frame_period_s, self.book, intr, head[0], head[1],
+                                             self.frames, self.book.length, self.settings.decoder)
+        else:
+            dec = decode_view(frames, self.camera.frame_period_s, self.book, intr, head[0], head[1],
+                              self.settings.decoder)
         readings, refused = [], [{"kind": r.kind, "u": r.u, "v": r.v, "reason": r.reason} for r in dec.refused]
         st = runner.state
         taken: set[str] = set()
@@ -233,8 +281,8 @@ class CodedSurvey:
                              "u": uv[0], "v": uv[1]}
                             | ({} if obs.view_sigma is None else {"sigma": obs.sigma, "view_sigma": obs.view_sigma}))
         return {"camera": camera, "view": vid, "attempt": attempt, "target": list(target), "head": list(head),
-                "zoom": zoom, "frames": self.frames, "erased": dec.erased, "clock_s": t_start, "readings": readings,
-                "refused": refused}
+                "zoom": zoom, "frames": count, "erased": dec.erased, "clock_s": t_start, "readings": readings,
+                "refused": refused} | ({"continued": True} if before else {}), frames
 
     def _commit(self, runner: SurveyRunner, record: dict[str, Any]) -> None:
         """Journal one view (the commit of all its readings), then apply it to the state."""
@@ -265,6 +313,7 @@ class CodedSurvey:
                  PositionRead()]
         head: tuple[float, float] | None = None
         last = None
+        video: list[Frame] | None = None  # this process's frames of the view (a resumed view has none)
         for attempt in range(1 + self.settings.retries):
             rec = runner.state.views.get((camera, vid, attempt))
             if rec is not None and ([float(x) for x in rec.get("target", [])] != list(target)
@@ -280,15 +329,18 @@ class CodedSurvey:
                         worker.call(go)
                         got = worker.call(lambda h: h.position())
                         head = (float(got[0]), float(got[1]))  # type: ignore[index]
-                    rec = self._record(runner, camera, vid, attempt, target, head, zoom,
-                                       self.radio_s + price(lane, self.timing[camera]).total)
+                    cont = video if self.settings.retry == "continue" and attempt > 0 else None
+                    rec, video = self._record(runner, camera, vid, attempt, target, head, zoom,
+                                              self._lane_start(camera), cont)
                 except CameraFailed as exc:
                     self.stats.failed_views.append(f"{camera}/{vid}")
                     logger.warning(f"{camera} view {vid}: camera error, view not recorded: {exc}")
                     return None
                 self._commit(runner, rec)
                 self._events.put(camera)
-            lane.append(Frames(self.frames))
+            else:
+                video = None  # journaled before a resume: its video is gone, a retry is a new burst
+            lane.append(Frames(int(rec.get("frames", self.frames)), "frames", bool(rec.get("continued"))))
             last = rec
             if not needs_second_recording(rec):
                 break
