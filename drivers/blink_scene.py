@@ -5,7 +5,7 @@ the motes' blink commands to a :class:`~fgloc.drivers.tinyos.blink.BlinkField` (
 firmware's behaviour: which address runs which word). :class:`SceneBlinks` renders the
 frames one camera records with its head still, by :func:`fgloc.drivers.blink_frames.render_view`:
 
-* every mote the field says is running blinks its word, one bit per commanded bit period
+* every mote the field says is lit (running and not paused by a pause-by-bitmap) blinks its word, one bit per commanded bit period
   (the period of the last start command that covered its address), LED on for a 1 bit;
 * it is drawn along the pair's **apparent** bearing (``scene.apparent``: truth plus the
   pair's fixed N(0, sigma) error), exactly where the sequential survey's frames put its LED,
@@ -87,7 +87,7 @@ class SceneBlinks:
         cam = self.scene.cameras[i]
         periods = bit_periods(list(self.packets()))
         out = []
-        for address, (length, word) in sorted(self.field.running.items()):
+        for address, (length, word) in sorted(self.field.lit().items()):  # paused motes stay dark
             node = self.node_of.get(address)
             if node is None or address not in periods:
                 continue

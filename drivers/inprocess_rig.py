@@ -59,7 +59,14 @@ from fgloc.core.head_model import head_pan_tilt
 from fgloc.core.model import CameraPose, NodeMode, Truth
 from fgloc.drivers.imperfect_head import head_view, ideal_equivalent_directions
 from fgloc.drivers.rendered_camera import LedScene, RenderedCamera, RenderSettings
-from fgloc.drivers.tinyos.blink import BlinkBroadcast, BlinkCommand, BlinkField, blink_broadcast, parse_blink_report
+from fgloc.drivers.tinyos.blink import (
+    BlinkBroadcast,
+    BlinkCommand,
+    BlinkField,
+    BlinkPause,
+    blink_broadcast,
+    parse_blink_report,
+)
 from fgloc.drivers.tinyos.messages import AmPacket
 from fgloc.files.rig_config import RigConfig
 from fgloc.sim.scenes import random_base_rotation
@@ -410,7 +417,7 @@ class SceneLeds:
                                 silent={self.addresses[n] for n in rig.simulation.dead_nodes})
         self.received: list[AmPacket] = []  # blink packets the motes received
 
-    def broadcast_codes(self, command: BlinkBroadcast | BlinkCommand, expect: set[int] | None = None,
+    def broadcast_codes(self, command: BlinkBroadcast | BlinkCommand | BlinkPause, expect: set[int] | None = None,
                         wait: float = 0.0) -> dict[int, tuple[bool, int, int]]:
         """Broadcast a start by address or a stop; the blink reports (address -> (running,
         length, code)) that came back (``expect`` and ``wait`` as the real driver's, unused here)."""

@@ -58,7 +58,8 @@ from fgloc.survey.session import OpenedRig, run_survey  # noqa: E402
 EXAMPLE = ROOT / "examples" / "rig-simulated.json"
 
 
-def rig_for(seed: int, motes: int, width: int, mode: str, fx: float | None = None, repeatability_deg: float = 0.0):
+def rig_for(seed: int, motes: int, width: int, mode: str, fx: float | None = None, repeatability_deg: float = 0.0,
+            coded: dict | None = None):
     data = json.loads(EXAMPLE.read_text())
     data["node_ids"] = [f"n{j:03d}" for j in range(motes)]
     f = fx or width / 2.0
@@ -68,6 +69,8 @@ def rig_for(seed: int, motes: int, width: int, mode: str, fx: float | None = Non
     data["simulation"] = {"seed": seed, "heights": [0.1, 0.12], "occlusion": 0.05, "dead_nodes": ["n003"]}
     data["retry"] = {"backoff_s": 0.0}
     data["identification"] = mode
+    if coded:
+        data["coded"] = coded
     if repeatability_deg > 0:
         data["head_repeatability_deg"] = repeatability_deg
     return parse_rig(data, str(EXAMPLE), EXAMPLE.parent)
@@ -109,10 +112,10 @@ def breakdown(rig, sim, state) -> dict:  # noqa: ANN001
     return out
 
 
-def planner_prediction(rig, sim, retry_fraction: float) -> float:  # noqa: ANN001
+def planner_prediction(rig, sim, retry_fraction: float, separation_px: float = 4.0) -> float:  # noqa: ANN001
     """The field-time planner's price (:mod:`fgloc.survey.field_plans`) of a coded survey of this
     rig: the integrated survey's wide views, the scene's visible motes refined on the cheapest
-    zoom ladder with shared tiles (4 px separation, as scripts/field_time.py), retries continuing
+    zoom ladder with shared tiles (``separation_px``: 4 as scripts/field_time.py), retries continuing
     the recording for L frames (``retry_fraction`` of the views, as measured), no zoom-out, frames."""
     from fgloc.camera.blink_codes import code_book
     from fgloc.survey.coded import CodedSurvey
@@ -133,7 +136,7 @@ def planner_prediction(rig, sim, retry_fraction: float) -> float:  # noqa: ANN00
         intr = rig.cameras[i].intrinsics
         best = math.inf
         for ladder in ladders:
-            passes, _ = plan_refinement(intr, pts, 4.0, ladder, start=views[c][-1], share_tiles=True)
+            passes, _ = plan_refinement(intr, pts, separation_px, ladder, start=views[c][-1], share_tiles=True)
             cost = price(refinement_ops(passes, k, views[c][-1], retry_fraction, 0, book.length, False),
                          timing).total
             if cost < best:
@@ -160,8 +163,8 @@ def errors(survey: Survey, truth) -> tuple[list[float], list[float]]:  # noqa: A
 
 
 def run(seed: int, motes: int, width: int, mode: str, out: Path, fx: float | None = None,
-        repeatability_deg: float = 0.0) -> dict:
-    rig = rig_for(seed, motes, width, mode, fx, repeatability_deg)
+        repeatability_deg: float = 0.0, coded: dict | None = None) -> dict:
+    rig = rig_for(seed, motes, width, mode, fx, repeatability_deg, coded)
     sim = InProcessRig(rig)
     times: list[FieldTime] = []
     if mode == "sequential":
@@ -195,7 +198,9 @@ def run(seed: int, motes: int, width: int, mode: str, out: Path, fx: float | Non
     if mode != "sequential":
         extra["breakdown"] = breakdown(rig, sim, state)
         first = sum(1 for key in state.views if key[2] == 0)
-        extra["planner"] = planner_prediction(rig, InProcessRig(rig), (len(state.views) - first) / max(first, 1))
+        q = (len(state.views) - first) / max(first, 1)
+        extra["planner"] = planner_prediction(rig, InProcessRig(rig), q)
+        extra["planner6"] = planner_prediction(rig, InProcessRig(rig), q, 6.0)
     return extra | {"field": ft, "wall": wall, "readings": len(state.observations), "decoded": decoded, "wrong": wrong,
             "far": far, "missing": len(sim.scene.visible_pairs() - seen), "rms": float(np.sqrt(np.mean(np.square(err)))),
             "views": len(state.views), "err": err, "nees": nv, "err_iv": err_iv, "nees_iv": nv_iv,
@@ -218,13 +223,16 @@ def main() -> None:
     ap.add_argument("--fx", type=float, default=None, help="focal length, px (default width / 2: 90 deg wide)")
     ap.add_argument("--repeatability-deg", type=float, default=0.0,
                     help="head repeatability (rig.json head_repeatability_deg, part of sigma_deg 0.1)")
+    ap.add_argument("--coded", default="{}", help='rig.json "coded" levers as JSON, e.g. '
+                    '\'{"retry": "continue", "fallback": "predicted", "separate": "radio"}\'')
     args = ap.parse_args()
+    coded = json.loads(args.coded)
     rows: dict[str, list[dict]] = {"sequential": [], "coded": []}
     with tempfile.TemporaryDirectory() as tmp:
         for seed in range(1, args.seeds + 1):
             for mode in rows:
                 rows[mode].append(run(seed, args.motes, args.width, mode, Path(tmp) / f"{mode}{seed}", args.fx,
-                                      args.repeatability_deg))
+                                      args.repeatability_deg, coded))
     for mode, rs in rows.items():
         med = statistics.median
         print(f"{mode}: field time median {med(r['field'].total for r in rs):.1f} s "
@@ -239,7 +247,7 @@ def main() -> None:
                          for c, v in b["cameras"].items())
         print(f"  seed {k}: coded {r['field'].describe()}; recordings first+again: {cams}; fallback nodes "
               f"{b['fallback_nodes']} ({b['fallback_s']:.1f} s summed); planner's price for this rig "
-              f"{r['planner']:.1f} s")
+              f"{r['planner']:.1f} s (separation 4 px; 6 px: {r['planner6']:.1f} s)")
     ratio = [c["rms"] / s["rms"] for c, s in zip(rows["coded"], rows["sequential"])]
     speed = [s["field"].total / c["field"].total for c, s in zip(rows["coded"], rows["sequential"])]
     print(f"coded / sequential: RMS ratio median {statistics.median(ratio):.3f} (range {min(ratio):.3f}-{max(ratio):.3f}); "

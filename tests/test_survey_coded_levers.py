@@ -96,7 +96,9 @@ def test_continued_retry_resumes_without_duplicates(tmp_path):
 
 
 @pytest.mark.parametrize(("coded", "problem"), [({"retry": "again"}, "coded.retry"), ({"separate": 3}, "coded.separate"),
-                                                ("radio", "coded: expected an object")])
+                                                ("radio", "coded: expected an object"),
+                                                ({"levels": [1.0, 0.5]}, "coded.levels"),
+                                                ({"fallback": "everywhere"}, "coded.fallback")])
 def test_bad_coded_settings_are_one_line_and_exit_2(tmp_path, capsys, coded, problem):
     data = coded_rig(4, width=160)
     data["coded"] = coded
@@ -115,3 +117,123 @@ def test_coded_settings_defaults_and_rig_values():
     assert (s.retry, s.separate) == ("continue", "radio")
     assert coded_settings(parsed(lever_rig(4, width=160, retry="continue")), retry="burst").retry == "burst"
     assert np.isfinite(PERIOD)
+
+
+def test_paused_motes_stay_dark_in_the_rendered_views():
+    """The in-process rig renders what the motes' side says: a mote paused by bitmap is not
+    drawn (code kept running), a resume draws it again."""
+    from fgloc.camera.blink_codes import code_book
+    from fgloc.drivers.inprocess_rig import InProcessRig
+    from fgloc.drivers.tinyos.blink import BlinkBroadcast, pause_packets
+
+    rig = parsed(coded_rig(8, width=160))
+    sim = InProcessRig(rig)
+    sim.leds.broadcast_codes(BlinkBroadcast(code_book(8).length, 1, 8, PERIOD))
+    sim.open_head("cam0")
+    sim.record_blinks("cam0", 1, 0.0, "x")
+    blinks = sim._blinks
+    before = {m.node for m in blinks.motes("cam0")}  # type: ignore[attr-defined]
+    assert len(before) >= 4
+    paused = {sim.leds.addresses[n] for n in sorted(before)[:3]}
+    for p in pause_packets(paused, range(1, 9)):
+        sim.leds.broadcast_codes(p, set(), 0.0)
+    after = {m.node for m in blinks.motes("cam0")}  # type: ignore[attr-defined]
+    assert after == before - set(sorted(before)[:3])
+    for p in pause_packets(set(), range(1, 9)):
+        sim.leds.broadcast_codes(p, set(), 0.0)
+    assert {m.node for m in blinks.motes("cam0")} == before  # type: ignore[attr-defined]
+    assert sim.leds.blink.running.keys() >= paused  # paused motes kept running their code
+
+
+def test_radio_separation_reads_crowded_motes_at_the_wide_zoom(tmp_path):
+    """separate "radio": after the wide pass the crowded motes are placed from the other camera's
+    readings, coloured, and each class blinks alone (the others paused by bitmap) while the
+    cameras record the views holding them again at the wide zoom; the rounds read motes the wide
+    pass could not, only motes of the lit class, none mislabelled; then every mote is resumed."""
+    from fgloc.drivers.tinyos.blink import BlinkPause, parse_blink_command
+
+    rig = parsed(lever_rig(30, separate="radio"))
+    rig_opened, sim = opened(rig)
+    _, runner = run_survey(rig, tmp_path, opened=rig_opened)
+    state = read_journal(tmp_path / "journal.jsonl")
+    assert {(c, n) for (n, c, _) in state.observations} == sim.scene.visible_pairs()
+    assert state.duplicates_ignored == 0
+    check_labels(rig, sim.scene, state, max_error_deg=0.2)
+    recs = view_records(tmp_path / "journal.jsonl")
+    rounds = [r for r in recs if r["view"].startswith("s")]
+    assert rounds and all(r["zoom"] == 0.0 and r["view"].startswith(f"s{r['round']}-") for r in rounds)
+    read_in_rounds = [(r["camera"], rd["node"]) for r in rounds for rd in r["readings"]]
+    assert read_in_rounds and all(rd["node"] in r["lit"] for r in rounds for rd in r["readings"])
+    wide = {(r["camera"], rd["node"]) for r in recs if r["view"].startswith("w") for rd in r["readings"]}
+    assert not wide & set(read_in_rounds)  # new readings, not repeats
+    classes = [set(r["lit"]) for r in {r["round"]: r for r in rounds}.values()]
+    assert all(not a & b for a in classes for b in classes if a is not b)  # one class per round
+    # the rounds' pauses went to the motes as pause-by-bitmap broadcasts; the last resumed every mote
+    pauses = [c for c in map(parse_blink_command, sim.leds.received) if isinstance(c, BlinkPause)]
+    assert len(pauses) == 3 * (len(classes) + 1) and not pauses[-1].paused
+    assert not sim.leds.blink.paused
+    # priced: the rounds wait for each other (barriers) and the pauses are radio time
+    assert runner.field_time.phases["radio"] > 0
+
+
+def test_radio_separation_resumes_to_the_uncut_readings(tmp_path):
+    """Cut before a round's view, inside it (torn) and after the last round: each resume
+    re-plans the same rounds from the journaled wide views, re-sends the pauses and ends with
+    exactly the uncut run's readings, each view recorded once."""
+    from tests.test_survey_runner import resume_from_cuts
+
+    rig = parsed(lever_rig(30, separate="radio"))
+    full = tmp_path / "full"
+    run_survey(rig, full, opened=opened(rig)[0])
+    data = (full / "journal.jsonl").read_bytes()
+    records = [json.loads(line) for line in data.splitlines()]
+    ends = list(np.cumsum([len(line) + 1 for line in data.splitlines()]))
+    rounds = [k for k, r in enumerate(records) if r["type"] == "view" and r["view"].startswith("s")]
+    n_views = sum(r["type"] == "view" for r in records)
+    assert len(rounds) >= 2
+    states = resume_from_cuts(rig, data, [int(ends[rounds[0] - 1]), int(ends[rounds[-1]])], tmp_path)
+    for k in range(len(states)):
+        keys = [(r["camera"], r["view"], r["attempt"]) for r in view_records(tmp_path / f"cut{k}" / "journal.jsonl")]
+        assert len(keys) == len(set(keys)) == n_views, k
+
+
+def test_radio_separation_over_the_visca_and_tinyos_twins(tmp_path):
+    """The pause-by-bitmap broadcasts go through the real TinyOS driver to the base-station twin,
+    whose motes go dark: the rounds read only motes of the lit class, every visible pair is
+    read and none mislabelled."""
+    from fgloc.drivers.inprocess_rig import build_scene
+
+    data = lever_rig(20, width=320, separate="radio")
+    data["simulation"]["twin"] = "visca"
+    for cam in data["cameras"]:
+        cam["model"], cam["mounting"] = "EVI-D70", "ceiling"
+    data["search"] = {"pan_min_deg": -170, "pan_max_deg": 170, "tilt_min_deg": -88, "tilt_max_deg": 25}
+    rig = parsed(data)
+    run_survey(rig, tmp_path, simulate=True)
+    state = read_journal(tmp_path / "journal.jsonl")
+    scene = build_scene(rig)
+    assert {(c, n) for (n, c, _) in state.observations} == scene.visible_pairs()
+    check_labels(rig, scene, state, max_error_deg=0.4)
+    rounds = [r for r in view_records(tmp_path / "journal.jsonl") if r["view"].startswith("s")]
+    assert rounds and any(r["readings"] for r in rounds)
+    assert all(rd["node"] in r["lit"] for r in rounds for rd in r["readings"])
+
+
+def test_predicted_fallback_skips_the_search_where_no_blob_can_hide_the_mote(tmp_path):
+    """fallback "predicted": a mote a camera did not decode is placed from the other camera's
+    readings; with no unexplained blob near that direction the pair is not found without a
+    search (occluded pairs here), so the fallback costs less; every visible pair is still read.
+    (A ladder that stops at 2x leaves blobs unexplained, as 100 motes do at 10x.)"""
+    rig = parsed(lever_rig(30, fallback="predicted", levels=[1 / 9]))
+    rig_opened, sim = opened(rig)
+    _, runner = run_survey(rig, tmp_path / "p", opened=rig_opened)
+    state = read_journal(tmp_path / "p" / "journal.jsonl")
+    assert {(c, n) for (n, c, _) in state.observations} == sim.scene.visible_pairs()
+    occluded = {(n, c) for i, c in enumerate(rig.camera_ids) for j, n in enumerate(rig.node_ids)
+                if not sim.scene.visible[i, j] and n != "n003"}
+    assert occluded and occluded <= set(state.not_found)
+    placed = [k for k, why in state.not_found.items() if "place the mote" in why]
+    assert placed and set(placed) <= occluded
+    blobs = parsed(lever_rig(30, fallback="blobs", levels=[1 / 9]))
+    _, blob_runner = run_survey(blobs, tmp_path / "b", opened=opened(blobs)[0])
+    assert runner.field_time.phases["fallback"] < blob_runner.field_time.phases["fallback"]

@@ -56,7 +56,7 @@ import math
 import queue
 import time
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -67,6 +67,7 @@ from fgloc.camera.blink_decoder import DecoderConfig, ViewDecode, decode_view, d
 from fgloc.camera.intrinsics import CameraIntrinsics
 from fgloc.camera.pixel_angles import pixel_to_pan_tilt
 from fgloc.core.errors import FglocError
+from fgloc.core.geometry import pan_tilt_bearing
 from fgloc.core.hardware import PanTiltHead
 from fgloc.core.model import Survey
 from fgloc.files.journal import journal_to_survey
@@ -102,6 +103,7 @@ logger = logging.getLogger(__name__)
 
 
 Frame = tuple[float, np.ndarray]
+Blob = tuple[tuple[float, float], tuple[float, float], float]  #: (u, v) px, head (pan, tilt), zoom of a refused blob
 CLUSTER_SPREAD_PX = 6.0  #: refinement tiles also cover this far (px of the coarser view) around a blob
 
 
@@ -130,27 +132,43 @@ class CodedSettings:
     #: radio and records the wide views again (:mod:`fgloc.survey.coded_separation`), then zooms
     #: on what is left
     separate: str = "zoom"
+    #: fallback of a mote a camera did not decode: ``"blobs"`` looks at every blob the camera left
+    #: unexplained; ``"predicted"`` first places the mote from the other cameras' readings
+    #: (:func:`~fgloc.survey.coded_separation.predict_directions`) and looks only at the blobs
+    #: within :data:`PREDICTED_RADIUS` of where it must be (none there: not found, no search)
+    fallback: str = "blobs"
 
 
 RETRY_MODES = ("burst", "continue")
 SEPARATE_MODES = ("zoom", "radio")
+FALLBACK_MODES = ("blobs", "predicted")
+PREDICTED_RADIUS = math.radians(3.0)  #: a blob this close to a mote's predicted direction may hide it
 
 
-def coded_settings(rig: RigConfig, retry: str | None = None, separate: str | None = None) -> CodedSettings:
+def coded_settings(rig: RigConfig, retry: str | None = None, separate: str | None = None,
+                   fallback: str | None = None) -> CodedSettings:
     """The rig's coded-survey levers: rig.json ``"coded": {"retry": "burst"|"continue",
-    "separate": "zoom"|"radio"}`` (optional; defaults of :class:`CodedSettings`), overridden by
-    ``retry`` / ``separate`` (the CLI flags). One-line :class:`FglocError` on a bad value."""
+    "separate": "zoom"|"radio", "fallback": "blobs"|"predicted", "levels": [zoom, ...]}`` (optional; defaults of
+    :class:`CodedSettings`), overridden by ``retry`` / ``separate`` / ``fallback`` (the CLI
+    flags). One-line :class:`FglocError` on a bad value."""
     raw = rig.raw.get("coded", {}) if isinstance(rig.raw, dict) else {}
     if not isinstance(raw, dict):
         raise FglocError(f"{rig.path}: coded: expected an object, got {raw!r}")
     out = CodedSettings()
-    for key, flag, allowed in (("retry", retry, RETRY_MODES), ("separate", separate, SEPARATE_MODES)):
+    for key, flag, allowed in (("retry", retry, RETRY_MODES), ("separate", separate, SEPARATE_MODES),
+                               ("fallback", fallback, FALLBACK_MODES)):
         value = flag if flag is not None else raw.get(key, getattr(out, key))
         if value not in allowed:
             where = f"--{key}" if flag is not None else f"{rig.path}: coded.{key}"
             raise FglocError(f"{where}: expected one of {', '.join(allowed)}, got {value!r}")
         out = replace(out, **{key: value})
-    return out
+    levels = raw.get("levels", out.levels)
+    if not (isinstance(levels, (list, tuple)) and levels and all(
+            isinstance(z, (int, float)) and not isinstance(z, bool) and 0 < z <= 1 for z in levels)
+            and list(levels) == sorted(set(levels))):
+        raise FglocError(f"{rig.path}: coded.levels: expected ascending zooms in (0, 1] (fractions of the "
+                         f"optical range), got {levels!r}")
+    return replace(out, levels=tuple(float(z) for z in levels))
 
 
 @dataclass
@@ -167,6 +185,9 @@ class CodedStats:
     unassigned: int = 0
     confirmed: int = 0
     fallback_nodes: int = 0
+    classes: int = 0  #: radio separation: colour classes (rounds)
+    round_views: int = 0  #: radio separation: views recorded in rounds
+    pause_updates: int = 0  #: radio separation: pause-by-bitmap updates sent
     failed_views: list[str] = field(default_factory=list)
 
 
@@ -208,6 +229,11 @@ class CodedSurvey:
         self.remaining: dict[str, int] = {}  # camera -> unexplained blobs and failed views after its last rung
         self.blobs: dict[str, list[tuple[float, float]] | None] = {}  # their directions (None: a view failed)
         self._continue_at: dict[tuple[str, str], float] = {}  # (camera, view) -> clock s its recording ends
+        self.final_blobs: dict[str, np.ndarray] = {}  # camera -> (M, 2) directions of its unexplained blobs
+        self.here: dict[str, tuple[float, float]] = {}  # camera -> head (pan, tilt) after its last view
+        self.wide_records: dict[str, list[dict[str, Any] | None]] = {}
+        self._done_views = 0
+        self.stages = FieldTime({})  # barrier stages done (radio separation: wide pass, rounds), in series
 
     # ----- plan and clock
     def plan(self, camera: str) -> list[tuple[float, float]]:
@@ -223,13 +249,13 @@ class CodedSurvey:
 
     def _lane_start(self, camera: str) -> float:
         """Survey-clock seconds at which the camera's next operation starts."""
-        return self.radio_s + price(self.lanes[camera], self.timing[camera]).total
+        return self.radio_s + self.stages.total + price(self.lanes[camera], self.timing[camera]).total
 
     def field_time(self) -> FieldTime:
         """Predicted field time so far: radio, the longest camera lane, the fallback nodes."""
         lanes = [price(ops, self.timing[c]) for c, ops in self.lanes.items()]
         radio = FieldTime({"radio": self.radio_s})
-        return sum_times([radio, parallel(lanes), FieldTime({"fallback": self.fallback.total})])
+        return sum_times([radio, self.stages, parallel(lanes), FieldTime({"fallback": self.fallback.total})])
 
     # ----- one camera
     def _record(self, runner: SurveyRunner, camera: str, vid: str, attempt: int, target: tuple[float, float],
@@ -305,7 +331,7 @@ class CodedSurvey:
                         f"({r['u']:.1f}, {r['v']:.1f}) px: {r['reason']}")
 
     def _visit(self, runner: SurveyRunner, camera: str, vid: str, target: tuple[float, float], zoom: float,
-               here: tuple[float, float]) -> dict[str, Any] | None:
+               here: tuple[float, float], extra: dict[str, Any] | None = None) -> dict[str, Any] | None:
         """Record one view (and its second recording when needed) unless journaled; prices it
         on the camera's lane. Returns the view's last record (None: the camera failed)."""
         worker, lane = runner.workers[camera], self.lanes[camera]
@@ -336,7 +362,7 @@ class CodedSurvey:
                     self.stats.failed_views.append(f"{camera}/{vid}")
                     logger.warning(f"{camera} view {vid}: camera error, view not recorded: {exc}")
                     return None
-                self._commit(runner, rec)
+                self._commit(runner, rec := rec | (extra or {}))
                 self._events.put(camera)
             else:
                 video = None  # journaled before a resume: its video is gone, a retry is a new burst
@@ -346,22 +372,31 @@ class CodedSurvey:
                 break
         return last
 
-    def blob_directions(self, camera: str, records: list[dict[str, Any] | None],
-                        spread_px: float = 0.0) -> np.ndarray:
-        """(M, 2) (pan, tilt) of the unexplained blobs in ``records`` (:func:`unexplained_blob`);
-        with ``spread_px`` each blob also gives the 8 directions ``spread_px`` (pixels of its own
-        recording) around it, so tiles cover every member of a cluster that merged into it."""
+    def unexplained(self, records: list[dict[str, Any] | None]) -> list[Blob]:
+        """The blobs no reading explains (:func:`unexplained_blob`) in ``records``: pixel, the
+        recording's head (pan, tilt) and zoom."""
         out = []
         for rec in records:
             if rec is None:
                 continue
-            intr = self.intrinsics_at(camera, float(rec.get("zoom", self.survey_zoom[camera])))
-            for r in rec["refused"]:
-                if unexplained_blob(r) and "u" in r:
-                    for du in (-spread_px, 0.0, spread_px) if spread_px else (0.0,):
-                        for dv in (-spread_px, 0.0, spread_px) if spread_px else (0.0,):
-                            p, t = pixel_to_pan_tilt(intr, np.array([r["u"] + du, r["v"] + dv]), *rec["head"])
-                            out.append((float(p), float(t)))
+            zoom = float(rec.get("zoom", self.survey_zoom[rec["camera"]]))
+            head = (float(rec["head"][0]), float(rec["head"][1]))
+            out += [((float(r["u"]), float(r["v"])), head, zoom) for r in rec["refused"]
+                    if unexplained_blob(r) and "u" in r]
+        return out
+
+    def blob_directions(self, camera: str, blobs: list[Blob], spread_px: float = 0.0) -> np.ndarray:
+        """(M, 2) (pan, tilt) of ``blobs``; with ``spread_px`` each blob also gives the 8
+        directions ``spread_px`` (pixels of its own recording) around it, so tiles cover every
+        member of a cluster that merged into it."""
+        out = []
+        steps = (-spread_px, 0.0, spread_px) if spread_px else (0.0,)
+        for (u, v), head, zoom in blobs:
+            intr = self.intrinsics_at(camera, zoom)
+            for du in steps:
+                for dv in steps:
+                    p, t = pixel_to_pan_tilt(intr, np.array([u + du, v + dv]), *head)
+                    out.append((float(p), float(t)))
         return np.array(out, dtype=float).reshape(-1, 2)
 
     def intrinsics_at(self, camera: str, zoom: float) -> CameraIntrinsics:
@@ -371,21 +406,35 @@ class CodedSurvey:
         return intr if zoom == self.survey_zoom[camera] else intr.at_zoom(zoom)
 
     def run_camera(self, runner: SurveyRunner, camera: str, views: list[tuple[float, float]]) -> None:
-        """Record every view of ``camera`` that has no journal record yet (in plan order), then
-        the refinement rungs: tiles over the blobs no reading explains, at the next zoom of the
-        ladder, until none is left or the ladder ends; then zoom back to the survey zoom."""
+        """The wide pass (:meth:`run_wide`), then the zoom refinement of its unexplained blobs."""
+        self.run_wide(runner, camera, views)
+        recs = self.wide_records[camera]
+        self.run_refine(runner, camera, self.unexplained(recs), any(r is None for r in recs))
+
+    def run_wide(self, runner: SurveyRunner, camera: str, views: list[tuple[float, float]]) -> None:
+        """Record every view of ``camera`` that has no journal record yet (in plan order)."""
         here, zoom0 = runner.workers[camera].home, self.survey_zoom[camera]
         last: list[dict[str, Any] | None] = []
         for k, target in enumerate(views):
             last.append(self._visit(runner, camera, f"w{k:03d}", target, zoom0, here))
             here = target
         self.stats.views += len(views)
+        self.here[camera], self.wide_records[camera] = here, last
+
+    def run_refine(self, runner: SurveyRunner, camera: str, blobs: list[Blob], failed: bool,
+                   keep: list[Blob] | None = None) -> None:
+        """The refinement rungs: tiles over ``blobs`` (unexplained so far) at the next zoom of the
+        ladder, then over what those tiles left unexplained, until none is left or the ladder
+        ends; then zoom back to the survey zoom. ``failed``: a view failed (its blobs are
+        unknown; the fallback covers this camera). ``keep``: blobs the fallback must still
+        search even when every rung explains its own."""
+        here, zoom0 = self.here[camera], self.survey_zoom[camera]
         zoom = zoom0
         s = self.rig.search
         for rung, level in enumerate(self.levels, start=1):
-            if any(r is None for r in last):
-                break  # a view failed: its blobs are unknown, the fallback covers this camera
-            pts = self.blob_directions(camera, last, spread_px=CLUSTER_SPREAD_PX)
+            if failed:
+                break
+            pts = self.blob_directions(camera, blobs, spread_px=CLUSTER_SPREAD_PX)
             if not len(pts):
                 break
             tiles = [into_search_box(p, t, s.pan_min, s.pan_max, s.tilt_min, s.tilt_max) for p, t in plan_views(
@@ -397,10 +446,13 @@ class CodedSurvey:
                 last.append(self._visit(runner, camera, f"r{rung}-{k:03d}", target, level, here))
                 here = target
             self.stats.views += len(tiles)
-        blobs = self.blob_directions(camera, last)
-        self.remaining[camera] = sum(r is None for r in last) + len(blobs)
+            failed, blobs = any(r is None for r in last), self.unexplained(last)
+        blobs = blobs + (keep or [])
+        self.remaining[camera] = int(failed) + len(blobs)
         fov = min(runner.workers[camera].locator.pixels.field_of_view())  # at the survey zoom
-        self.blobs[camera] = None if any(r is None for r in last) else distinct_directions(blobs, 0.25 * fov)
+        self.final_blobs[camera] = self.blob_directions(camera, blobs)
+        self.blobs[camera] = None if failed else distinct_directions(self.final_blobs[camera], 0.25 * fov)
+        self.here[camera] = here
         if zoom != zoom0:
             self.lanes[camera].append(Zoom(zoom0 - zoom))
             try:
@@ -436,6 +488,21 @@ class CodedSurvey:
             logger.warning(f"{len(silent)} motes did not confirm their code (first: {silent[0]}); "
                            "they are read the sequential way if no camera decodes them")
 
+    def pause(self, paused: set[int]) -> None:
+        """Pause (LED dark, code running) the motes at ``paused`` addresses and resume the others:
+        the pause-by-bitmap packets over the survey's address range, each broadcast
+        ``PAUSE_REPEATS`` times (no report confirms a pause; a mote that missed all stays lit,
+        and its blob stays ambiguous: refused, never guessed)."""
+        from fgloc.drivers.tinyos.blink import pause_packets
+        from fgloc.survey.coded_separation import PAUSE_REPEATS
+
+        packets = pause_packets(paused, range(self.first, max(self.addresses.values()) + 1))
+        for packet in packets:
+            for _ in range(PAUSE_REPEATS):
+                self.leds.broadcast_codes(packet, set(), 0.0)
+        self.radio_s += price([Radio(broadcast=PAUSE_REPEATS * len(packets))], self.timing[self.rig.camera_ids[0]]).total
+        self.stats.pause_updates += 1
+
     def stop_codes(self, runner: SurveyRunner) -> None:
         from fgloc.drivers.tinyos.blink import BlinkCommand
 
@@ -451,6 +518,28 @@ class CodedSurvey:
             eta = (views_total - views_done) * (time.perf_counter() - t0) / views_done
         failures = len(st.not_found) + len(st.led_failed)
         return Progress(done, len(self.rig.node_ids), len(st.observations), failures, eta, self.field_time().total)
+
+    def pump(self, runner: SurveyRunner, futures: list[Future[None]], total: int, t0: float) -> None:
+        """Wait for the camera threads' ``futures``, with live estimates and progress per view."""
+        emit = runner.on_progress or (lambda _p: None)
+        since = 0
+        while not all(f.done() for f in futures) or not self._events.empty():
+            try:
+                self._events.get(timeout=0.05)
+            except queue.Empty:
+                continue
+            self._done_views, since = self._done_views + 1, since + 1
+            if since >= runner.live_every:
+                since = 0
+                runner.estimate(nodes_done=self._finished_nodes(runner))
+            emit(self.progress(runner, min(self._done_views, total), total, t0))
+        for f in futures:
+            f.result()
+
+    def next_stage(self) -> None:
+        """A barrier: every camera's lane so far is done before anything after it starts."""
+        self.stages = self.stages + parallel([price(ops, self.timing[c]) for c, ops in self.lanes.items()])
+        self.lanes = {c: [] for c in self.rig.camera_ids}
 
     def _finished_nodes(self, runner: SurveyRunner) -> int:
         st = runner.state
@@ -473,21 +562,14 @@ class CodedSurvey:
             with ThreadPoolExecutor(max_workers=len(self.rig.camera_ids), thread_name_prefix="camera") as pool:
                 if todo:
                     self.start_codes(runner)
-                futures = [pool.submit(self.run_camera, runner, c, v) for c, v in plans.items()]
-                done_views = sum(1 for key in runner.state.views if key[2] == 0)
-                since = 0
-                while not all(f.done() for f in futures) or not self._events.empty():
-                    try:
-                        self._events.get(timeout=0.05)
-                    except queue.Empty:
-                        continue
-                    done_views, since = done_views + 1, since + 1
-                    if since >= runner.live_every:
-                        since = 0
-                        runner.estimate(nodes_done=self._finished_nodes(runner))
-                    emit(self.progress(runner, min(done_views, total), total, t0))
-                for f in futures:
-                    f.result()
+                radio = self.settings.separate == "radio"
+                self._done_views = sum(1 for key in runner.state.views if key[2] == 0)
+                self.pump(runner, [pool.submit(self.run_wide if radio else self.run_camera, runner, c, v)
+                                   for c, v in plans.items()], total, t0)
+                if radio:
+                    from fgloc.survey.coded_separation import run_separation
+
+                    run_separation(self, runner, pool, lambda fs: self.pump(runner, fs, total, t0))
                 self.stop_codes(runner)
                 self.run_fallback(runner, pool, total, t0)
                 if self.rig.repeat_budget > 0:
@@ -513,6 +595,27 @@ class CodedSurvey:
         emit(self.progress(runner, total, total, t0))
         return journal_to_survey(runner.state)
 
+    def _predicted(self, runner: SurveyRunner) -> dict[str, dict[str, tuple[float, float]]] | None:
+        """Every mote's predicted direction per camera from the journaled views' readings alone
+        (the same on a resume), None when they do not solve."""
+        from fgloc.survey.coded_separation import predict_directions, wide_survey
+
+        st = runner.state
+        with runner._state_lock:
+            base = journal_to_survey(st)
+        return predict_directions(wide_survey(base, [r for _, r in sorted(st.views.items())]))
+
+    def _blobs_near(self, camera: str, at: tuple[float, float]) -> list[tuple[float, float]]:
+        """The camera's unexplained blob directions within :data:`PREDICTED_RADIUS` of ``at``
+        (thinned to looks a quarter field of view apart)."""
+        pts = self.final_blobs.get(camera, np.zeros((0, 2)))
+        if not len(pts):
+            return []
+        cos = pan_tilt_bearing(pts[:, 0], pts[:, 1]) @ pan_tilt_bearing(*at)
+        k = self.intrinsics_at(camera, self.survey_zoom[camera])
+        fov = 2 * math.atan(min(k.width / (2 * k.fx), k.height / (2 * k.fy)))  # as the refinement's looks
+        return distinct_directions(pts[cos >= math.cos(PREDICTED_RADIUS)], 0.25 * fov)
+
     def run_fallback(self, runner: SurveyRunner, pool: ThreadPoolExecutor, total: int, t0: float) -> None:
         """Finish every node some camera has not read. A camera whose views left no blob
         unexplained did not see a mote that confirmed its code: that is journaled ``not_found``
@@ -520,12 +623,30 @@ class CodedSurvey:
         sequential way, priced per node."""
         st = runner.state
         clean = {c for c in self.rig.camera_ids if self.remaining.get(c, 1) == 0}
+        predicted = self._predicted(runner) if self.settings.fallback == "predicted" else None
         starts = [set(r.get("silent", [])) for r in st.codes if r.get("action") == "start"]
         silent = set.intersection(*starts) if starts else set(self.rig.node_ids)  # never confirmed a start
         for node in self.rig.node_ids:
             if node in st.done:
                 continue
+            looks: dict[str, list[tuple[float, float]]] = {}
             if node not in silent:
+                for cam in self.rig.camera_ids:
+                    at = (predicted or {}).get(cam, {}).get(node)
+                    if cam in clean or at is None or self.blobs.get(cam) is None or st.camera_finished(
+                            node, cam, self.rig.repeats):
+                        continue
+                    near = self._blobs_near(cam, at)
+                    if near:
+                        looks[cam] = near
+                    else:
+                        reason = (f"not decoded by the camera, and no blob it left unexplained lies within "
+                                  f"{math.degrees(PREDICTED_RADIUS):g} deg of where the other cameras' readings "
+                                  f"place the mote (pan {math.degrees(at[0]):.2f}, tilt {math.degrees(at[1]):.2f} deg)")
+                        runner.journal.not_found(node, cam, reason)
+                        st.not_found[(node, cam)] = reason
+                        runner.stats.not_found += 1
+                        logger.info(f"{node}: not found by {cam}: {reason}")
                 for cam in sorted(clean):
                     if not st.camera_finished(node, cam, self.rig.repeats):
                         reason = "not decoded in any view of the camera, which left no blob unexplained"
@@ -543,7 +664,7 @@ class CodedSurvey:
             grids = {c: w.locator.cells for c, w in runner.workers.items()}
             try:
                 for cam, worker in runner.workers.items():
-                    blobs = self.blobs.get(cam)
+                    blobs = looks.get(cam, self.blobs.get(cam))
                     if node not in silent and blobs is not None:
                         # a mote that blinks its code and was not decoded is in a blob no reading
                         # explains (or not in view): look there only, not over the whole grid
