@@ -87,6 +87,7 @@ from fgloc.survey.clock import (
     sum_times,
 )
 from fgloc.survey.coded_clock import SequentialClock
+from fgloc.survey.coded_readings import field_intrinsics
 from fgloc.survey.coded_views import (
     coded_observation,
     distinct_directions,
@@ -137,18 +138,24 @@ class CodedSettings:
     #: (:func:`~fgloc.survey.coded_separation.predict_directions`) and looks only at the blobs
     #: within :data:`PREDICTED_RADIUS` of where it must be (none there: not found, no search)
     fallback: str = "blobs"
+    #: ``"fields"``: record and decode interlaced video field by field (59.94 Hz, every second
+    #: row; the motes' bit period one field), on rigs that record fields and heads with
+    #: interlaced video; ``"frames"``: whole frames at 29.97 Hz
+    video: str = "frames"
 
 
 RETRY_MODES = ("burst", "continue")
 SEPARATE_MODES = ("zoom", "radio")
 FALLBACK_MODES = ("blobs", "predicted")
+VIDEO_MODES = ("frames", "fields")
 PREDICTED_RADIUS = math.radians(3.0)  #: a blob this close to a mote's predicted direction may hide it
 
 
 def coded_settings(rig: RigConfig, retry: str | None = None, separate: str | None = None,
                    fallback: str | None = None) -> CodedSettings:
     """The rig's coded-survey levers: rig.json ``"coded": {"retry": "burst"|"continue",
-    "separate": "zoom"|"radio", "fallback": "blobs"|"predicted", "levels": [zoom, ...]}`` (optional; defaults of
+    "separate": "zoom"|"radio", "fallback": "blobs"|"predicted", "video": "frames"|"fields",
+    "levels": [zoom, ...]}`` (optional; defaults of
     :class:`CodedSettings`), overridden by ``retry`` / ``separate`` / ``fallback`` (the CLI
     flags). One-line :class:`FglocError` on a bad value."""
     raw = rig.raw.get("coded", {}) if isinstance(rig.raw, dict) else {}
@@ -156,7 +163,7 @@ def coded_settings(rig: RigConfig, retry: str | None = None, separate: str | Non
         raise FglocError(f"{rig.path}: coded: expected an object, got {raw!r}")
     out = CodedSettings()
     for key, flag, allowed in (("retry", retry, RETRY_MODES), ("separate", separate, SEPARATE_MODES),
-                               ("fallback", fallback, FALLBACK_MODES)):
+                               ("fallback", fallback, FALLBACK_MODES), ("video", None, VIDEO_MODES)):
         value = flag if flag is not None else raw.get(key, getattr(out, key))
         if value not in allowed:
             where = f"--{key}" if flag is not None else f"{rig.path}: coded.{key}"
@@ -214,10 +221,19 @@ class CodedSurvey:
         self.book: CodeBook = code_book(count)
         self.node_of_code = {a - self.first: n for n, a in self.addresses.items()}
         self.frames = frames_for(self.book.length, self.settings.periods)
-        self.camera = CameraTiming()
+        self.fields = self.settings.video == "fields"
+        self.camera = CameraTiming().at_field_rate() if self.fields else CameraTiming()
         # the runner's heads and LEDs: fallback nodes are priced as a sequential survey's nodes are
         self.clock = SequentialClock(rig, open_head, leds)  # type: ignore[arg-type]
         self.open_head, self.leds, self.timing = self.clock.open_head, self.clock.leds, self.clock.timing
+        #: the camera lanes' clock (the fallback's sequential nodes keep ``timing``: whole frames)
+        self.lane_timing = {c: replace(t, camera=self.camera) for c, t in self.timing.items()}
+        if self.fields and not getattr(recorder, "blink_fields", False):
+            raise FglocError(f"{rig.path}: coded.video: \"fields\" needs a rig that records interlaced fields "
+                             "(the in-process rig); use \"frames\"")
+        if self.fields and not all(t.head.interlaced for t in self.timing.values()):
+            raise FglocError(f"{rig.path}: coded.video: \"fields\" needs heads with interlaced video "
+                             f"({', '.join(c.model for c in rig.cameras)}); use \"frames\"")
         self.stats = CodedStats()
         self.lanes: dict[str, list[Op]] = {c: [] for c in rig.camera_ids}
         self.radio_s = 0.0
@@ -249,11 +265,11 @@ class CodedSurvey:
 
     def _lane_start(self, camera: str) -> float:
         """Survey-clock seconds at which the camera's next operation starts."""
-        return self.radio_s + self.stages.total + price(self.lanes[camera], self.timing[camera]).total
+        return self.radio_s + self.stages.total + price(self.lanes[camera], self.lane_timing[camera]).total
 
     def field_time(self) -> FieldTime:
         """Predicted field time so far: radio, the longest camera lane, the fallback nodes."""
-        lanes = [price(ops, self.timing[c]) for c, ops in self.lanes.items()]
+        lanes = [price(ops, self.lane_timing[c]) for c, ops in self.lanes.items()]
         radio = FieldTime({"radio": self.radio_s})
         return sum_times([radio, self.stages, parallel(lanes), FieldTime({"fallback": self.fallback.total})])
 
@@ -271,7 +287,8 @@ class CodedSurvey:
         if before:  # the recording goes on: the next frame period after the last one
             t_start = self._continue_at[(camera, vid)]
         if self.recorder is not None:
-            frames: list[Frame] = self.recorder(camera, count, t_start, key)
+            frames: list[Frame] = (self.recorder(camera, count, t_start, key, fields=True) if self.fields
+                                   else self.recorder(camera, count, t_start, key))
         else:  # hardware: consecutive grabs stamped by the host clock
             frames = []
             for _ in range(count):
@@ -401,9 +418,11 @@ class CodedSurvey:
 
     def intrinsics_at(self, camera: str, zoom: float) -> CameraIntrinsics:
         """The camera's intrinsics at ``zoom`` (its own at the survey zoom; else the idealised
-        :meth:`~fgloc.camera.intrinsics.CameraIntrinsics.at_zoom` model, as the simulator renders)."""
+        :meth:`~fgloc.camera.intrinsics.CameraIntrinsics.at_zoom` model, as the simulator renders);
+        with fields, those of one field (:func:`~fgloc.survey.coded_readings.field_intrinsics`)."""
         intr = self.rig.cameras[self.rig.camera_ids.index(camera)].intrinsics
-        return intr if zoom == self.survey_zoom[camera] else intr.at_zoom(zoom)
+        intr = intr if zoom == self.survey_zoom[camera] else intr.at_zoom(zoom)
+        return field_intrinsics(intr) if self.fields else intr
 
     def run_camera(self, runner: SurveyRunner, camera: str, views: list[tuple[float, float]]) -> None:
         """The wide pass (:meth:`run_wide`), then the zoom refinement of its unexplained blobs."""
@@ -538,7 +557,7 @@ class CodedSurvey:
 
     def next_stage(self) -> None:
         """A barrier: every camera's lane so far is done before anything after it starts."""
-        self.stages = self.stages + parallel([price(ops, self.timing[c]) for c, ops in self.lanes.items()])
+        self.stages = self.stages + parallel([price(ops, self.lane_timing[c]) for c, ops in self.lanes.items()])
         self.lanes = {c: [] for c in self.rig.camera_ids}
 
     def _finished_nodes(self, runner: SurveyRunner) -> int:
