@@ -13,7 +13,7 @@ from fgloc.cli import main
 from fgloc.core.errors import FglocError
 from fgloc.files.journal import read_journal
 from fgloc.survey.clock import CameraTiming
-from fgloc.survey.coded import coded_settings
+from fgloc.survey.coded_levers import coded_settings
 from fgloc.survey.session import run_survey
 from tests.test_survey_coded import check_labels, coded_rig, opened, parsed, view_records
 
@@ -115,7 +115,11 @@ def test_coded_settings_defaults_and_rig_values():
     assert (s.retry, s.separate) == ("burst", "zoom")
     s = coded_settings(parsed(lever_rig(4, width=160, retry="continue", separate="radio")))
     assert (s.retry, s.separate) == ("continue", "radio")
-    assert coded_settings(parsed(lever_rig(4, width=160, retry="continue")), retry="burst").retry == "burst"
+    assert coded_settings(parsed(lever_rig(4, width=160, retry="continue")), {"retry": "burst"}).retry == "burst"
+    with pytest.raises(FglocError, match="--coded: retry: expected one of burst, continue, got 'x'"):
+        coded_settings(parsed(coded_rig(4, width=160)), {"retry": "x"})
+    with pytest.raises(FglocError, match="--coded: speed: unknown lever"):
+        coded_settings(parsed(coded_rig(4, width=160)), {"speed": "max"})
     assert np.isfinite(PERIOD)
 
 
@@ -275,3 +279,18 @@ def test_fields_need_a_rig_that_records_them(tmp_path, capsys):
     assert main(["survey", "--rig", str(tmp_path / "rig.json"), "-o", str(tmp_path / "o"), "--simulate"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "coded.video" in err[0] and "fields" in err[0], err
+
+
+def test_the_coded_flag_overrides_the_file(tmp_path, capsys):
+    (tmp_path / "rig.json").write_text(json.dumps(lever_rig(12, width=160, retry="burst")))
+    args = ["survey", "--rig", str(tmp_path / "rig.json"), "-o", str(tmp_path / "o"), "--simulate", "--quiet",
+            "--identify", "coded"]
+    assert main(args + ["--coded", "retry=continue", "--coded", "fallback=predicted"]) == 0
+    again = [r for r in view_records(tmp_path / "o" / "journal.jsonl") if r["attempt"] > 0]
+    assert again and all(r.get("continued") for r in again)
+    capsys.readouterr()
+    for bad, problem in (("retry", "--coded: expected KEY=VALUE"), ("video=tv", "--coded: video")):
+        assert main(args[:4] + [str(tmp_path / f"o-{bad}")] + args[5:] + ["--coded", bad]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and problem in err[0], err
+        assert not (tmp_path / f"o-{bad}" / "journal.jsonl").exists()

@@ -67,7 +67,6 @@ from fgloc.camera.blink_decoder import DecoderConfig, ViewDecode, decode_view, d
 from fgloc.camera.intrinsics import CameraIntrinsics
 from fgloc.camera.pixel_angles import pixel_to_pan_tilt
 from fgloc.core.errors import FglocError
-from fgloc.core.geometry import pan_tilt_bearing
 from fgloc.core.hardware import PanTiltHead
 from fgloc.core.model import Survey
 from fgloc.files.journal import journal_to_survey
@@ -136,46 +135,12 @@ class CodedSettings:
     #: fallback of a mote a camera did not decode: ``"blobs"`` looks at every blob the camera left
     #: unexplained; ``"predicted"`` first places the mote from the other cameras' readings
     #: (:func:`~fgloc.survey.coded_separation.predict_directions`) and looks only at the blobs
-    #: within :data:`PREDICTED_RADIUS` of where it must be (none there: not found, no search)
+    #: within :data:`~fgloc.survey.coded_levers.PREDICTED_RADIUS` of where it must be (none there: not found, no search)
     fallback: str = "blobs"
     #: ``"fields"``: record and decode interlaced video field by field (59.94 Hz, every second
     #: row; the motes' bit period one field), on rigs that record fields and heads with
     #: interlaced video; ``"frames"``: whole frames at 29.97 Hz
     video: str = "frames"
-
-
-RETRY_MODES = ("burst", "continue")
-SEPARATE_MODES = ("zoom", "radio")
-FALLBACK_MODES = ("blobs", "predicted")
-VIDEO_MODES = ("frames", "fields")
-PREDICTED_RADIUS = math.radians(3.0)  #: a blob this close to a mote's predicted direction may hide it
-
-
-def coded_settings(rig: RigConfig, retry: str | None = None, separate: str | None = None,
-                   fallback: str | None = None) -> CodedSettings:
-    """The rig's coded-survey levers: rig.json ``"coded": {"retry": "burst"|"continue",
-    "separate": "zoom"|"radio", "fallback": "blobs"|"predicted", "video": "frames"|"fields",
-    "levels": [zoom, ...]}`` (optional; defaults of
-    :class:`CodedSettings`), overridden by ``retry`` / ``separate`` / ``fallback`` (the CLI
-    flags). One-line :class:`FglocError` on a bad value."""
-    raw = rig.raw.get("coded", {}) if isinstance(rig.raw, dict) else {}
-    if not isinstance(raw, dict):
-        raise FglocError(f"{rig.path}: coded: expected an object, got {raw!r}")
-    out = CodedSettings()
-    for key, flag, allowed in (("retry", retry, RETRY_MODES), ("separate", separate, SEPARATE_MODES),
-                               ("fallback", fallback, FALLBACK_MODES), ("video", None, VIDEO_MODES)):
-        value = flag if flag is not None else raw.get(key, getattr(out, key))
-        if value not in allowed:
-            where = f"--{key}" if flag is not None else f"{rig.path}: coded.{key}"
-            raise FglocError(f"{where}: expected one of {', '.join(allowed)}, got {value!r}")
-        out = replace(out, **{key: value})
-    levels = raw.get("levels", out.levels)
-    if not (isinstance(levels, (list, tuple)) and levels and all(
-            isinstance(z, (int, float)) and not isinstance(z, bool) and 0 < z <= 1 for z in levels)
-            and list(levels) == sorted(set(levels))):
-        raise FglocError(f"{rig.path}: coded.levels: expected ascending zooms in (0, 1] (fractions of the "
-                         f"optical range), got {levels!r}")
-    return replace(out, levels=tuple(float(z) for z in levels))
 
 
 @dataclass
@@ -206,6 +171,8 @@ class CodedSurvey:
         from fgloc.drivers.tinyos.messages import node_address
 
         self.rig = rig
+        from fgloc.survey.coded_levers import coded_settings
+
         self.settings = settings or coded_settings(rig)
         self.recorder = getattr(recorder, "record_blinks", None)
         if not callable(getattr(leds, "broadcast_codes", None)):
@@ -614,27 +581,6 @@ class CodedSurvey:
         emit(self.progress(runner, total, total, t0))
         return journal_to_survey(runner.state)
 
-    def _predicted(self, runner: SurveyRunner) -> dict[str, dict[str, tuple[float, float]]] | None:
-        """Every mote's predicted direction per camera from the journaled views' readings alone
-        (the same on a resume), None when they do not solve."""
-        from fgloc.survey.coded_separation import predict_directions, wide_survey
-
-        st = runner.state
-        with runner._state_lock:
-            base = journal_to_survey(st)
-        return predict_directions(wide_survey(base, [r for _, r in sorted(st.views.items())]))
-
-    def _blobs_near(self, camera: str, at: tuple[float, float]) -> list[tuple[float, float]]:
-        """The camera's unexplained blob directions within :data:`PREDICTED_RADIUS` of ``at``
-        (thinned to looks a quarter field of view apart)."""
-        pts = self.final_blobs.get(camera, np.zeros((0, 2)))
-        if not len(pts):
-            return []
-        cos = pan_tilt_bearing(pts[:, 0], pts[:, 1]) @ pan_tilt_bearing(*at)
-        k = self.intrinsics_at(camera, self.survey_zoom[camera])
-        fov = 2 * math.atan(min(k.width / (2 * k.fx), k.height / (2 * k.fy)))  # as the refinement's looks
-        return distinct_directions(pts[cos >= math.cos(PREDICTED_RADIUS)], 0.25 * fov)
-
     def run_fallback(self, runner: SurveyRunner, pool: ThreadPoolExecutor, total: int, t0: float) -> None:
         """Finish every node some camera has not read. A camera whose views left no blob
         unexplained did not see a mote that confirmed its code: that is journaled ``not_found``
@@ -642,7 +588,9 @@ class CodedSurvey:
         sequential way, priced per node."""
         st = runner.state
         clean = {c for c in self.rig.camera_ids if self.remaining.get(c, 1) == 0}
-        predicted = self._predicted(runner) if self.settings.fallback == "predicted" else None
+        from fgloc.survey.coded_levers import PREDICTED_RADIUS, blobs_near, predicted_directions
+
+        predicted = predicted_directions(runner) if self.settings.fallback == "predicted" else None
         starts = [set(r.get("silent", [])) for r in st.codes if r.get("action") == "start"]
         silent = set.intersection(*starts) if starts else set(self.rig.node_ids)  # never confirmed a start
         for node in self.rig.node_ids:
@@ -655,7 +603,7 @@ class CodedSurvey:
                     if cam in clean or at is None or self.blobs.get(cam) is None or st.camera_finished(
                             node, cam, self.rig.repeats):
                         continue
-                    near = self._blobs_near(cam, at)
+                    near = blobs_near(self, cam, at)
                     if near:
                         looks[cam] = near
                     else:
