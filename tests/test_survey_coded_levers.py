@@ -294,3 +294,34 @@ def test_the_coded_flag_overrides_the_file(tmp_path, capsys):
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and problem in err[0], err
         assert not (tmp_path / f"o-{bad}" / "journal.jsonl").exists()
+
+
+def test_probe_stops_the_recording_of_empty_views_only(tmp_path):
+    """probe "on": each recording starts with L + 2 frames; a view they show no blob in stops
+    there (priced as L + 2 frames), any other goes on to 3L + 2 as one recording. Every
+    visible pair is still read; each probed-empty view really holds no visible mote."""
+    from fgloc.camera.pixel_angles import pan_tilt_to_pixel
+
+    rig = parsed(lever_rig(30, probe="on"))
+    rig_opened, sim = opened(rig)
+    _, runner = run_survey(rig, tmp_path / "p", opened=rig_opened)
+    state = read_journal(tmp_path / "p" / "journal.jsonl")
+    assert {(c, n) for (n, c, _) in state.observations} == sim.scene.visible_pairs()
+    check_labels(rig, sim.scene, state, max_error_deg=0.2)
+    recs = [r for r in view_records(tmp_path / "p" / "journal.jsonl") if r["attempt"] == 0]
+    length = runner_book_length(rig)
+    empty = [r for r in recs if r["frames"] == length + 2]
+    full = [r for r in recs if r["frames"] == 3 * length + 2]
+    assert empty and full and len(empty) + len(full) == len(recs)
+    assert all(r["probe"] == length + 2 for r in recs)
+    assert all(not r["readings"] and not r["refused"] for r in empty)
+    for r in empty:  # no visible mote lies in the image of an empty view
+        i = rig.camera_ids.index(r["camera"])
+        intr = rig.cameras[i].intrinsics if r["zoom"] == 0 else rig.cameras[i].intrinsics.at_zoom(r["zoom"])
+        live = [j for j, n in enumerate(rig.node_ids) if sim.scene.visible[i, j] and n not in sim.scene.dead]
+        uv, front = pan_tilt_to_pixel(intr, sim.scene.apparent[i, live, 0], sim.scene.apparent[i, live, 1], *r["head"])
+        inside = front & (uv[:, 0] >= 0) & (uv[:, 0] < intr.width) & (uv[:, 1] >= 0) & (uv[:, 1] < intr.height)
+        assert not inside.any(), r["view"]
+    plain = parsed(lever_rig(30))
+    _, plain_runner = run_survey(plain, tmp_path / "w", opened=opened(plain)[0])
+    assert runner.field_time.phases["frames"] < plain_runner.field_time.phases["frames"]

@@ -90,6 +90,7 @@ from fgloc.survey.coded_readings import field_intrinsics
 from fgloc.survey.coded_views import (
     coded_observation,
     distinct_directions,
+    empty_view,
     into_search_box,
     needs_second_recording,
     on_off_centroid,
@@ -141,6 +142,9 @@ class CodedSettings:
     #: row; the motes' bit period one field), on rigs that record fields and heads with
     #: interlaced video; ``"frames"``: whole frames at 29.97 Hz
     video: str = "frames"
+    #: ``"on"``: a recording starts with L + 2 frames and stops there when they show no blob (an
+    #: empty view), else goes on to 3L + 2 (one continuous recording); ``"off"``: always 3L + 2
+    probe: str = "off"
 
 
 @dataclass
@@ -241,6 +245,19 @@ class CodedSurvey:
         return sum_times([radio, self.stages, parallel(lanes), FieldTime({"fallback": self.fallback.total})])
 
     # ----- one camera
+    def _grab(self, runner: SurveyRunner, camera: str, count: int, t_start: float, key: str) -> list[Frame]:
+        """``count`` consecutive frames (fields) from ``t_start`` on the survey clock: the simulated
+        rigs' ``record_blinks`` (seeded by ``key``), on hardware grabs stamped by the host clock."""
+        if self.recorder is not None:
+            out: list[Frame] = (self.recorder(camera, count, t_start, key, fields=True) if self.fields
+                                else self.recorder(camera, count, t_start, key))
+            return out
+        frames = []
+        for _ in range(count):
+            img = runner.workers[camera].call(lambda h: h.grab_frame())
+            frames.append((time.monotonic(), np.asarray(img)))
+        return frames
+
     def _record(self, runner: SurveyRunner, camera: str, vid: str, attempt: int, target: tuple[float, float],
                 head: tuple[float, float], zoom: float, t_start: float,
                 before: list[Frame] | None = None) -> tuple[dict[str, Any], list[Frame]]:
@@ -248,21 +265,25 @@ class CodedSurvey:
         frames so far. ``before``: this process's frames of the view's earlier recordings, which
         this one continues (L more frames from where they ended, decoded with them in sliding
         windows); None: a new burst of 3L + 2."""
-        worker = runner.workers[camera]
         key = f"{vid}/{attempt}"
         count = self.book.length if before else self.frames
         if before:  # the recording goes on: the next frame period after the last one
             t_start = self._continue_at[(camera, vid)]
-        if self.recorder is not None:
-            frames: list[Frame] = (self.recorder(camera, count, t_start, key, fields=True) if self.fields
-                                   else self.recorder(camera, count, t_start, key))
-        else:  # hardware: consecutive grabs stamped by the host clock
-            frames = []
-            for _ in range(count):
-                img = worker.call(lambda h: h.grab_frame())
-                frames.append((time.monotonic(), np.asarray(img)))
-        self._continue_at[(camera, vid)] = t_start + count * self.camera.frame_period_s
         intr = self.intrinsics_at(camera, zoom)
+        probed = False
+        if not before and self.settings.probe == "on":
+            # the first L + 2 frames show every blinking mote on and off (each word has both bits in
+            # any L samples): a view where they show no blob at all is empty, and the recording stops
+            count = self.book.length + 2
+            frames = self._grab(runner, camera, count, t_start, key)
+            probed = True
+            if not empty_view(frames, self.camera.frame_period_s, self.settings.decoder):  # on to 3L + 2
+                frames += self._grab(runner, camera, self.frames - count, t_start + count * self.camera.frame_period_s,
+                                     key + "+")
+                count = self.frames
+        else:
+            frames = self._grab(runner, camera, count, t_start, key)
+        self._continue_at[(camera, vid)] = t_start + count * self.camera.frame_period_s
         if before:
             frames = before + frames
             dec: ViewDecode = decode_windows(frames, self.camera.frame_period_s, self.book, intr, head[0], head[1],
@@ -292,7 +313,8 @@ class CodedSurvey:
                             | ({} if obs.view_sigma is None else {"sigma": obs.sigma, "view_sigma": obs.view_sigma}))
         return {"camera": camera, "view": vid, "attempt": attempt, "target": list(target), "head": list(head),
                 "zoom": zoom, "frames": count, "erased": dec.erased, "clock_s": t_start, "readings": readings,
-                "refused": refused} | ({"continued": True} if before else {}), frames
+                "refused": refused} | ({"continued": True} if before else {}) | (
+                    {"probe": self.book.length + 2} if probed else {}), frames
 
     def _commit(self, runner: SurveyRunner, record: dict[str, Any]) -> None:
         """Journal one view (the commit of all its readings), then apply it to the state."""

@@ -9,6 +9,7 @@ rig.json ``"coded"`` (optional) and ``fgloc survey --coded KEY=VALUE`` choose th
   :mod:`fgloc.survey.coded_separation`);
 * ``fallback``: ``"blobs"`` | ``"predicted"`` (:func:`predicted_directions`, :func:`blobs_near`);
 * ``video``: ``"frames"`` | ``"fields"`` (interlaced fields at 59.94 Hz);
+* ``probe``: ``"off"`` | ``"on"`` (a view whose first L + 2 frames show no blob stops there);
 * ``levels``: the refinement zoom ladder, ascending fractions of the optical range.
 
 Angles radians.
@@ -36,13 +37,15 @@ RETRY_MODES = ("burst", "continue")
 SEPARATE_MODES = ("zoom", "radio")
 FALLBACK_MODES = ("blobs", "predicted")
 VIDEO_MODES = ("frames", "fields")
-CHOICES = {"retry": RETRY_MODES, "separate": SEPARATE_MODES, "fallback": FALLBACK_MODES, "video": VIDEO_MODES}
+PROBE_MODES = ("off", "on")
+CHOICES = {"retry": RETRY_MODES, "separate": SEPARATE_MODES, "fallback": FALLBACK_MODES, "video": VIDEO_MODES,
+           "probe": PROBE_MODES}
 PREDICTED_RADIUS = math.radians(3.0)  #: a blob this close to a mote's predicted direction may hide it
 
 
 def coded_settings(rig: RigConfig, overrides: Mapping[str, str] | None = None) -> CodedSettings:
     """The rig's coded-survey levers: rig.json ``"coded": {"retry": ..., "separate": ...,
-    "fallback": ..., "video": ..., "levels": [zoom, ...]}`` (each optional; defaults of
+    "fallback": ..., "video": ..., "probe": ..., "levels": [zoom, ...]}`` (each optional; defaults of
     :class:`~fgloc.survey.coded.CodedSettings`), each overridden by ``overrides`` (the CLI's
     ``--coded KEY=VALUE``). One-line :class:`FglocError` naming the file or flag on a bad value."""
     from fgloc.survey.coded import CodedSettings
