@@ -45,7 +45,7 @@ from fgloc.core.model import NodeMode, Observation, Survey
 from fgloc.survey.view_planner import colour_conflicts
 
 if TYPE_CHECKING:
-    from fgloc.survey.coded import CodedSurvey
+    from fgloc.survey.coded import Blob, CodedSurvey
     from fgloc.survey.runner import SurveyRunner
 
 logger = logging.getLogger(__name__)
@@ -237,7 +237,8 @@ def _refine_after(coded: CodedSurvey, runner: SurveyRunner, camera: str, plan: S
     rounds = _records(st, camera, "s")
     read = {rd["node"] for r in _records(st, camera, "w") + rounds for rd in r["readings"]}
     intr = coded.intrinsics_at(camera, coded.survey_zoom[camera])
-    left, explained = [], []
+    left: list[Blob] = []
+    explained: list[Blob] = []
     for blob in wide:
         near = crowded_motes(intr, [(blob[0], blob[1])], plan.crowded[camera], RADIUS_PX)
         (explained if near and set(near) <= read else left).append(blob)
