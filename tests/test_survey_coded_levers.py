@@ -26,7 +26,17 @@ def lever_rig(n_nodes: int = 30, width: int = 320, **coded):
     return data
 
 
-def test_continued_retry_goes_on_recording_and_reads_what_the_burst_missed(tmp_path):
+@pytest.fixture(scope="module")
+def defaults30(tmp_path_factory):
+    """The 30-mote coded survey with every lever at its default (burst retries, frames, no
+    probe, blob fallback): (field time, journaled views), the baseline of the lever tests."""
+    out = tmp_path_factory.mktemp("defaults30")
+    rig = parsed(lever_rig(30))
+    _, runner = run_survey(rig, out, opened=opened(rig)[0])
+    return runner.field_time, read_journal(out / "journal.jsonl").views
+
+
+def test_continued_retry_goes_on_recording_and_reads_what_the_burst_missed(tmp_path, defaults30):
     """retry "continue": a view with curable refusals records L more frames from where its
     recording ended (the survey clock continues, no new burst) and decodes the whole recording
     in sliding windows; what it reads is new (no mote twice) and correctly labelled."""
@@ -50,9 +60,7 @@ def test_continued_retry_goes_on_recording_and_reads_what_the_burst_missed(tmp_p
     # the continued windows read motes the first recording of those views had missed
     assert sum(len(r["readings"]) for r in again) > 0
     # priced as a continuation: cheaper on the clock than the same survey retrying in bursts
-    burst = parsed(lever_rig(30, retry="burst"))
-    _, burst_runner = run_survey(burst, tmp_path / "burst", opened=opened(burst)[0])
-    assert runner.field_time.phases["frames"] < burst_runner.field_time.phases["frames"]
+    assert runner.field_time.phases["frames"] < defaults30[0].phases["frames"]
 
 
 def runner_book_length(rig) -> int:
@@ -243,7 +251,7 @@ def test_predicted_fallback_skips_the_search_where_no_blob_can_hide_the_mote(tmp
     assert runner.field_time.phases["fallback"] < blob_runner.field_time.phases["fallback"]
 
 
-def test_fields_decode_interlaced_video_at_twice_the_rate(tmp_path):
+def test_fields_decode_interlaced_video_at_twice_the_rate(tmp_path, defaults30):
     """video "fields": the motes blink one bit per field (the start broadcast says 16.68 ms),
     the in-process rig renders fields (every second row, 59.94 Hz, half the light) and the
     survey decodes them with the field's intrinsics: every visible pair read, none mislabelled,
@@ -261,12 +269,8 @@ def test_fields_decode_interlaced_video_at_twice_the_rate(tmp_path):
     frames = sim.record_blinks("cam0", 5, 1.0, "probe", fields=True)
     assert frames[0][1].shape == (120, 320)
     assert np.diff([t for t, _ in frames]).min() == pytest.approx(PERIOD / 2, abs=2e-3)
-    whole = parsed(lever_rig(30))
-    _, frame_runner = run_survey(whole, tmp_path / "w", opened=opened(whole)[0])
     per_recording = runner.field_time.phases["frames"] / len(state.views)
-    per_frame_recording = frame_runner.field_time.phases["frames"] / len(read_journal(
-        tmp_path / "w" / "journal.jsonl").views)
-    assert per_recording < 0.7 * per_frame_recording
+    assert per_recording < 0.7 * defaults30[0].phases["frames"] / len(defaults30[1])
 
 
 def test_fields_need_a_rig_that_records_them(tmp_path, capsys):
@@ -296,7 +300,7 @@ def test_the_coded_flag_overrides_the_file(tmp_path, capsys):
         assert not (tmp_path / f"o-{bad}" / "journal.jsonl").exists()
 
 
-def test_probe_stops_the_recording_of_empty_views_only(tmp_path):
+def test_probe_stops_the_recording_of_empty_views_only(tmp_path, defaults30):
     """probe "on": each recording starts with L + 2 frames; a view they show no blob in stops
     there (priced as L + 2 frames), any other goes on to 3L + 2 as one recording. Every
     visible pair is still read; each probed-empty view really holds no visible mote."""
@@ -322,6 +326,4 @@ def test_probe_stops_the_recording_of_empty_views_only(tmp_path):
         uv, front = pan_tilt_to_pixel(intr, sim.scene.apparent[i, live, 0], sim.scene.apparent[i, live, 1], *r["head"])
         inside = front & (uv[:, 0] >= 0) & (uv[:, 0] < intr.width) & (uv[:, 1] >= 0) & (uv[:, 1] < intr.height)
         assert not inside.any(), r["view"]
-    plain = parsed(lever_rig(30))
-    _, plain_runner = run_survey(plain, tmp_path / "w", opened=opened(plain)[0])
-    assert runner.field_time.phases["frames"] < plain_runner.field_time.phases["frames"]
+    assert runner.field_time.phases["frames"] < defaults30[0].phases["frames"]
