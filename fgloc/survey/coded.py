@@ -604,66 +604,7 @@ class CodedSurvey:
         return journal_to_survey(runner.state)
 
     def run_fallback(self, runner: SurveyRunner, pool: ThreadPoolExecutor, total: int, t0: float) -> None:
-        """Finish every node some camera has not read. A camera whose views left no blob
-        unexplained did not see a mote that confirmed its code: that is journaled ``not_found``
-        without a search. The rest (and motes that never confirmed) are measured the
-        sequential way, priced per node."""
-        st = runner.state
-        clean = {c for c in self.rig.camera_ids if self.remaining.get(c, 1) == 0}
-        from fgloc.survey.coded_levers import PREDICTED_RADIUS, blobs_near, predicted_directions
+        """Finish every node some camera has not read (:func:`fgloc.survey.coded_fallback.run_fallback`)."""
+        from fgloc.survey.coded_fallback import run_fallback
 
-        predicted = predicted_directions(runner) if self.settings.fallback == "predicted" else None
-        starts = [set(r.get("silent", [])) for r in st.codes if r.get("action") == "start"]
-        silent = set.intersection(*starts) if starts else set(self.rig.node_ids)  # never confirmed a start
-        for node in self.rig.node_ids:
-            if node in st.done:
-                continue
-            looks: dict[str, list[tuple[float, float]]] = {}
-            if node not in silent:
-                for cam in self.rig.camera_ids:
-                    at = (predicted or {}).get(cam, {}).get(node)
-                    if cam in clean or at is None or self.blobs.get(cam) is None or st.camera_finished(
-                            node, cam, self.rig.repeats):
-                        continue
-                    near = blobs_near(self, cam, at)
-                    if near:
-                        looks[cam] = near
-                    else:
-                        reason = (f"not decoded by the camera, and no blob it left unexplained lies within "
-                                  f"{math.degrees(PREDICTED_RADIUS):g} deg of where the other cameras' readings "
-                                  f"place the mote (pan {math.degrees(at[0]):.2f}, tilt {math.degrees(at[1]):.2f} deg)")
-                        runner.journal.not_found(node, cam, reason)
-                        st.not_found[(node, cam)] = reason
-                        runner.stats.not_found += 1
-                        logger.info(f"{node}: not found by {cam}: {reason}")
-                for cam in sorted(clean):
-                    if not st.camera_finished(node, cam, self.rig.repeats):
-                        reason = "not decoded in any view of the camera, which left no blob unexplained"
-                        runner.journal.not_found(node, cam, reason)
-                        st.not_found[(node, cam)] = reason
-                        runner.stats.not_found += 1
-                        logger.info(f"{node}: not found by {cam}: {reason}")
-            if all(st.camera_finished(node, c, self.rig.repeats) for c in self.rig.camera_ids):
-                runner.journal.node_done(node)
-                st.done.add(node)
-                continue
-            self.stats.fallback_nodes += 1
-            logger.info(f"{node}: not decoded by every camera; measured the sequential way")
-            self.clock.begin()
-            grids = {c: w.locator.cells for c, w in runner.workers.items()}
-            try:
-                for cam, worker in runner.workers.items():
-                    blobs = looks.get(cam, self.blobs.get(cam))
-                    if node not in silent and blobs is not None:
-                        # a mote that blinks its code and was not decoded is in a blob no reading
-                        # explains (or not in view): look there only, not over the whole grid
-                        worker.locator.cells = [worker.locator.clamp(p, t) for p, t in blobs]
-                runner.run_node(node, pool, check_misses=False)
-            finally:
-                node_time = self.clock.end()
-                for cam, worker in runner.workers.items():
-                    worker.locator.cells = grids[cam]
-            runner.journal.field_time("fallback_node", dict(node_time.phases), node=node)
-            self.fallback = self.fallback + node_time
-            if runner.on_progress is not None:
-                runner.on_progress(self.progress(runner, total, total, t0))
+        run_fallback(self, runner, pool, total, t0)
