@@ -116,6 +116,7 @@ def test_bad_coded_settings_are_one_line_and_exit_2(tmp_path, capsys, coded, pro
     assert main(["survey", "--rig", str(tmp_path / "rig.json"), "-o", str(tmp_path / "o"), "--simulate"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and problem in err[0], err
+    assert not (tmp_path / "o" / "journal.jsonl").exists()
 
 
 def test_coded_settings_defaults_and_rig_values():

@@ -35,6 +35,14 @@ instead of the node loop of :mod:`fgloc.survey.runner` (docs/survey.md, "Coded i
    confirmed their code, or after a failed view). Nodes every camera read are journaled
    ``node_done`` without lighting them.
 
+Levers (:class:`CodedSettings`, chosen by rig.json ``"coded"`` or ``fgloc survey --coded``,
+:mod:`fgloc.survey.coded_levers`; defaults: the procedure above): ``retry "continue"`` (a
+retry goes on recording L frames, decoded in sliding windows), ``probe "on"`` (a recording
+stops after L + 2 frames showing no blob), ``fallback "predicted"``
+(:mod:`fgloc.survey.coded_fallback`), ``separate "radio"`` (colour classes paused by bitmap
+between the wide pass and the refinement, :mod:`fgloc.survey.coded_separation`; every
+camera's wide pass, each round, then the refinement are barriers) and ``video "fields"``.
+
 Crash safety: a view's readings are committed together, as one ``view`` journal record
 (:meth:`fgloc.files.journal.JournalWriter.view`); a kill during a view loses only that
 view. ``--resume`` re-plans the same views (a function of the rig and, for refinement
