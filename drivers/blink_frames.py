@@ -34,7 +34,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from fgloc.camera.intrinsics import CameraIntrinsics
-from fgloc.camera.pixel_angles import base_to_pixel, in_image
+from fgloc.camera.pixel_angles import base_to_pixel, in_image, pixel_to_pan_tilt
+from fgloc.core.geometry import pan_tilt_bearing
 from fgloc.drivers.rendered_camera import RenderedCamera, add_spot
 
 
@@ -194,3 +195,23 @@ def render_view(
         previous = np.clip(np.rint(img), 0, 255).astype(np.uint8)
         frames.append((stamp, previous))
     return frames
+
+
+def points_at_pixels(intr: CameraIntrinsics, pan: float, tilt: float, uv: np.ndarray,
+                     distance: np.ndarray | float = 10.0) -> np.ndarray:
+    """(N, 3) base-frame points that a camera with ``intr`` at head (``pan``, ``tilt``) radians
+    sees at pixels ``uv`` ((N, 2), OpenCV convention), ``distance`` (base units) from the
+    camera (a base at the origin with the identity rotation, as a ``RenderedCamera`` posed
+    so): e.g. two motes a sub-pixel or few-pixel distance apart, one crowded blob."""
+    p, t = pixel_to_pan_tilt(intr, np.asarray(uv, float), pan, tilt)
+    d = np.broadcast_to(np.asarray(distance, float), np.shape(p))
+    return np.asarray(pan_tilt_bearing(p, t) * d[..., None])
+
+
+def close_pairs(centres: np.ndarray, separation_px: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """(2N, 2) pixels of N pairs of LEDs: pair k straddles ``centres[k]`` ((N, 2) px) at
+    ``separation_px[k]`` apart in a uniformly random direction (rows 2k and 2k + 1)."""
+    c = np.asarray(centres, float)
+    ang = rng.uniform(0.0, math.pi, len(c))
+    half = 0.5 * np.asarray(separation_px, float)[:, None] * np.column_stack([np.cos(ang), np.sin(ang)])
+    return np.stack([c - half, c + half], axis=1).reshape(-1, 2)

@@ -14,8 +14,15 @@ motes start at a broadcast epoch, each off by up to +-2 ms and drifting at 50 pp
 (sd), and the view is recorded a uniform 0..``--resync`` s after the last (re)start.
 ``--slide N``: the recording goes on for N more code lengths and is decoded in
 sliding windows (:func:`fgloc.camera.blink_decoder.decode_windows`, keys ``sl_*``).
+``--pairs N``: each view also holds N crowded pairs (two motes closer than 4 px in the
+view's pixels, field pixels for ``--fields``: the field plan's criterion; separation
+``4 sqrt(U)`` px, as for uniformly scattered motes, in a random direction; no third mote
+within 6 px of the pair's centre) and is decoded with pair decoding on
+(:mod:`fgloc.camera.blink_pairs`). A *pair decode* is one such pair; it is resolved when
+both its motes are read within 2 px; mislabels are counted over all readings as above.
 
     OPENBLAS_NUM_THREADS=1 .venv/bin/python scripts/blink_montecarlo.py --trials 250 [--fields] [--sync] [--slide 1]
+        [--pairs 40 [--time-decode]]
 """
 
 from __future__ import annotations
@@ -29,6 +36,7 @@ import numpy as np
 
 from fgloc.camera.blink_codes import code_book, sync_code_book
 from fgloc.camera.blink_decoder import SyncTiming, decode_view, decode_windows
+from fgloc.camera.blink_pairs import PairConfig
 from fgloc.camera.intrinsics import CameraIntrinsics
 from fgloc.camera.pixel_angles import pixel_to_pan_tilt
 from fgloc.core.geometry import pan_tilt_bearing
@@ -41,12 +49,15 @@ from fgloc.survey.field_plans import frames_for
 
 def trial(seed: int, n_motes: int, book_size: int, glints: int, fields: bool = False,
           frames: int | None = None, extend: int = 0, sync: bool = False, resync_s: float = 10.0,
-          slide: int = 0) -> dict[str, float]:
+          slide: int = 0, pairs: int = 0, time_decode: bool = False) -> dict[str, float]:
     """One view. ``frames`` recorded (default 3L + 2); with ``extend`` > 0 the recording
     goes on for ``extend`` more frames and the whole stack is decoded again (keys ``ext_*``):
     the retry of a view whose motes were missed, without moving the head. ``slide``:
     ``slide`` more code lengths decoded in sliding windows (keys ``sl_*``). ``sync``: the
-    synchronized book and a synchronized start (see the module docstring)."""
+    synchronized book and a synchronized start (see the module docstring). ``pairs``: that many
+    crowded pairs more, decoded with pair decoding (keys ``pair_*``). ``time_decode``: the
+    first window is decoded once more without pair decoding, both timed (keys ``t_off``,
+    ``t_on``, seconds)."""
     rng = np.random.default_rng(seed)
     intr = CameraIntrinsics.from_fov(640, 480, 65.0)
     if fields:
@@ -54,6 +65,10 @@ def trial(seed: int, n_motes: int, book_size: int, glints: int, fields: bool = F
     book = sync_code_book(book_size) if sync else code_book(book_size)
     head_pan, head_tilt = rng.uniform(-math.pi, math.pi), rng.uniform(-0.6, 0.2)
     uv = np.column_stack([rng.uniform(15, intr.width - 15, n_motes), rng.uniform(15, intr.height - 15, n_motes)])
+    n_single = n_motes
+    if pairs:
+        uv = np.vstack([uv, _pair_pixels(rng, uv, pairs, intr.width, intr.height)])
+        n_motes = len(uv)
     pans, tilts = pixel_to_pan_tilt(intr, uv, head_pan, head_tilt)
     dist = rng.uniform(3.0, 30.0, n_motes)
     pts = pan_tilt_bearing(pans, tilts) * dist[:, None]
@@ -88,12 +103,20 @@ def trial(seed: int, n_motes: int, book_size: int, glints: int, fields: bool = F
         return [f for f in stack if f[0] < t_start + (periods - 0.5) / cfg.frame_rate_hz]
 
     runs = [""] + (["ext_"] if extend else []) + (["sl_"] if slide else [])
+    pc = PairConfig() if pairs else None
     for prefix in runs:
         if prefix == "sl_":
-            res = decode_windows(stack, 1.0 / cfg.frame_rate_hz, book, intr, head_pan, head_tilt, k0, sync=timing)
+            res = decode_windows(stack, 1.0 / cfg.frame_rate_hz, book, intr, head_pan, head_tilt, k0, sync=timing,
+                                 pairs=pc)
         else:
+            t_on = time.perf_counter()
             res = decode_view(within(k0 + (extend if prefix else 0)), 1.0 / cfg.frame_rate_hz, book, intr,
-                              head_pan, head_tilt, sync=timing)
+                              head_pan, head_tilt, sync=timing, pairs=pc)
+            t_on = time.perf_counter() - t_on
+            if time_decode and not prefix:
+                t_off = time.perf_counter()
+                decode_view(within(k0), 1.0 / cfg.frame_rate_hz, book, intr, head_pan, head_tilt, sync=timing)
+                out.update({"t_off": time.perf_counter() - t_off, "t_on": t_on})
         correct = mislabelled = 0
         ex: list[float] = []
         ey: list[float] = []
@@ -109,6 +132,9 @@ def trial(seed: int, n_motes: int, book_size: int, glints: int, fields: bool = F
             else:
                 mislabelled += 1
         iso_missed = sum(1 for k, i in enumerate(ids) if isolated[k] and int(i) not in found)
+        if pairs:
+            out.update({prefix + k: v for k, v in _pair_stats(res.readings, ids, uv, truth, n_single, found,
+                                                               isolated, pans, tilts).items()})
         out.update({prefix + "correct": correct, prefix + "mislabelled": mislabelled,
                     prefix + "isolated_missed": iso_missed, prefix + "views_missing": float(iso_missed > 0), prefix + "ambiguous": len(res.ambiguous()),
                     prefix + "erased": res.erased, prefix + "samples": res.samples,
@@ -116,6 +142,71 @@ def trial(seed: int, n_motes: int, book_size: int, glints: int, fields: bool = F
                     prefix + "n_err": 2 * len(ex), prefix + "sq_x": float(np.sum(np.square(ex))),
                     prefix + "sq_y": float(np.sum(np.square(ey))), prefix + "n_xy": len(ex)})
     return out
+
+
+SEP_BINS = (0.0, 1.0, 2.0, 3.0, 4.0)  #: pair separation bins (px) of the resolved-share table
+THIRD_BINS = (4.0, 6.0, 8.0, 12.0, math.inf)  #: bins (px) of the nearest third mote to either LED of a pair
+
+
+def _pair_pixels(rng: np.random.Generator, others: np.ndarray, n: int, width: int, height: int) -> np.ndarray:
+    """(2n, 2) pixels of ``n`` crowded pairs (rows 2k, 2k + 1): separation ``4 sqrt(U)`` px in a
+    random direction; no mote placed before within 4 px of either (exactly two: the field
+    plan's criterion)."""
+    placed = np.asarray(others, float)
+    out: list[np.ndarray] = []
+    while len(out) < n:
+        c = np.array([rng.uniform(20, width - 20), rng.uniform(20, height - 20)])
+        a = rng.uniform(0, math.pi)
+        d = 4.0 * math.sqrt(rng.uniform()) * np.array([math.cos(a), math.sin(a)])
+        pair = np.array([c - 0.5 * d, c + 0.5 * d])
+        if len(placed) and min(np.min(np.hypot(*(placed - p).T)) for p in pair) < 4.0:
+            continue
+        out.append(pair)
+        placed = np.vstack([placed, pair])
+    return np.vstack(out)
+
+
+def _pair_stats(readings: tuple, ids: np.ndarray, uv: np.ndarray, truth: dict, n_single: int, found: set,
+                isolated: np.ndarray, pans: np.ndarray, tilts: np.ndarray) -> dict[str, float]:
+    """Pair decodes of one view: resolved pairs (per separation bin), by which rule, and the
+    pixel and angle errors of their readings; pixel errors of isolated single readings."""
+    got = {r.index: r for r in readings}
+    st: dict[str, float] = {"pair_n": 0, "pair_resolved": 0, "pair_sq_u": 0.0, "pair_sq_v": 0.0,
+                            "pair_n_px": 0, "pair_sq_x": 0.0, "pair_sq_y": 0.0, "single_sq_u": 0.0,
+                            "single_sq_v": 0.0, "single_n_px": 0, "pair_one": 0}
+    for b in range(len(SEP_BINS) - 1):
+        st[f"pair_n_b{b}"] = st[f"pair_res_b{b}"] = 0
+    for b in range(len(THIRD_BINS) - 1):
+        st[f"pair_n_t{b}"] = st[f"pair_res_t{b}"] = 0
+    for k in range(n_single, len(ids), 2):
+        sep = float(np.hypot(*(uv[k] - uv[k + 1])))
+        b = min(int(np.searchsorted(SEP_BINS, sep, side="right")) - 1, len(SEP_BINS) - 2)
+        rest = np.delete(uv, [k, k + 1], axis=0)
+        third = min(float(np.min(np.hypot(*(rest - uv[m]).T))) for m in (k, k + 1)) if len(rest) else math.inf
+        t = min(int(np.searchsorted(THIRD_BINS, third, side="right")) - 1, len(THIRD_BINS) - 2)
+        st["pair_n"] += 1
+        st[f"pair_n_b{b}"] += 1
+        st[f"pair_n_t{t}"] += 1
+        ok = [int(ids[m]) in found and got[int(ids[m])].partner is not None for m in (k, k + 1)]
+        st["pair_one"] += sum(ok) == 1
+        if all(ok):
+            st["pair_resolved"] += 1
+            st[f"pair_res_b{b}"] += 1
+            st[f"pair_res_t{t}"] += 1
+            for m in (k, k + 1):
+                r = got[int(ids[m])]
+                st["pair_sq_u"] += (r.u - uv[m][0]) ** 2
+                st["pair_sq_v"] += (r.v - uv[m][1]) ** 2
+                st["pair_n_px"] += 1
+                st["pair_sq_x"] += (math.remainder(r.pan - pans[m], 2 * math.pi) * math.cos(tilts[m])) ** 2
+                st["pair_sq_y"] += (r.tilt - tilts[m]) ** 2
+    for k in range(n_single):
+        r = got.get(int(ids[k]))
+        if isolated[k] and r is not None and int(ids[k]) in found:
+            st["single_sq_u"] += (r.u - uv[k][0]) ** 2
+            st["single_sq_v"] += (r.v - uv[k][1]) ** 2
+            st["single_n_px"] += 1
+    return st
 
 
 def main() -> None:
@@ -131,13 +222,20 @@ def main() -> None:
     ap.add_argument("--sync", action="store_true", help="synchronized book and start (epoch broadcast)")
     ap.add_argument("--resync", type=float, default=10.0, help="seconds between synchronized (re)starts")
     ap.add_argument("--slide", type=int, default=0, help="record this many more code lengths, sliding windows")
+    ap.add_argument("--pairs", type=int, default=0, help="crowded pairs per view, decoded with pair decoding on")
+    ap.add_argument("--time-decode", action="store_true",
+                    help="also decode each first window without pair decoding; print both medians (s per view)")
     args = ap.parse_args()
     tot: dict[str, float] = {}
+    times: dict[str, list[float]] = {"t_off": [], "t_on": []}
     t0 = time.perf_counter()
     for k in range(args.trials):
         for key, v in trial(args.seed + k, args.motes, args.book, args.glints, args.fields, args.frames,
-                             args.extend, args.sync, args.resync, args.slide).items():
-            tot[key] = tot.get(key, 0.0) + v
+                             args.extend, args.sync, args.resync, args.slide, args.pairs, args.time_decode).items():
+            if key in times:
+                times[key].append(v)
+            else:
+                tot[key] = tot.get(key, 0.0) + v
     dt = time.perf_counter() - t0
     d = tot["decodes"]
     book = sync_code_book(args.book) if args.sync else code_book(args.book)
@@ -161,6 +259,29 @@ def main() -> None:
         print(f"  angle error RMS per axis of correct readings: {math.degrees(rms) * 3600:.1f} arcsec "
               f"({math.degrees(rms):.5f} deg); pan (x cos tilt) {math.degrees(math.sqrt(tot[prefix + 'sq_x'] / n_xy)):.5f}"
               f" deg, tilt {math.degrees(math.sqrt(tot[prefix + 'sq_y'] / n_xy)):.5f} deg")
+        if args.pairs:
+            _print_pairs(tot, prefix)
+    if times["t_on"]:
+        print(f"decode_view per view, median of {len(times['t_on'])}: without pair decoding "
+              f"{1e3 * float(np.median(times['t_off'])):.0f} ms, with {1e3 * float(np.median(times['t_on'])):.0f} ms")
+
+
+def _print_pairs(tot: dict[str, float], p: str) -> None:
+    n, res = tot[p + "pair_n"], tot[p + "pair_resolved"]
+    npx, nsx = max(tot[p + "pair_n_px"], 1), max(tot[p + "single_n_px"], 1)
+    print(f"  pair decodes {n:.0f}: resolved {res:.0f} ({res / max(n, 1):.2%}),"
+          f" one of two read {tot[p + 'pair_one']:.0f}")
+    print("  resolved by separation: " + ", ".join(
+        f"{SEP_BINS[b]:.0f}-{SEP_BINS[b + 1]:.0f} px {tot[f'{p}pair_res_b{b}'] / max(tot[f'{p}pair_n_b{b}'], 1):.1%}"
+        f" of {tot[f'{p}pair_n_b{b}']:.0f}" for b in range(len(SEP_BINS) - 1)))
+    print("  resolved by nearest third mote: " + ", ".join(
+        f"{THIRD_BINS[b]:.0f}-{THIRD_BINS[b + 1]:.0f} px {tot[f'{p}pair_res_t{b}'] / max(tot[f'{p}pair_n_t{b}'], 1):.1%}"
+        f" of {tot[f'{p}pair_n_t{b}']:.0f}" for b in range(len(THIRD_BINS) - 1)))
+    print(f"  centroid error RMS, u / v (px): pair LEDs {math.sqrt(tot[p + 'pair_sq_u'] / npx):.3f} / "
+          f"{math.sqrt(tot[p + 'pair_sq_v'] / npx):.3f} ({npx:.0f}); isolated single LEDs "
+          f"{math.sqrt(tot[p + 'single_sq_u'] / nsx):.3f} / {math.sqrt(tot[p + 'single_sq_v'] / nsx):.3f} ({nsx:.0f})")
+    print(f"  pair angle error RMS, pan (x cos tilt) / tilt: {math.degrees(math.sqrt(tot[p + 'pair_sq_x'] / npx)):.5f}"
+          f" / {math.degrees(math.sqrt(tot[p + 'pair_sq_y'] / npx)):.5f} deg")
 
 if __name__ == "__main__":
     main()

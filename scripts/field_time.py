@@ -30,6 +30,12 @@ scripts/blink_montecarlo.py for the same video and book. The coded survey (``Var
   :func:`fgloc.survey.field_plans.radio_separation`); ``--separate best``: the cheapest
   subset of cameras doing so (the others zoom), on the clock. Default ``zoom``.
 
+``--pair-decode RATE``: crowded groups of exactly two motes in a camera's wide view are
+labelled by the pair decoder (:mod:`fgloc.camera.blink_pairs`) with the measured success
+``RATE`` (or, as ``PX:RATE,...,inf:RATE``, the rate by the distance to the pair's nearest
+third mote; seeded draw per pair, :func:`fgloc.survey.field_plans.pair_decoding`) and need
+no refinement or radio round from that camera; the rest as before.
+
 ``--old`` prices the previous plan (rotation-free book, burst retries of wide views only,
 separate tiles on the fixed ladder, zoom-out). The sequential column is the same in
 every variant.
@@ -54,6 +60,8 @@ from fgloc.survey.field_plans import (
     SequentialTime,
     coded_survey_time,
     frames_for,
+    pair_decoding,
+    pair_rate_table,
     radio_separation,
     refinement_ops,
     sequential_survey_time,
@@ -97,6 +105,9 @@ class Variant:
     #: crowded motes: "zoom" refinement only; "radio": every camera pauses colour classes and
     #: re-records its wide views; "best": the cheapest subset of cameras doing so, on the clock
     separate: str = "zoom"
+    #: pair decoding: share of crowded groups of exactly two that the pair decoder resolves in
+    #: the wide view (measured, scripts/blink_montecarlo.py --pairs); 0: off
+    pair_rate: float | tuple[tuple[float, float], ...] = 0.0
 
 
 _SEQUENTIAL: dict[tuple[int, int, int, RigTiming], SequentialTime] = {}
@@ -139,7 +150,15 @@ def run(n_motes: int, n_cams: int, timing: RigTiming, miss_rate: float, seed: in
         pts[c] = np.column_stack(bearing_pan_tilt(bearings[c]))
         retry_views += _retry_fraction(intr, pts[c], views[c], miss_rate) / n_cams
     resolved = {c: neighbour_px(pts[c], intr, fields) >= SEPARATION_PX for c in cams}
-    needed = needed_from(resolved, variant.need) if variant.need else {c: None for c in cams}
+    pair_rng = np.random.default_rng([seed, 16])
+    pairs = {c: pair_decoding(intr, pts[c], SEPARATION_PX, variant.pair_rate, pair_rng, fields) for c in cams}
+    for c in cams:
+        resolved[c] = resolved[c] | pairs[c].resolved
+    needed: dict[str, np.ndarray | None] = (
+        dict(needed_from(resolved, variant.need)) if variant.need else {c: None for c in cams})
+    if variant.pair_rate:  # pair-decoded motes need nothing more from that camera
+        needed = {c: (np.ones(n_motes, bool) if needed[c] is None else needed[c]) & ~pairs[c].resolved  # type: ignore[operator]
+                  for c in cams}
     extend = variant.extend * book.length
     retry_frames = book.length if variant.continuous_retry else None
 
@@ -217,6 +236,10 @@ def run(n_motes: int, n_cams: int, timing: RigTiming, miss_rate: float, seed: in
         "radio_retry": chosen["radio_retry"],  # type: ignore[dict-item]
         "rate": coded_timing.camera.frame_rate_hz, "phases": coded.time.phases,  # type: ignore[dict-item]
         "seq_phases": seq.time.phases,  # type: ignore[dict-item]
+        "pairs": sum(len(p.pairs) for p in pairs.values()),
+        "pairs_resolved": sum(p.resolved_pairs for p in pairs.values()),
+        "pairs_third8": sum(int((p.third_px < 8.0).sum()) for p in pairs.values()),
+        "crowded": sum(int((~(neighbour_px(pts[c], intr, fields) >= SEPARATION_PX)).sum()) for c in cams),
     }
 
 
@@ -237,6 +260,10 @@ def main() -> None:
     ap.add_argument("--separate", default="zoom", choices=("zoom", "radio", "best"),
                     help="crowded motes: zoom refinement, radio separation (pause colour classes, re-record wide "
                     "views), or per camera the cheaper on the clock")
+    ap.add_argument("--pair-decode", default="", metavar="RATE|PX:RATE,...,inf:RATE",
+                    help="crowded groups of exactly two motes are resolved by the pair decoder in the wide view with "
+                    "this measured success rate (scripts/blink_montecarlo.py --pairs), or per bound on the distance "
+                    "to the nearest third mote (px); default off")
     ap.add_argument("--need", type=int, default=0,
                     help="refine a mote only where fewer than this many other cameras resolve it (0: always)")
     ap.add_argument("--old", action="store_true", help="the previous plan: rotation-free book, burst retries of "
@@ -252,6 +279,12 @@ def main() -> None:
                       retry_refinement=not args.no_refine_retry, zoom_out=args.zoom_out, need=args.need,
                       share_tiles=not args.separate_tiles, pick_ladder=not args.fixed_ladder,
                       separate=args.separate)
+    if args.pair_decode:
+        try:
+            table = pair_rate_table(args.pair_decode)
+        except ValueError as exc:
+            ap.error(f"--pair-decode: {exc} ({args.pair_decode})")
+        variant = replace(variant, pair_rate=table[0][1] if len(table) == 1 else table)
     if args.old:
         variant = replace(OLD, fields=not args.frames, broadcast=not args.unicast)
     print(f"head {args.head}, {args.fps:.2f} frames/s, miss rate {args.miss_rate}, refinement zooms {levels}, {variant}")
@@ -268,6 +301,10 @@ def main() -> None:
               f"{r['round_views']} ({r['radio_retry']:.2f}) |")
         print(f"|   | sequential phases: {r['seq_desc']} (not found {r['missing']}) |||||||||||")
         print(f"|   | coded phases: {r['coded_desc']} |||||||||||")
+        if variant.pair_rate:
+            print(f"|   | pair decoding: {r['pairs']} crowded pairs of exactly two over the cameras "
+                  f"({r['pairs_third8']} with a third mote within 8 px), {r['pairs_resolved']} resolved; "
+                  f"{r['crowded']} crowded mote-views |||||||||||")
 
 
 if __name__ == "__main__":

@@ -213,7 +213,7 @@ def _one_run(experiment: str, name: str, seed: int, pan_range: float | None = No
         clean, dropped = limit_pan_range(clean, pan_range, heads)
         out["dropped"] = len(dropped)
     dirty = inject_head_errors(clean, heads)
-    full, rep = solve_with_head_model(dirty, HeadModel.FULL)
+    full, rep = solve_with_head_model(dirty, HeadModel.FULL, fast_path=False)
     out["full"] = node_errors(full, dirty) + joint_nees(full, rep, dirty)
     out["full_z"] = head_z(rep, heads)
     if fast:
@@ -223,20 +223,23 @@ def _one_run(experiment: str, name: str, seed: int, pan_range: float | None = No
         return out
     ideal, irep = solve_with_head_model(dirty, HeadModel.IDEAL)
     out["ideal"] = node_errors(ideal, dirty) + joint_nees(ideal, irep, dirty)
-    auto, arep = solve_with_head_model(dirty, HeadModel.AUTO)
+    auto, arep = solve_with_head_model(dirty, HeadModel.AUTO, fast_path=False)
     out["auto"] = node_errors(auto, dirty) + joint_nees(auto, arep, dirty, (full, rep))
     out["auto_cameras"] = sum(bool(c.estimated) for c in arep.cameras.values())
     out["auto_lr"] = [arep.lr_statistic, arep.lr_threshold]
+    if arep.score is not None:
+        out["auto_score"] = [arep.score.statistic, arep.score.threshold, arep.score.p_value]
     if fast:
         out["fast_auto"] = fast_vs_reference(solve_with_head_model(dirty, HeadModel.AUTO, fast_path=True),
                                              (auto, arep), dirty, out["auto"][3])
     if experiment == "population":
         cideal, cirep = solve_with_head_model(clean, HeadModel.IDEAL)
         out["clean_ideal"] = node_errors(cideal, clean) + joint_nees(cideal, cirep, clean)
-        cauto, crep = solve_with_head_model(clean, HeadModel.AUTO)
-        cfull, cfrep = solve_with_head_model(clean, HeadModel.FULL)
+        cauto, crep = solve_with_head_model(clean, HeadModel.AUTO, fast_path=False)
+        cfull, cfrep = solve_with_head_model(clean, HeadModel.FULL, fast_path=False)
         out["clean_auto"] = node_errors(cauto, clean) + joint_nees(cauto, crep, clean, (cfull, cfrep))
         out["clean_auto_ideal"] = all(not c.estimated for c in crep.cameras.values())
+        out["clean_full"] = node_errors(cfull, clean) + joint_nees(cfull, cfrep, clean)
     return out
 
 
@@ -298,7 +301,7 @@ def main() -> None:
     crb_i = float(np.sqrt(np.mean([np.trace(c) for c in cramer_rao_bound(base).values()])))
     zero = {c: np.zeros(HEAD_DIM) for c in base.camera_ids}
     crb_e = extended_crb(base, zero)
-    keys = ("ideal", "full", "auto", "clean_ideal", "clean_auto") if a.experiment == "population" else ("full",)
+    keys = ("ideal", "full", "auto", "clean_ideal", "clean_auto", "clean_full") if a.experiment == "population" else ("full",)
     summary: dict = {"experiment": a.experiment, "runs": len(runs), "scene": a.scene, "crb_ideal": crb_i,
                      "pan_range_deg": a.pan_range_deg,
                      "crb_extended": crb_e, "failed": [r for r in all_runs if "failed" in r]}
@@ -317,6 +320,10 @@ def main() -> None:
         summary["auto_ideal_kept_share"] = float(np.mean([r["auto_cameras"] == 0 for r in runs]))
         summary["clean_auto_picks_ideal"] = float(np.mean([r["clean_auto_ideal"] for r in runs]))
         summary["clean_auto_rms_ratio"] = summary["clean_auto"]["rms"] / summary["clean_ideal"]["rms"]
+        summary["clean_full_rms_ratio"] = summary["clean_full"]["rms"] / summary["clean_ideal"]["rms"]
+        kept = [r for r in runs if r["auto_cameras"] == 0]
+        if kept:
+            summary["auto_kept_runs"] = {"runs": len(kept), "auto": summarize(kept, ("auto", "full"), dim)}
     if pan_range is not None:
         summary["dropped_readings_mean"] = float(np.mean([r["dropped"] for r in runs]))
     for key in ("fast_full", "fast_auto"):

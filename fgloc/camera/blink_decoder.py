@@ -24,7 +24,9 @@ period, and the :class:`~fgloc.camera.blink_codes.CodeBook`. Steps:
 5. **Refusals.** A blob whose on-frame fluxes or centroids vary more than one LED's
    can (two LEDs closer than the detector separates) is reported *ambiguous*. An ID
    decoded from two blobs is reported *duplicate* for both. Unknown words, conflicts
-   and incomplete words are *rejected* with the reason. Nothing is ever guessed.
+   and incomplete words are *rejected* with the reason. Nothing is ever guessed. With
+   ``pairs`` (off by default) refused blobs are tried as two LEDs and labelled by both
+   code words when that is unique (:mod:`fgloc.camera.blink_pairs`).
 6. **Angles.** The decoded centroid (mean over on frames) becomes (pan, tilt) by the
    exact composition :func:`fgloc.camera.pixel_angles.pixel_to_pan_tilt`.
 
@@ -55,6 +57,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from fgloc.camera.blink_codes import CodeBook, word_of
+from fgloc.camera.blink_pairs import PairConfig, decode_pair
 from fgloc.camera.intrinsics import CameraIntrinsics
 from fgloc.camera.led_detection import DetectorConfig, detect_led, to_gray
 from fgloc.camera.pixel_angles import pixel_to_pan_tilt
@@ -95,6 +98,7 @@ class DecodedReading:
     pan: float
     tilt: float
     on_samples: int
+    partner: int | None = None  #: book index of the other LED of a pair-decoded blob (None: a single LED)
 
 
 @dataclass(frozen=True)
@@ -180,9 +184,12 @@ def _two_means(x: np.ndarray) -> tuple[float, float]:
 def decode_view(
     frames: Sequence[tuple[float, np.ndarray]], period: float, book: CodeBook, intr: CameraIntrinsics,
     head_pan: float, head_tilt: float, config: DecoderConfig | None = None, sync: SyncTiming | None = None,
+    pairs: PairConfig | None = None,
 ) -> ViewDecode:
     """Decode every mote in ``frames`` (see the module docstring). ``sync`` is required
-    with a synchronized book and refused with a rotation-free one."""
+    with a synchronized book and refused with a rotation-free one. ``pairs`` (rotation-free
+    books only; default off): refused blobs are tried as two LEDs
+    (:func:`fgloc.camera.blink_pairs.decode_pair`, see :func:`_pair_readings`)."""
     cfg = config or DecoderConfig()
     if book.synchronized != (sync is not None):
         raise ValueError("a synchronized book needs sync timing, a rotation-free book none")
@@ -275,6 +282,10 @@ def decode_view(
         sig = max(sig, cand.sigma_px / math.sqrt(max(us.size, 1)))
         p_, t_ = pixel_to_pan_tilt(intr, np.array([u, v]), head_pan, head_tilt)
         decoded.append((DecodedReading(hit[0], u, v, sig, float(p_), float(t_), int(us.size)), hit[0]))
+    if pairs is not None and sync is None:
+        refused, extra = _pair_readings(stack, valid, positions, book, float(det.noise_sigma), refused,
+                                        [rd for rd, _ in decoded], intr, head_pan, head_tilt, pairs)
+        decoded += [(rd, rd.index) for rd in extra]
     counts = Counter(code for _, code in decoded)
     readings = []
     for rd, code in decoded:
@@ -288,14 +299,15 @@ def decode_view(
 def decode_windows(
     frames: Sequence[tuple[float, np.ndarray]], period: float, book: CodeBook, intr: CameraIntrinsics,
     head_pan: float, head_tilt: float, window: int, step: int | None = None, config: DecoderConfig | None = None,
-    sync: SyncTiming | None = None, merge_px: float = 1.0, blob_px: float = 2.0,
+    sync: SyncTiming | None = None, merge_px: float = 1.0, blob_px: float = 2.0, pairs: PairConfig | None = None,
 ) -> ViewDecode:
     """Decode a continuous recording in sliding windows of ``window`` samples every ``step``
     (default one code length) samples, each by :func:`decode_view`, and merge (see the
     module docstring): a code read in several windows must be read within ``merge_px``
     of its first reading, codes whose readings lie within ``blob_px`` of each other
     are refused as one ambiguous blob, and a code refused as duplicate anywhere is
-    refused. The reading kept for a code is the one with the most on samples."""
+    refused. The reading kept for a code is the one with the most on samples. ``pairs``: see
+    :func:`decode_view`; the two readings of one pair-decoded blob do not clash."""
     if not frames:
         return ViewDecode((), (), 0, 0)
     step = step or book.length
@@ -310,7 +322,7 @@ def decode_windows(
         part = [f for f, k in zip(frames, idx) if s0 <= k < s0 + window]
         if not part:
             continue
-        res = decode_view(part, period, book, intr, head_pan, head_tilt, config, sync)
+        res = decode_view(part, period, book, intr, head_pan, head_tilt, config, sync, pairs)
         for rd in res.readings:
             per_code.setdefault(rd.index, []).append(rd)
         for rf in res.refused:
@@ -326,7 +338,7 @@ def decode_windows(
             continue
         kept[code] = max(rds, key=lambda r: r.on_samples)
     clash = {a for a in kept for b in kept
-             if a != b and math.hypot(kept[a].u - kept[b].u, kept[a].v - kept[b].v) <= blob_px}
+             if a != b and kept[a].partner != b and math.hypot(kept[a].u - kept[b].u, kept[a].v - kept[b].v) <= blob_px}
     for code in sorted(clash):
         rd = kept.pop(code)
         refused.append(RefusedBlob(rd.u, rd.v, "ambiguous", f"code {code}: one blob read as two codes", code))
@@ -339,3 +351,46 @@ def decode_windows(
         if not read and not seen:
             left.append(rf)
     return ViewDecode(readings, tuple(left), n, n - len(set(idx.tolist())))
+
+
+#: refusal reasons of blobs that may be two LEDs: all but the image border (a pair blinks
+#: levels 0, 1, 2, which the one-LED split reads as a never-dark light, a weak LED, an
+#: unknown or conflicting word, or varying lit frames)
+_PAIR_KINDS = ("unresolved blob", "lit frames vary", "samples one period apart", "never read cleanly",
+               "no rotation of a book code", "on samples", "never dark", "on-off amplitude")
+
+
+def _pair_readings(
+    stack: np.ndarray, valid: np.ndarray, positions: np.ndarray, book: CodeBook, noise_sigma: float,
+    refused: list[RefusedBlob], readings: list[DecodedReading], intr: CameraIntrinsics, head_pan: float,
+    head_tilt: float, cfg: PairConfig,
+) -> tuple[list[RefusedBlob], list[DecodedReading]]:
+    """Try the refused blobs that may be two LEDs as pairs. Refusals within ``cfg.group_px``
+    of each other form one candidate, centred at their mean (none with a decoded reading
+    within ``cfg.single_px``: that blob is one LED); a decoded
+    pair replaces the candidate's refusals by two readings that name each other
+    (``partner``); a refused pair leaves them as they were."""
+    cand = [k for k, rf in enumerate(refused) if rf.kind != "duplicate" and any(s in rf.reason for s in _PAIR_KINDS)]
+    groups: list[list[int]] = []
+    for k in cand:
+        near = [g for g in groups if any(math.hypot(refused[k].u - refused[j].u, refused[k].v - refused[j].v)
+                                         <= cfg.group_px for j in g)]
+        merged = [k] + [j for g in near for j in g]
+        groups = [g for g in groups if g not in near] + [merged]
+    drop: set[int] = set()
+    out: list[DecodedReading] = []
+    for g in groups:
+        u0 = float(np.mean([refused[j].u for j in g]))
+        v0 = float(np.mean([refused[j].v for j in g]))
+        if any(math.hypot(rd.u - u0, rd.v - v0) <= cfg.single_px for rd in readings):
+            continue
+        res = decode_pair(stack, valid, positions, u0, v0, book, noise_sigma, cfg)
+        if res.index is None or res.uv is None:
+            continue
+        drop.update(g)
+        for k in range(2):
+            (u, v), s = res.uv[k], res.sigma_px[k]
+            p_, t_ = pixel_to_pan_tilt(intr, np.array([u, v]), head_pan, head_tilt)
+            out.append(DecodedReading(res.index[k], u, v, s, float(p_), float(t_), res.exclusive[k],
+                                      res.index[1 - k]))
+    return [rf for k, rf in enumerate(refused) if k not in drop], out

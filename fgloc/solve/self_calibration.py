@@ -15,8 +15,8 @@ head parameters' Fisher information after the poses and nodes are eliminated
 whose information is rank deficient; ``AUTO`` leaves it out (pins it at zero).
 Weakly determined parameters stay in and lean on their datasheet prior.
 
-Model selection (``AUTO``): a likelihood-ratio test of all determinable
-parameters against the ideal head (chi-square with k dof, 5 %). Rejected: every
+Model selection (``AUTO``): the Bayes score test of the ideal head against heads
+from the prior's population (:mod:`fgloc.solve.head_selection`, level 1 %). Rejected: every
 determinable parameter of every camera is estimated with its prior (none is
 dropped for being insignificant: its effect would be missing from the
 covariance). Not rejected: the ideal head's estimates, with covariances equal to
@@ -40,6 +40,7 @@ from fgloc.core.head_model import DEFAULT_PRIOR_SIGMAS, HEAD_DIM, HEAD_GROUPS, H
 from fgloc.core.model import FlaggedObservation, Result, Survey
 from fgloc.factors.pan_tilt_head_factor import HeadFactorSet, head_prior_factor
 from fgloc.init.start import InitialEstimate
+from fgloc.solve.head_selection import ScoreTest, bayes_score_test
 from fgloc.solve.joint import (
     LocalizationProblem,
     RobustKernel,
@@ -70,7 +71,7 @@ class HeadModel(str, enum.Enum):
 
 #: Relative singular-value tolerance of the numerical rank.
 RANK_TOL = 1e-12
-#: LR test level of the ideal head against the extended one.
+#: Level of the plain likelihood-ratio test, reported beside the Bayes score test that decides.
 LR_ALPHA = 0.05
 
 
@@ -131,6 +132,7 @@ class HeadCalibrationReport:
     decision: str
     lr_statistic: float = float("nan")
     lr_threshold: float = float("nan")
+    score: ScoreTest | None = None
     ranks: dict[str, dict[str, int]] = field(default_factory=dict)
 
     def to_json(self) -> dict:
@@ -141,6 +143,9 @@ class HeadCalibrationReport:
             "parameters": list(HEAD_PARAMETERS),
             "lr_statistic": self.lr_statistic if math.isfinite(self.lr_statistic) else None,
             "lr_threshold": self.lr_threshold if math.isfinite(self.lr_threshold) else None,
+            **({} if self.score is None else {"score_test": {
+                "statistic": self.score.statistic, "threshold": self.score.threshold,
+                "p_value": self.score.p_value, "level": self.score.alpha}}),
             "cameras": {
                 cid: {"estimated": list(c.estimated), "values": [float(v) for v in c.values],
                       "std": [float(v) for v in c.std], "fisher_rank": self.ranks.get(cid, {})}
@@ -249,52 +254,71 @@ def build_self_calibration_problem(
     )
 
 
-def _dense_jacobian(problem: SelfCalibrationProblem, values: gtsam.Values, n_factors: int) -> tuple[
-        FloatArray, dict[int, slice]]:
-    """Whitened Jacobian of the first ``n_factors`` factors, columns per key (sorted keys).
-
-    Only keys those factors touch get columns: a node whose every reading was excluded as
-    an outlier is in ``values`` but in no factor, and GTSAM refuses an ordering naming it."""
-    problem.prepare(values)
-    sub = gtsam.NonlinearFactorGraph()
-    for i in range(n_factors):
-        sub.add(problem.graph.at(i))
-    linear = sub.linearize(values)
-    ordering = gtsam.Ordering()
-    used = set(linear.keys())
-    keys = sorted(k for k in values.keys() if k in used)
-    for k in keys:
-        ordering.push_back(k)
-    A, _ = linear.jacobian(ordering)
-    cols: dict[int, slice] = {}
-    offset = 0
-    dims = values.dims()
-    for k in keys:
-        cols[k] = slice(offset, offset + int(dims[k]))
-        offset += int(dims[k])
-    return np.asarray(A), cols
-
-
 def head_information(problem: SelfCalibrationProblem, values: gtsam.Values) -> tuple[FloatArray, list[tuple[str, int]]]:
     """Data-only Fisher information of the head parameters with poses and nodes eliminated.
 
     Returns the matrix (in the whitened units of the parameters themselves) and
     its rows as (camera id, parameter index). Uses the bearings and the gauge, no head prior.
+
+    ``J_h' (I - P_x) J_h`` with ``P_x`` the projection on the pose and node columns, computed
+    by block elimination instead of a dense least squares (4 s at 1000 nodes x 4 cameras):
+    each node's 2x2 / 3x3 block is eliminated from the sum of its readings' normal equations,
+    then the poses from the small pose-and-head system. The gauge prior pins the poses' null
+    space; it does not change the heads' information (at the ideal head, where this is
+    linearized, the gauge moves no head parameter).
     """
     assert problem.heads is not None
-    n_data = problem.graph.size() - len(problem.head_keys)
-    A, cols = _dense_jacobian(problem, values, n_data)
-    head_cols: list[int] = []
+    problem.prepare(values)
+    head_keys = set(problem.head_keys.values())
+    sub = gtsam.NonlinearFactorGraph()
+    for i in range(problem.graph.size()):
+        f = problem.graph.at(i)
+        if not set(f.keys()) <= head_keys:  # every factor but the head priors
+            sub.add(f)
+    linear = sub.linearize(values)
+    node_keys = set(problem.node_keys.values())
+    dims = values.dims()
+    # Global columns: cameras first, then heads (rows of the result), in a fixed order.
+    global_keys = list(problem.camera_keys.values()) + list(problem.head_keys.values())
+    offset, gcol = 0, {}
+    for k in global_keys:
+        gcol[k] = slice(offset, offset + int(dims[k]))
+        offset += int(dims[k])
+    n_cam = sum(int(dims[k]) for k in problem.camera_keys.values())
+    lam = np.zeros((offset, offset))
+    per_node: dict[int, list[tuple[FloatArray, FloatArray]]] = {}
+    for i in range(linear.size()):
+        factor: gtsam.JacobianFactor = linear.at(i)  # type: ignore[assignment]
+        if factor is None:
+            continue
+        A = np.asarray(factor.jacobian()[0])
+        A_g = np.zeros((A.shape[0], offset))
+        A_n: FloatArray = np.zeros((A.shape[0], 0))
+        node = None
+        col = 0
+        for k in factor.keys():
+            d = int(dims[k])
+            if k in node_keys:
+                node, A_n = k, A[:, col:col + d]
+            else:
+                A_g[:, gcol[k]] = A[:, col:col + d]
+            col += d
+        if node is None:
+            lam += A_g.T @ A_g
+        else:
+            per_node.setdefault(node, []).append((A_n, A_g))
+    for blocks in per_node.values():
+        A_n = np.vstack([b[0] for b in blocks])
+        A_g = np.vstack([b[1] for b in blocks])
+        h_ng = A_n.T @ A_g
+        lam += A_g.T @ A_g - h_ng.T @ np.linalg.pinv(A_n.T @ A_n) @ h_ng
+    lam = 0.5 * (lam + lam.T)
+    c, h = slice(0, n_cam), slice(n_cam, offset)
+    info = lam[h, h] - lam[h, c] @ np.linalg.solve(lam[c, c], lam[c, h])
     labels: list[tuple[str, int]] = []
-    for cid, key in problem.head_keys.items():
-        s = cols[key]
-        head_cols += list(range(s.start, s.stop))
+    for cid in problem.head_keys:
         labels += [(cid, i) for i in problem.active[cid]]
-    other = np.setdiff1d(np.arange(A.shape[1]), head_cols)
-    J_h, J_x = A[:, head_cols], A[:, other]
-    coef, *_ = np.linalg.lstsq(J_x, J_h, rcond=None)
-    R = J_h - J_x @ coef
-    return R.T @ R, labels
+    return 0.5 * (info + info.T), labels
 
 
 def head_observability(
@@ -307,15 +331,32 @@ def head_observability(
     numerical rank of that group's (Schur-complemented) information, its size
     when fully determined; ``data_std[cid]`` (7,) is inf where the data say nothing.
     """
+    info_n, labels = whitened_head_information(survey, estimate, prior_sigmas, exclude)
+    return observability_from_information(info_n, labels, prior_sigmas)
+
+
+def whitened_head_information(
+    survey: Survey, estimate: InitialEstimate, prior_sigmas: FloatArray = DEFAULT_PRIOR_SIGMAS,
+    exclude: frozenset[int] = frozenset(),
+) -> tuple[FloatArray, list[tuple[str, int]]]:
+    """Data-only information of every camera's 7 head parameters (poses and nodes eliminated),
+    linearized at ``estimate`` with ideal heads, in prior-sigma units; rows as (camera, index)."""
     all_active = {cid: tuple(range(HEAD_DIM)) for cid in survey.camera_ids if cid in estimate.cameras}
     problem = build_self_calibration_problem(survey, estimate, all_active, options=SolverOptions(gauge_sigma=None),
                                              exclude=exclude, with_prior=False)
     info, labels = head_information(problem, problem.initial)
     scale = np.array([prior_sigmas[i] for _, i in labels])
-    info_n = info * np.outer(scale, scale)
+    return info * np.outer(scale, scale), labels
+
+
+def observability_from_information(
+    info_n: FloatArray, labels: list[tuple[str, int]], prior_sigmas: FloatArray = DEFAULT_PRIOR_SIGMAS,
+) -> tuple[dict[str, dict[str, int]], dict[str, FloatArray]]:
+    """:func:`head_observability` from the whitened information of :func:`whitened_head_information`."""
+    scale = np.array([prior_sigmas[i] for _, i in labels])
     ranks: dict[str, dict[str, int]] = {}
     data_std: dict[str, FloatArray] = {}
-    for cid in problem.head_keys:
+    for cid in dict.fromkeys(c for c, _ in labels):
         rows = [r for r, (c, _) in enumerate(labels) if c == cid]
         ranks[cid] = {}
         for group, idx in HEAD_GROUPS.items():
@@ -344,15 +385,15 @@ def determinable_subset(
 ) -> dict[str, tuple[int, ...]]:
     """A largest set of head parameters with full-rank information, admitted greedily in
     :data:`ADMIT_ORDER` (camera by camera for each parameter); the rest stay pinned."""
-    all_active = {cid: tuple(range(HEAD_DIM)) for cid in survey.camera_ids if cid in estimate.cameras}
-    problem = build_self_calibration_problem(survey, estimate, all_active, exclude=exclude, with_prior=False)
-    info, labels = head_information(problem, problem.initial)
-    scale = np.array([prior_sigmas[i] for _, i in labels])
-    info_n = info * np.outer(scale, scale)
+    return determinable_from_information(*whitened_head_information(survey, estimate, prior_sigmas, exclude))
+
+
+def determinable_from_information(info_n: FloatArray, labels: list[tuple[str, int]]) -> dict[str, tuple[int, ...]]:
+    """:func:`determinable_subset` from the whitened information of :func:`whitened_head_information`."""
     tol = RANK_TOL * max(float(np.max(np.abs(info_n))), 1e-300)
     chosen: list[int] = []
     for i in ADMIT_ORDER:
-        for cid in problem.head_keys:
+        for cid in dict.fromkeys(c for c, _ in labels):
             r = labels.index((cid, i))
             trial = chosen + [r]
             if np.linalg.eigvalsh(info_n[np.ix_(trial, trial)])[0] > tol:
@@ -452,12 +493,33 @@ def _report(model: HeadModel, fit: SelfCalibratedSolve | None, survey: Survey, d
     return HeadCalibrationReport(model, cams, decision, ranks=ranks)
 
 
+#: The fast path is taken by default only when every reading's pan lies within this (rad) of
+#: zero. A head that turns +-170 degrees (EVI-D70, SNC-RZ25N) reads up to 170 (1 + k_p); with
+#: |k_p| <= 2 % (four prior sigmas) a reading of 175 degrees is a mechanical pan >= 1.4 degrees
+#: from the +-180 degree seam where the pan scale's reading jumps, ~10x what a node's estimate
+#: moves between the ideal start and the head model's optimum (docs/head-calibration.md).
+FAST_PATH_PAN_LIMIT = math.radians(175.0)
+
+
+def fast_path_is_safe(survey: Survey, exclude: frozenset[int] = frozenset()) -> bool:
+    """True when no reading kept (``exclude``: indices into ``survey.observations``) lies
+    beyond :data:`FAST_PATH_PAN_LIMIT` in |pan|."""
+    pan = np.asarray(survey.observation_table.pan)
+    keep = np.ones(len(pan), dtype=bool)
+    keep[[i for i in exclude if 0 <= i < len(pan)]] = False
+    return bool(np.all(np.abs(pan[keep]) <= FAST_PATH_PAN_LIMIT))
+
+
 def solve_with_head_model(
     survey: Survey, model: HeadModel = HeadModel.AUTO, options: SolverOptions = SolverOptions(),
-    prior_sigmas: FloatArray = DEFAULT_PRIOR_SIGMAS, fast_path: bool = False,
+    prior_sigmas: FloatArray = DEFAULT_PRIOR_SIGMAS, fast_path: bool | None = None,
 ) -> tuple[Result, HeadCalibrationReport]:
-    """Solve ``survey`` with the ideal, the full or the data-selected head model
-    (``fast_path``: see :func:`solve_self_calibrated`).
+    """Solve ``survey`` with the ideal, the full or the data-selected head model.
+
+    ``fast_path`` (see :func:`solve_self_calibrated`): ``None`` (default) takes the
+    node-eliminated fast path when ``options.eliminate_nodes`` and every reading the ideal
+    solve kept has |pan| <= 175 degrees (:func:`fast_path_is_safe`), the reference graph
+    otherwise; ``True`` / ``False`` force one.
 
     The ideal solve (:func:`fgloc.solve.joint.solve_survey`, outlier flagging
     included) gives the start; the extended model judges every reading again
@@ -466,11 +528,14 @@ def solve_with_head_model(
     """
     ideal = solve_survey(survey, options)
     exclude = frozenset(f.index for f in ideal.flagged)
+    if fast_path is None:
+        fast_path = options.eliminate_nodes and fast_path_is_safe(survey, exclude)
     start = InitialEstimate(cameras=dict(ideal.cameras),
                             nodes={n: e.position for n, e in ideal.nodes.items()}, unlocalized=dict(ideal.unlocalized))
     if model is HeadModel.IDEAL:
         return ideal, _report(model, None, survey, "ideal head (not estimated)", {}, {})
-    ranks, data_std = head_observability(survey, start, prior_sigmas, exclude)
+    info_n, labels = whitened_head_information(survey, start, prior_sigmas, exclude)
+    ranks, data_std = observability_from_information(info_n, labels, prior_sigmas)
     if model is HeadModel.FULL:
         for cid, std in data_std.items():
             bad = [HEAD_PARAMETERS[i] for i in range(HEAD_DIM) if not np.isfinite(std[i])]
@@ -486,7 +551,7 @@ def solve_with_head_model(
     if all(np.all(np.isfinite(std)) for std in data_std.values()):
         active = {cid: tuple(range(HEAD_DIM)) for cid in data_std}
     else:
-        active = determinable_subset(survey, start, exclude, prior_sigmas)
+        active = determinable_from_information(info_n, labels)
     k = sum(len(a) for a in active.values())
     if k == 0:
         return ideal, _report(model, None, survey, "ideal head: the survey determines no head parameter", data_std, ranks)
@@ -495,23 +560,29 @@ def solve_with_head_model(
     chi2_ideal = solve_self_calibrated(survey, start, {}, replace(options, compute_marginals=False), exclude,
                                        prior_sigmas, fast_path).chi2
     lr = chi2_ideal - fit.chi2
-    threshold = chi2_quantile(1.0 - LR_ALPHA, k)
-    if not lr > threshold:
+    lr_threshold = chi2_quantile(1.0 - LR_ALPHA, k)
+    rows = [r for r, (cid, i) in enumerate(labels) if i in fit.problem.active.get(cid, ())]
+    prior_chi2 = sum(float(np.sum((fit.heads[cid][0][list(idx)] / prior_sigmas[list(idx)]) ** 2))
+                     for cid, idx in fit.problem.active.items())
+    test = bayes_score_test(chi2_ideal, fit.chi2, prior_chi2, info_n[np.ix_(rows, rows)])
+    verdict = (f"Bayes score {test.statistic:.1f} {'>' if test.rejects_ideal else '<'} {test.threshold:.1f} "
+               f"(p {test.p_value:.3g}, level {test.alpha:g}; LR {lr:.1f}, {k} dof)")
+    if not test.rejects_ideal:
         # The data show no head error, yet errors within the prior may hide in directions the
         # bearings cannot see (they move the geometry instead): the ideal head's estimates, with
         # their mean squared error under the extended model's posterior as covariance.
         honest = _with_posterior_mse(ideal, fit.result)
-        report = _report(model, None, survey, f"ideal head kept (LR {lr:.1f} < {threshold:.1f}, {k} dof); "
+        report = _report(model, None, survey, f"ideal head kept ({verdict}); "
                          "node covariances: the head model's posterior error of these estimates", data_std, ranks)
-        report.lr_statistic, report.lr_threshold = lr, threshold
+        report.lr_statistic, report.lr_threshold, report.score = lr, lr_threshold, test
         return honest, report
     # Rejected: every determinable parameter of every camera stays in with its prior. Dropping
     # a camera's or a parameter's insignificant errors would leave their effect out of the
     # covariance (post-selection overconfidence, docs/head-calibration.md).
     n_est = sum(len(a) for a in fit.problem.active.values())
-    report = _report(model, fit, survey, f"ideal head rejected (LR {lr:.1f} > {threshold:.1f}, {k} dof); "
+    report = _report(model, fit, survey, f"ideal head rejected ({verdict}); "
                      f"{n_est} parameters on {len(fit.problem.active)} cameras", data_std, ranks)
-    report.lr_statistic, report.lr_threshold = lr, threshold
+    report.lr_statistic, report.lr_threshold, report.score = lr, lr_threshold, test
     return _finish(fit, flagged, report)
 
 

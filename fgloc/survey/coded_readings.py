@@ -25,6 +25,11 @@ A mote gives a reading in **every** recorded view that contains it and separates
 the decoder misses twice (``miss_rate`` per recording, one retry), are missing
 (reported, never guessed).
 
+Pair decoding (``pair_rate`` > 0): crowded groups of exactly two motes are read in the
+wide views with that probability per pair (:func:`fgloc.survey.field_plans.pair_decoding`),
+with the pair decoder's centroid error (``pair_sigma_pan`` / ``pair_sigma_tilt``), and
+need no refinement; the others are refined as before.
+
 Each reading carries ``sigma = sqrt(head_sigma^2 + decoder^2)`` as its total noise, with
 ``decoder`` the centroid error mapped to angles at that pixel
 (:func:`decoder_angle_sigmas`; ``sigma`` with their RMS, ``sigma_axes`` per axis), and names its view
@@ -69,6 +74,10 @@ class CodedNoise:
     shared_head: bool = True  #: one head error per view (False: per reading, a diagnostic)
     levels: tuple[float, ...] = (1 / 9, 3 / 9, 1.0)
     views: bool = True  #: name each reading's view (with view_sigma = head_sigma) when the head error is shared
+    #: pair decoding: share of crowded groups of exactly two read in the wide view as a pair (0: off)
+    pair_rate: float | tuple[tuple[float, float], ...] = 0.0  #: or by third-mote distance (pair_rate_table)
+    pair_sigma_pan: float | None = None  #: pair-decoded centroid error (radians at the survey zoom; None: decoder's)
+    pair_sigma_tilt: float | None = None
 
 
 @dataclass(frozen=True)
@@ -98,8 +107,13 @@ def coded_observations(
         d = world_to_base(cam.rotation, cam.position, nodes)
         pt = np.column_stack(bearing_pan_tilt(d / np.linalg.norm(d, axis=1, keepdims=True)))
         wide = plan_views(intr, region)
+        paired = np.zeros(len(pt), bool)  # crowded motes the pair decoder reads in the wide views
+        if noise.pair_rate:
+            from fgloc.survey.field_plans import pair_decoding
+
+            paired = pair_decoding(intr, pt, noise.separation_px, noise.pair_rate, rng, noise.field_rows).resolved
         passes, _ = plan_refinement(intr, pt, noise.separation_px, noise.levels, start=wide[-1] if wide else (0, 0),
-                                    field_rows=noise.field_rows)
+                                    field_rows=noise.field_rows, needed=~paired if paired.any() else None)
         # every (view, mote) pair that gives a reading: the mote is inside the view and separable at its zoom
         need = noise.separation_px / np.maximum(neighbour_px(pt, intr, noise.field_rows), 1e-12)
         all_views = [(p, t, 0.0) for p, t in wide] + [(p, t, rp.zoom) for rp in passes for p, t in rp.views]
@@ -107,7 +121,8 @@ def coded_observations(
         seen = np.zeros(len(pt), bool)
         for view in all_views:
             zi = intr.at_zoom(view[2])
-            ok = coverage(zi, pt, np.array([view[:2]]), 12.0)[0] & (need <= zi.fx / intr.fx) & ~(
+            ok = coverage(zi, pt, np.array([view[:2]]), 12.0)[0] & ((need <= zi.fx / intr.fx) | (
+                paired & (view[2] == 0.0))) & ~(
                 seen if not noise.every_view else np.zeros(len(pt), bool))
             pairs += [(view, int(j)) for j in np.flatnonzero(ok)]
             seen |= ok
@@ -129,6 +144,11 @@ def coded_observations(
             uv, _ = pan_tilt_to_pixel(dec, pt[j:j + 1, 0], pt[j:j + 1, 1], hp, ht)
             # the centroid error is a pixel error (the same in a zoomed view's pixels)
             sigma_px = np.array([noise.decoder_sigma_pan * intr.fx, noise.decoder_sigma_tilt * wide_fy])
+            if paired[j] and z == 0.0 and need[j] > 1.0:  # read as one of a pair: the pair centroid error
+                sigma_px = np.array([
+                    (noise.pair_sigma_pan if noise.pair_sigma_pan is not None else noise.decoder_sigma_pan) * intr.fx,
+                    (noise.pair_sigma_tilt if noise.pair_sigma_tilt is not None else noise.decoder_sigma_tilt)
+                    * wide_fy])
             uv = uv + rng.normal(0.0, 1.0, 2) * sigma_px
             assumed = replace(dec, fx=dec.fx * (1.0 + noise.fx_error), fy=dec.fy * (1.0 + noise.fx_error))
             e = head_err[view]

@@ -27,6 +27,11 @@ other classes' conflicting motes and each camera re-records, at the wide zoom, t
 holding its conflicting motes of that class (:func:`radio_round_time`). Motes beside a
 static light still go to zoom refinement.
 
+**Pair decoding** (optional, :func:`pair_decoding`): a crowded group of exactly two
+motes in a camera's wide view is labelled by the pair decoder
+(:mod:`fgloc.camera.blink_pairs`) with the measured success rate; those motes need no
+refinement or radio round from that camera.
+
 Angles radians, times seconds.
 """
 
@@ -417,3 +422,75 @@ def radio_separation(
     span = int(involved.max()) - int(involved.min()) + 1 if involved.size else 0
     packets = math.ceil(span / (8 * PAUSE_MAX_BYTES))
     return RadioSeparation(colour, rounds, leftover, packets * repeats)
+
+
+@dataclass
+class PairDecoding:
+    """Crowded motes of one camera resolved by pair decoding (:func:`pair_decoding`)."""
+
+    pairs: np.ndarray  #: (P, 2) mote indices of the crowded groups of exactly two
+    resolved: np.ndarray  #: (N,) bool: the motes of the pairs the pair decoder resolves
+    third_px: np.ndarray  #: (P,) px from the pair to the nearest third mote (either LED)
+
+    @property
+    def resolved_pairs(self) -> int:
+        return int(self.resolved.sum()) // 2
+
+
+def pair_rate_table(text: str) -> tuple[tuple[float, float], ...]:
+    """Parse ``"RATE"`` or ``"MAX_PX:RATE,...,inf:RATE"`` (ascending bounds on the distance
+    to the nearest third mote, px) into :func:`pair_decoding`'s rate table; ValueError when
+    malformed or a rate is outside [0, 1]."""
+    parts = [p for p in text.split(",") if p.strip()]
+    out = []
+    for p in parts:
+        bound, _, rate = p.rpartition(":")
+        r = float(rate)
+        b = math.inf if not bound else float(bound)
+        if not 0.0 <= r <= 1.0:
+            raise ValueError(f"rate {r} not in [0, 1]")
+        out.append((b, r))
+    if not out or any(a[0] >= b[0] for a, b in zip(out, out[1:])) or out[-1][0] != math.inf:
+        raise ValueError(f"bounds must ascend and end with inf ({text})")
+    return tuple(out)
+
+
+def pair_decoding(intr: CameraIntrinsics, pan_tilt: np.ndarray, separation_px: float,
+                  rate: float | Sequence[tuple[float, float]], rng: np.random.Generator,
+                  field_rows: bool = False) -> PairDecoding:
+    """Crowded motes (``pan_tilt`` (N, 2) radians, closer than ``separation_px`` at the wide
+    zoom, tangent plane as :func:`fgloc.survey.view_planner.conflict_pairs`) that form a
+    group of **exactly two** (connected components of the conflict graph) are labelled by
+    the pair decoder (:mod:`fgloc.camera.blink_pairs`) in the wide view with probability
+    ``rate`` each (the resolved share measured by ``scripts/blink_montecarlo.py --pairs``,
+    drawn from ``rng``): those need no refinement. ``rate`` may be a table
+    ``((max_px, rate), ..., (inf, rate))``: the rate of the first bound above the pair's
+    distance to its nearest third mote (px, either LED; :func:`pair_rate_table`), since
+    a third LED near the aperture spoils the pair's levels. Larger groups, and the pairs not drawn,
+    are refined as before."""
+    pt = np.asarray(pan_tilt, float)
+    n = len(pt)
+    edges = conflict_pairs(pt, intr, separation_px, field_rows)
+    degree = np.bincount(edges.ravel(), minlength=n) if edges.size else np.zeros(n, int)
+    pairs = edges[(degree[edges[:, 0]] == 1) & (degree[edges[:, 1]] == 1)] if edges.size else edges
+    resolved = np.zeros(n, bool)
+    third = np.full(len(pairs), np.inf)
+    if len(pairs):
+        wide = conflict_pairs(pt, intr, 3.0 * separation_px, field_rows)  # neighbours up to 12 px
+        adj: dict[int, set[int]] = {}
+        for x, y in wide.tolist():
+            adj.setdefault(x, set()).add(y)
+            adj.setdefault(y, set()).add(x)
+        fy = intr.fy / (2.0 if field_rows else 1.0)
+        for k, (a, b) in enumerate(pairs.tolist()):
+            for m in (adj.get(a, set()) | adj.get(b, set())) - {a, b}:
+                for s in (a, b):
+                    dp = math.remainder(pt[m, 0] - pt[s, 0], 2 * math.pi) * math.cos(0.5 * (pt[m, 1] + pt[s, 1]))
+                    third[k] = min(third[k], math.hypot(dp * intr.fx, (pt[m, 1] - pt[s, 1]) * fy))
+        if isinstance(rate, (int, float)):
+            p = np.full(len(pairs), float(rate))
+        else:
+            p = np.array([next((r for b, r in rate if t < b), rate[-1][1]) for t in third])
+        hit = rng.random(len(pairs)) < p
+        resolved[pairs[hit].ravel()] = True
+    return PairDecoding(pairs, resolved, third)

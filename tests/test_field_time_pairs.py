@@ -1,0 +1,79 @@
+"""Pair decoding in the field plan: only crowded groups of exactly two, at the measured rate."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from fgloc.camera.intrinsics import CameraIntrinsics
+from fgloc.survey.field_plans import pair_decoding, pair_rate_table
+from fgloc.survey.view_planner import neighbour_px, plan_refinement
+
+INTR = CameraIntrinsics.from_fov(640, 480, 65.0)
+
+
+def _at_px(offsets_px: list[tuple[float, float]], tilt: float = -0.3) -> np.ndarray:
+    """(N, 2) pan-tilt of targets at pixel offsets (dx, dy) near (0, tilt), tangent plane."""
+    d = np.asarray(offsets_px, float)
+    return np.column_stack([d[:, 0] / (INTR.fx * math.cos(tilt)), tilt + d[:, 1] / INTR.fy])
+
+
+SCENE = _at_px([(0.0, 0.0), (3.0, 0.0),  # a pair, a third mote 9 px away (index 8)
+                (100.0, 0.0), (102.0, 1.0), (104.0, 2.0),  # a chain of three: no pair
+                (200.0, 0.0),  # alone
+                (300.0, 0.0), (300.0, 2.5),  # a pair, nothing near
+                (12.0, 0.0)])
+
+
+def test_only_groups_of_exactly_two_and_their_third_mote() -> None:
+    pd = pair_decoding(INTR, SCENE, 4.0, 1.0, np.random.default_rng(0))
+    assert sorted(map(tuple, pd.pairs.tolist())) == [(0, 1), (6, 7)]
+    assert pd.resolved.tolist() == [True, True, False, False, False, False, True, True, False]
+    third = dict(zip(map(tuple, pd.pairs.tolist()), pd.third_px.tolist()))
+    assert third[(0, 1)] == pytest.approx(9.0, abs=0.05) and third[(6, 7)] == math.inf
+    none = pair_decoding(INTR, SCENE, 4.0, 0.0, np.random.default_rng(0))
+    assert not none.resolved.any() and none.resolved_pairs == 0
+
+
+def test_field_rows_halve_vertical_distances() -> None:
+    pt = _at_px([(0.0, 0.0), (0.0, 6.0), (50.0, 0.0)])  # 6 px apart in frames, 3 in fields
+    assert len(pair_decoding(INTR, pt, 4.0, 1.0, np.random.default_rng(0)).pairs) == 0
+    assert len(pair_decoding(INTR, pt, 4.0, 1.0, np.random.default_rng(0), field_rows=True).pairs) == 1
+
+
+def test_rate_is_the_share_resolved() -> None:
+    grid = np.array([(-1.5 + 0.15 * i, -1.0 + 0.05 * j) for i in range(20) for j in range(20)])
+    partner = grid + np.column_stack([2.0 / (INTR.fx * np.cos(grid[:, 1])), np.zeros(len(grid))])
+    pt = np.vstack([grid, partner])  # 400 pairs 2 px apart, 25 px and more from each other
+    pd = pair_decoding(INTR, pt, 4.0, 0.7, np.random.default_rng(5))
+    assert len(pd.pairs) == 400
+    assert abs(pd.resolved_pairs / 400 - 0.7) < 3.5 * math.sqrt(0.7 * 0.3 / 400)  # binomial, 3.5 sigma
+
+
+def test_resolved_pairs_leave_the_refinement() -> None:
+    pd = pair_decoding(INTR, SCENE, 4.0, 1.0, np.random.default_rng(0))
+    crowded = neighbour_px(SCENE, INTR) < 4.0
+    assert crowded.sum() == 7
+    before = plan_refinement(INTR, SCENE, 4.0, share_tiles=True)[0]
+    after = plan_refinement(INTR, SCENE, 4.0, needed=~pd.resolved, share_tiles=True)[0]
+    assert sum(rp.targets for rp in after) == sum(rp.targets for rp in before) - 4 == 3
+
+
+def test_rate_by_third_mote_distance() -> None:
+    near = np.vstack([SCENE, _at_px([(306.0, 0.0)])])  # a third mote 6 px from the pair (6, 7)
+    pd = pair_decoding(INTR, near, 4.0, ((8.0, 0.0), (math.inf, 1.0)), np.random.default_rng(0))
+    third = dict(zip(map(tuple, pd.pairs.tolist()), pd.third_px.tolist()))
+    assert third[(6, 7)] == pytest.approx(6.0, abs=0.05)
+    assert pd.resolved[[0, 1]].all() and not pd.resolved[[6, 7]].any()  # 9 px: rate 1; 6 px: rate 0
+    alone = pair_decoding(INTR, SCENE, 4.0, ((8.0, 0.0), (math.inf, 1.0)), np.random.default_rng(0))
+    assert alone.resolved[[6, 7]].all()  # no third mote at all (inf): the last bin
+
+
+def test_rate_table_parsing() -> None:
+    assert pair_rate_table("0.8") == ((math.inf, 0.8),)
+    assert pair_rate_table("6:0.1,8:0.4,inf:0.9") == ((6.0, 0.1), (8.0, 0.4), (math.inf, 0.9))
+    for bad in ("1.2", "8:0.4,6:0.1,inf:0.9", "6:0.1", ""):
+        with pytest.raises(ValueError):
+            pair_rate_table(bad)
