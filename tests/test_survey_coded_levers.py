@@ -5,6 +5,7 @@ rig.json switches, and crash safety in each mode (resume never duplicates a read
 from __future__ import annotations
 
 import json
+import math
 
 import numpy as np
 import pytest
@@ -328,3 +329,24 @@ def test_probe_stops_the_recording_of_empty_views_only(tmp_path, defaults30):
         inside = front & (uv[:, 0] >= 0) & (uv[:, 0] < intr.width) & (uv[:, 1] >= 0) & (uv[:, 1] < intr.height)
         assert not inside.any(), r["view"]
     assert runner.field_time.phases["frames"] < defaults30[0].phases["frames"]
+
+
+def test_pair_decoding_labels_blobs_of_two_motes_in_the_survey(tmp_path, defaults30):
+    """pairs "on": blobs the single decoder refuses are tried as two LEDs; a pair read in a view
+    gives two readings naming each other (``partner``), both correctly labelled and close to
+    their motes' bearings; every visible pair is read, and fewer refinement tiles are needed."""
+    rig = parsed(lever_rig(30, pairs="on"))
+    rig_opened, sim = opened(rig)
+    run_survey(rig, tmp_path, opened=rig_opened)
+    state = read_journal(tmp_path / "journal.jsonl")
+    assert {(c, n) for (n, c, _) in state.observations} == sim.scene.visible_pairs()
+    check_labels(rig, sim.scene, state, max_error_deg=0.2)
+    recs = view_records(tmp_path / "journal.jsonl")
+    paired = [(r, rd) for r in recs for rd in r["readings"] if "partner" in rd]
+    assert paired
+    for r, rd in paired:  # the partner, when this view took its reading too, names it back, a few px away
+        mate = [x for x in r["readings"] if x.get("code") == rd["partner"]]
+        assert not mate or (mate[0]["partner"] == rd["code"] and math.hypot(mate[0]["u"] - rd["u"],
+                                                                            mate[0]["v"] - rd["v"]) < 8.0)
+    tiles = sum(1 for r in recs if r["view"].startswith("r") and r["attempt"] == 0)
+    assert tiles < sum(1 for (c, v, a) in defaults30[1] if v.startswith("r") and a == 0)

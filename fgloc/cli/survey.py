@@ -33,7 +33,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "(coded); overrides rig.json's identification (default there: sequential)")
     p.add_argument("--coded", action="append", default=[], metavar="KEY=VALUE",
                    help="a coded-survey lever, overriding rig.json's \"coded\" (repeatable): retry=burst|continue, "
-                        "separate=zoom|radio, fallback=blobs|predicted, video=frames|fields, probe=off|on "
+                        "separate=zoom|radio, fallback=blobs|predicted, video=frames|fields, probe=off|on, pairs=off|on "
                         "(docs/blink-codes.md)")
     p.add_argument("--quiet", action="store_true", help="no progress bar (as fgloc -q survey, which also hides warnings)")
     p.set_defaults(run=run)

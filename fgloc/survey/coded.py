@@ -72,6 +72,7 @@ import numpy as np
 
 from fgloc.camera.blink_codes import CodeBook, code_book
 from fgloc.camera.blink_decoder import DecoderConfig, ViewDecode, decode_view, decode_windows
+from fgloc.camera.blink_pairs import PairConfig
 from fgloc.camera.intrinsics import CameraIntrinsics
 from fgloc.camera.pixel_angles import pixel_to_pan_tilt
 from fgloc.core.errors import FglocError
@@ -153,6 +154,9 @@ class CodedSettings:
     #: ``"on"``: a recording starts with L + 2 frames and stops there when they show no blob (an
     #: empty view), else goes on to 3L + 2 (one continuous recording); ``"off"``: always 3L + 2
     probe: str = "off"
+    #: ``"on"``: refused blobs are also tried as two LEDs and labelled by both code words when
+    #: that is unique (:mod:`fgloc.camera.blink_pairs`; rotation-free books); ``"off"``: not
+    pairs: str = "off"
 
 
 @dataclass
@@ -292,13 +296,14 @@ class CodedSurvey:
         else:
             frames = self._grab(runner, camera, count, t_start, key)
         self._continue_at[(camera, vid)] = t_start + count * self.camera.frame_period_s
+        pairs = PairConfig() if self.settings.pairs == "on" else None
         if before:
             frames = before + frames
             dec: ViewDecode = decode_windows(frames, self.camera.frame_period_s, self.book, intr, head[0], head[1],
-                                             self.frames, self.book.length, self.settings.decoder)
+                                             self.frames, self.book.length, self.settings.decoder, pairs=pairs)
         else:
             dec = decode_view(frames, self.camera.frame_period_s, self.book, intr, head[0], head[1],
-                              self.settings.decoder)
+                              self.settings.decoder, pairs=pairs)
         readings, refused = [], [{"kind": r.kind, "u": r.u, "v": r.v, "reason": r.reason} for r in dec.refused]
         st = runner.state
         taken: set[str] = set()
@@ -313,11 +318,12 @@ class CodedSurvey:
             if node in taken or have >= self.rig.repeats:
                 continue
             taken.add(node)
-            uv = on_off_centroid(stack, rd.u, rd.v) or (rd.u, rd.v)
+            # a pair-decoded LED keeps the pair decoder's centroid (its window holds both LEDs)
+            uv = (rd.u, rd.v) if rd.partner is not None else on_off_centroid(stack, rd.u, rd.v) or (rd.u, rd.v)
             obs = coded_observation(camera, vid, node, have, rd, intr, head, uv, self.rig.sigma,
                                     self.rig.head_repeatability)
             readings.append({"node": node, "index": obs.index, "pan": obs.pan, "tilt": obs.tilt, "code": rd.index,
-                             "u": uv[0], "v": uv[1]}
+                             "u": uv[0], "v": uv[1]} | ({} if rd.partner is None else {"partner": rd.partner})
                             | ({} if obs.view_sigma is None else {"sigma": obs.sigma, "view_sigma": obs.view_sigma}))
         return {"camera": camera, "view": vid, "attempt": attempt, "target": list(target), "head": list(head),
                 "zoom": zoom, "frames": count, "erased": dec.erased, "clock_s": t_start, "readings": readings,

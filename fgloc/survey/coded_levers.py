@@ -10,6 +10,7 @@ rig.json ``"coded"`` (optional) and ``fgloc survey --coded KEY=VALUE`` choose th
 * ``fallback``: ``"blobs"`` | ``"predicted"`` (:func:`predicted_directions`, :func:`blobs_near`);
 * ``video``: ``"frames"`` | ``"fields"`` (interlaced fields at 59.94 Hz);
 * ``probe``: ``"off"`` | ``"on"`` (a view whose first L + 2 frames show no blob stops there);
+* ``pairs``: ``"off"`` | ``"on"`` (refused blobs decoded as two LEDs, :mod:`fgloc.camera.blink_pairs`);
 * ``levels``: the refinement zoom ladder, ascending fractions of the optical range.
 
 Angles radians.
@@ -38,14 +39,15 @@ SEPARATE_MODES = ("zoom", "radio")
 FALLBACK_MODES = ("blobs", "predicted")
 VIDEO_MODES = ("frames", "fields")
 PROBE_MODES = ("off", "on")
+PAIRS_MODES = ("off", "on")
 CHOICES = {"retry": RETRY_MODES, "separate": SEPARATE_MODES, "fallback": FALLBACK_MODES, "video": VIDEO_MODES,
-           "probe": PROBE_MODES}
+           "probe": PROBE_MODES, "pairs": PAIRS_MODES}
 PREDICTED_RADIUS = math.radians(3.0)  #: a blob this close to a mote's predicted direction may hide it
 
 
 def coded_settings(rig: RigConfig, overrides: Mapping[str, str] | None = None) -> CodedSettings:
     """The rig's coded-survey levers: rig.json ``"coded": {"retry": ..., "separate": ...,
-    "fallback": ..., "video": ..., "probe": ..., "levels": [zoom, ...]}`` (each optional; defaults of
+    "fallback": ..., "video": ..., "probe": ..., "pairs": ..., "levels": [zoom, ...]}`` (each optional; defaults of
     :class:`~fgloc.survey.coded.CodedSettings`), each overridden by ``overrides`` (the CLI's
     ``--coded KEY=VALUE``). One-line :class:`FglocError` naming the file or flag on a bad value."""
     from fgloc.survey.coded import CodedSettings
