@@ -5,7 +5,7 @@ the motes' blink commands to a :class:`~fgloc.drivers.tinyos.blink.BlinkField` (
 firmware's behaviour: which address runs which word). :class:`SceneBlinks` renders the
 frames one camera records with its head still, by :func:`fgloc.drivers.blink_frames.render_view`:
 
-* every mote the field says is running blinks its word, one bit per commanded bit period
+* every mote the field says is lit (running and not paused by a pause-by-bitmap) blinks its word, one bit per commanded bit period
   (the period of the last start command that covered its address), LED on for a 1 bit;
 * it is drawn along the pair's **apparent** bearing (``scene.apparent``: truth plus the
   pair's fixed N(0, sigma) error), exactly where the sequential survey's frames put its LED,
@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import zlib
 from collections.abc import Callable, Sequence
+from dataclasses import replace
 
 import numpy as np
 
@@ -87,7 +88,7 @@ class SceneBlinks:
         cam = self.scene.cameras[i]
         periods = bit_periods(list(self.packets()))
         out = []
-        for address, (length, word) in sorted(self.field.running.items()):
+        for address, (length, word) in sorted(self.field.lit().items()):  # paused motes stay dark
             node = self.node_of.get(address)
             if node is None or address not in periods:
                 continue
@@ -102,16 +103,26 @@ class SceneBlinks:
         return out
 
     def record(self, camera_id: str, pan: float, tilt: float, n_frames: int, t_start: float, key: str,
-               zoom: float | None = None) -> list[tuple[float, np.ndarray]]:
+               zoom: float | None = None, fields: bool = False) -> list[tuple[float, np.ndarray]]:
         """``(timestamp s, uint8 frame)`` of ``n_frames`` frame periods recorded by ``camera_id``
         with its head truly pointing at (pan, tilt) radians (the in-process rig passes the
         reported angles plus the settle's pointing error, ``SceneHead.pointing``), from ``t_start`` on the survey clock (dropped frames
         missing). ``zoom`` other than the camera's survey zoom renders through the idealised
-        :meth:`~fgloc.camera.intrinsics.CameraIntrinsics.at_zoom` model of its intrinsics."""
+        :meth:`~fgloc.camera.intrinsics.CameraIntrinsics.at_zoom` model of its intrinsics.
+        ``fields``: ``n_frames`` interlaced **fields** instead, as ``scripts/blink_montecarlo.py
+        --fields`` renders them: every second row (half the height, ``fy`` and ``cy``, as
+        :func:`fgloc.survey.coded_readings.field_intrinsics`), 59.94 Hz, half of each light's
+        flux (the same spot shape in field pixels: the Monte Carlo's approximation)."""
         i = self.scene.camera_ids.index(camera_id)
         cam = self.rig.cameras[i]
         intr = cam.intrinsics if zoom is None or zoom == cam.zoom else cam.intrinsics.at_zoom(zoom)
+        config = self.config
+        if fields:  # one field: every second row (frame row 2r), twice the rate, half the light
+            intr = replace(intr, fy=0.5 * intr.fy, cy=0.5 * intr.cy, height=intr.height // 2)
+            config = replace(config, frame_rate_hz=2.0 * config.frame_rate_hz, led_flux=0.5 * config.led_flux,
+                             static_flux=0.5 * config.static_flux,
+                             glint_flux=(0.5 * config.glint_flux[0], 0.5 * config.glint_flux[1]))
         rng = np.random.default_rng(_seed(self.seed, camera_id, key, "blink-video"))
         statics = self.scene.lights if len(self.scene.lights) else None
         return render_view(self.cameras[camera_id], intr, pan, tilt, self.motes(camera_id), n_frames, rng,
-                           self.config, statics=statics, t_start=t_start)
+                           config, statics=statics, t_start=t_start)

@@ -59,7 +59,14 @@ from fgloc.core.head_model import head_pan_tilt
 from fgloc.core.model import CameraPose, NodeMode, Truth
 from fgloc.drivers.imperfect_head import head_view, ideal_equivalent_directions
 from fgloc.drivers.rendered_camera import LedScene, RenderedCamera, RenderSettings
-from fgloc.drivers.tinyos.blink import BlinkBroadcast, BlinkCommand, BlinkField, blink_broadcast, parse_blink_report
+from fgloc.drivers.tinyos.blink import (
+    BlinkBroadcast,
+    BlinkCommand,
+    BlinkField,
+    BlinkPause,
+    blink_broadcast,
+    parse_blink_report,
+)
 from fgloc.drivers.tinyos.messages import AmPacket
 from fgloc.files.rig_config import RigConfig
 from fgloc.sim.scenes import random_base_rotation
@@ -410,7 +417,7 @@ class SceneLeds:
                                 silent={self.addresses[n] for n in rig.simulation.dead_nodes})
         self.received: list[AmPacket] = []  # blink packets the motes received
 
-    def broadcast_codes(self, command: BlinkBroadcast | BlinkCommand, expect: set[int] | None = None,
+    def broadcast_codes(self, command: BlinkBroadcast | BlinkCommand | BlinkPause, expect: set[int] | None = None,
                         wait: float = 0.0) -> dict[int, tuple[bool, int, int]]:
         """Broadcast a start by address or a stop; the blink reports (address -> (running,
         length, code)) that came back (``expect`` and ``wait`` as the real driver's, unused here)."""
@@ -454,11 +461,14 @@ class InProcessRig:
         self.heads: dict[str, SceneHead] = {}  # the head last opened per camera
         self._blinks: object | None = None
         self.blink_zoom = True  # record_blinks renders at the head's zoom (coded refinement)
+        self.blink_fields = True  # record_blinks renders interlaced fields on request (coded.video "fields")
 
-    def record_blinks(self, camera_id: str, n_frames: int, t_start: float, key: str) -> list[tuple[float, np.ndarray]]:
+    def record_blinks(self, camera_id: str, n_frames: int, t_start: float, key: str,
+                      fields: bool = False) -> list[tuple[float, np.ndarray]]:
         """Coded surveys: ``n_frames`` frame periods of blinking-mote video from ``camera_id``'s
         head where it is now (:class:`fgloc.drivers.blink_scene.SceneBlinks`), timestamps from
-        ``t_start`` (survey-clock seconds), seeded by ``key``."""
+        ``t_start`` (survey-clock seconds), seeded by ``key``; ``fields``: interlaced fields
+        (:meth:`~fgloc.drivers.blink_scene.SceneBlinks.record`)."""
         from fgloc.drivers.blink_scene import SceneBlinks
 
         if self._blinks is None:
@@ -466,7 +476,7 @@ class InProcessRig:
                                        lambda: list(self.leds.received))
         head = self.heads[camera_id]
         return self._blinks.record(camera_id, *head.pointing, n_frames, t_start, key,  # type: ignore[attr-defined]
-                                   head._zoom)
+                                   head._zoom, fields)
 
     def open_head(self, camera_id: str) -> SceneHead:
         """Open (or reopen, after a disconnect) the head of ``camera_id``."""

@@ -51,14 +51,15 @@ from fgloc.evaluate.score import nees  # noqa: E402
 from fgloc.files.journal import read_journal  # noqa: E402
 from fgloc.files.rig_config import parse_rig  # noqa: E402
 from fgloc.solve.joint import solve_survey  # noqa: E402
-from fgloc.survey.clock import FieldTime, sum_times  # noqa: E402
+from fgloc.survey.clock import FieldTime, price, sum_times  # noqa: E402
 from fgloc.survey.coded_clock import ClockSink, CountingLeds, clocked_opener, node_field_time, rig_timing  # noqa: E402
 from fgloc.survey.session import OpenedRig, run_survey  # noqa: E402
 
 EXAMPLE = ROOT / "examples" / "rig-simulated.json"
 
 
-def rig_for(seed: int, motes: int, width: int, mode: str, fx: float | None = None, repeatability_deg: float = 0.0):
+def rig_for(seed: int, motes: int, width: int, mode: str, fx: float | None = None, repeatability_deg: float = 0.0,
+            coded: dict | None = None):
     data = json.loads(EXAMPLE.read_text())
     data["node_ids"] = [f"n{j:03d}" for j in range(motes)]
     f = fx or width / 2.0
@@ -68,6 +69,8 @@ def rig_for(seed: int, motes: int, width: int, mode: str, fx: float | None = Non
     data["simulation"] = {"seed": seed, "heights": [0.1, 0.12], "occlusion": 0.05, "dead_nodes": ["n003"]}
     data["retry"] = {"backoff_s": 0.0}
     data["identification"] = mode
+    if coded:
+        data["coded"] = coded
     if repeatability_deg > 0:
         data["head_repeatability_deg"] = repeatability_deg
     return parse_rig(data, str(EXAMPLE), EXAMPLE.parent)
@@ -88,6 +91,60 @@ def labels(rig, scene, state) -> tuple[int, int, int]:
     return len(decoded), wrong, far
 
 
+def breakdown(rig, sim, state) -> dict:  # noqa: ANN001
+    """Where the coded survey's recordings went, per camera, from its journal: wide views,
+    their second recordings, refinement tiles per rung and theirs, separation rounds; and the
+    fallback nodes with their priced time."""
+    out: dict = {"cameras": {}}
+    for cam in rig.camera_ids:
+        recs = [r for (c, _v, _a), r in state.views.items() if c == cam]
+        kinds: dict[str, list[int]] = {}
+        for r in recs:
+            v = str(r["view"])
+            kind = "wide" if v.startswith("w") else v.split("-")[0]
+            kinds.setdefault(kind, [0, 0, 0])
+            kinds[kind][0 if int(r["attempt"]) == 0 else 1] += 1
+            kinds[kind][2] += int(r.get("frames", 0))
+        out["cameras"][cam] = kinds
+    fb = [r for r in state.field_times if r.get("scope") == "fallback_node"]
+    out["fallback_nodes"] = len(fb)
+    out["fallback_s"] = sum(sum(float(x) for x in r["phases"].values()) for r in fb)
+    return out
+
+
+def planner_prediction(rig, sim, retry_fraction: float, separation_px: float = 4.0) -> float:  # noqa: ANN001
+    """The field-time planner's price (:mod:`fgloc.survey.field_plans`) of a coded survey of this
+    rig: the integrated survey's wide views, the scene's visible motes refined on the cheapest
+    zoom ladder with shared tiles (``separation_px``: 4 as scripts/field_time.py), retries continuing
+    the recording for L frames (``retry_fraction`` of the views, as measured), no zoom-out, frames."""
+    from fgloc.camera.blink_codes import code_book
+    from fgloc.survey.coded import CodedSurvey
+    from fgloc.survey.field_plans import coded_survey_time, frames_for, refinement_ops
+    from fgloc.survey.view_planner import plan_refinement
+
+    coded = CodedSurvey(rig, sim.open_head, sim.leds, sim)
+    views = {c: coded.plan(c) for c in rig.camera_ids}
+    book = code_book(len(rig.node_ids))
+    k = frames_for(book.length)
+    timing = rig_timing(rig.cameras[0].model)
+    ladders = ((1 / 9, 3 / 9, 1.0), (1 / 9, 2 / 9, 4 / 9, 1.0), (0.2, 0.5, 1.0),
+               (1 / 18, 1 / 9, 2 / 9, 1 / 3, 5 / 9, 1.0))
+    refine = {}
+    for i, c in enumerate(rig.camera_ids):
+        live = [j for j, n in enumerate(rig.node_ids) if sim.scene.visible[i, j] and n not in sim.scene.dead]
+        pts = sim.scene.apparent[i, live]
+        intr = rig.cameras[i].intrinsics
+        best = math.inf
+        for ladder in ladders:
+            passes, _ = plan_refinement(intr, pts, separation_px, ladder, start=views[c][-1], share_tiles=True)
+            cost = price(refinement_ops(passes, k, views[c][-1], retry_fraction, 0, book.length, False),
+                         timing).total
+            if cost < best:
+                best, refine[c] = cost, passes
+    return coded_survey_time(views, len(rig.node_ids), k, timing, retry_fraction, refine, retry_frames=book.length,
+                             refine_retry_fraction=retry_fraction, zoom_out=False).time.total
+
+
 def without_views(survey: Survey) -> Survey:
     """The survey as a version-1 reader sees it: each reading independent with its total sigma."""
     from dataclasses import replace
@@ -106,8 +163,8 @@ def errors(survey: Survey, truth) -> tuple[list[float], list[float]]:  # noqa: A
 
 
 def run(seed: int, motes: int, width: int, mode: str, out: Path, fx: float | None = None,
-        repeatability_deg: float = 0.0) -> dict:
-    rig = rig_for(seed, motes, width, mode, fx, repeatability_deg)
+        repeatability_deg: float = 0.0, coded: dict | None = None) -> dict:
+    rig = rig_for(seed, motes, width, mode, fx, repeatability_deg, coded)
     sim = InProcessRig(rig)
     times: list[FieldTime] = []
     if mode == "sequential":
@@ -137,7 +194,14 @@ def run(seed: int, motes: int, width: int, mode: str, out: Path, fx: float | Non
     err, nv = errors(survey, truth)
     err_iv, nv_iv = errors(without_views(survey), truth)
     seen = {(c, n) for (n, c, _) in state.observations}
-    return {"field": ft, "wall": wall, "readings": len(state.observations), "decoded": decoded, "wrong": wrong,
+    extra: dict = {}
+    if mode != "sequential":
+        extra["breakdown"] = breakdown(rig, sim, state)
+        first = sum(1 for key in state.views if key[2] == 0)
+        q = (len(state.views) - first) / max(first, 1)
+        extra["planner"] = planner_prediction(rig, InProcessRig(rig), q)
+        extra["planner6"] = planner_prediction(rig, InProcessRig(rig), q, 6.0)
+    return extra | {"field": ft, "wall": wall, "readings": len(state.observations), "decoded": decoded, "wrong": wrong,
             "far": far, "missing": len(sim.scene.visible_pairs() - seen), "rms": float(np.sqrt(np.mean(np.square(err)))),
             "views": len(state.views), "err": err, "nees": nv, "err_iv": err_iv, "nees_iv": nv_iv,
             "named_views": len({o.view for o in survey.observations if o.view is not None})}
@@ -159,13 +223,16 @@ def main() -> None:
     ap.add_argument("--fx", type=float, default=None, help="focal length, px (default width / 2: 90 deg wide)")
     ap.add_argument("--repeatability-deg", type=float, default=0.0,
                     help="head repeatability (rig.json head_repeatability_deg, part of sigma_deg 0.1)")
+    ap.add_argument("--coded", default="{}", help='rig.json "coded" levers as JSON, e.g. '
+                    '\'{"retry": "continue", "fallback": "predicted", "separate": "radio"}\'')
     args = ap.parse_args()
+    coded = json.loads(args.coded)
     rows: dict[str, list[dict]] = {"sequential": [], "coded": []}
     with tempfile.TemporaryDirectory() as tmp:
         for seed in range(1, args.seeds + 1):
             for mode in rows:
                 rows[mode].append(run(seed, args.motes, args.width, mode, Path(tmp) / f"{mode}{seed}", args.fx,
-                                      args.repeatability_deg))
+                                      args.repeatability_deg, coded))
     for mode, rs in rows.items():
         med = statistics.median
         print(f"{mode}: field time median {med(r['field'].total for r in rs):.1f} s "
@@ -174,6 +241,13 @@ def main() -> None:
               f"{sum(r['views'] for r in rs)} recordings), missing visible pairs {sum(r['missing'] for r in rs)}, "
               f"mislabelled {sum(r['wrong'] for r in rs)}, > 0.05 deg off {sum(r['far'] for r in rs)}; "
               f"RMS position error median {med(r['rms'] for r in rs):.5f}")
+    for k, r in enumerate(rows["coded"], start=1):
+        b = r["breakdown"]
+        cams = "; ".join(f"{c}: " + ", ".join(f"{kind} {n0}+{n1} ({fr} frames)" for kind, (n0, n1, fr) in sorted(v.items()))
+                         for c, v in b["cameras"].items())
+        print(f"  seed {k}: coded {r['field'].describe()}; recordings first+again: {cams}; fallback nodes "
+              f"{b['fallback_nodes']} ({b['fallback_s']:.1f} s summed); planner's price for this rig "
+              f"{r['planner']:.1f} s (separation 4 px; 6 px: {r['planner6']:.1f} s)")
     ratio = [c["rms"] / s["rms"] for c, s in zip(rows["coded"], rows["sequential"])]
     speed = [s["field"].total / c["field"].total for c, s in zip(rows["coded"], rows["sequential"])]
     print(f"coded / sequential: RMS ratio median {statistics.median(ratio):.3f} (range {min(ratio):.3f}-{max(ratio):.3f}); "

@@ -13,6 +13,7 @@ from fgloc.core.retry import RetryPolicy
 from fgloc.drivers.tinyos.blink import (
     BlinkBroadcast,
     BlinkCommand,
+    BlinkPause,
     blink_broadcast,
     blink_command,
     parse_blink_report,
@@ -113,9 +114,10 @@ class MoteNetwork:
                     return True
         return False
 
-    def broadcast_codes(self, command: BlinkBroadcast | BlinkCommand, expect: set[int] | None, wait: float,
-                        ) -> dict[int, tuple[bool, int, int]]:
-        """Broadcast a start by address or a stop to every node; the blink reports (node ->
+    def broadcast_codes(self, command: BlinkBroadcast | BlinkCommand | BlinkPause, expect: set[int] | None,
+                        wait: float) -> dict[int, tuple[bool, int, int]]:
+        """Broadcast a start by address, a stop or a pause by bitmap (no reports: pass
+        ``expect=set()``) to every node; the blink reports (node ->
         (running, length, code)) that arrived within ``wait`` s, or as soon as every node in
         ``expect`` has answered (None: wait the whole time)."""
         with self._lock:

@@ -31,6 +31,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--identify", choices=("sequential", "coded"), default=None,
                    help="identify motes one lit LED at a time (sequential) or many per view by blink codes "
                         "(coded); overrides rig.json's identification (default there: sequential)")
+    p.add_argument("--coded", action="append", default=[], metavar="KEY=VALUE",
+                   help="a coded-survey lever, overriding rig.json's \"coded\" (repeatable): retry=burst|continue, "
+                        "separate=zoom|radio, fallback=blobs|predicted, video=frames|fields, probe=off|on, pairs=off|on "
+                        "(docs/blink-codes.md)")
     p.add_argument("--quiet", action="store_true", help="no progress bar (as fgloc -q survey, which also hides warnings)")
     p.set_defaults(run=run)
 
@@ -69,6 +73,12 @@ def run(args: argparse.Namespace) -> int:
 
     if args.live_every < 1:
         raise FglocError(f"--live-every must be >= 1, got {args.live_every}")
+    levers = {}
+    for item in args.coded:
+        key, eq, value = item.partition("=")
+        if not eq or not key.strip():
+            raise FglocError(f"--coded: expected KEY=VALUE, got {item!r}")
+        levers[key.strip()] = value.strip()
     rig = load_rig(args.rig)
     progress = _SurveyBar(args.progress and not args.quiet)
 
@@ -90,6 +100,7 @@ def run(args: argparse.Namespace) -> int:
             estimator=None if args.no_live else (IncrementalEstimator() if args.estimator == "incremental"
                                                  else BatchEstimator()),
             live_every=args.live_every, on_estimate=show, on_progress=progress, identification=args.identify,
+            coded_levers=levers,
         )
     finally:
         progress.close()

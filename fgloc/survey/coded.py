@@ -35,6 +35,14 @@ instead of the node loop of :mod:`fgloc.survey.runner` (docs/survey.md, "Coded i
    confirmed their code, or after a failed view). Nodes every camera read are journaled
    ``node_done`` without lighting them.
 
+Levers (:class:`CodedSettings`, chosen by rig.json ``"coded"`` or ``fgloc survey --coded``,
+:mod:`fgloc.survey.coded_levers`; defaults: the procedure above): ``retry "continue"`` (a
+retry goes on recording L frames, decoded in sliding windows), ``probe "on"`` (a recording
+stops after L + 2 frames showing no blob), ``fallback "predicted"``
+(:mod:`fgloc.survey.coded_fallback`), ``separate "radio"`` (colour classes paused by bitmap
+between the wide pass and the refinement, :mod:`fgloc.survey.coded_separation`; every
+camera's wide pass, each round, then the refinement are barriers) and ``video "fields"``.
+
 Crash safety: a view's readings are committed together, as one ``view`` journal record
 (:meth:`fgloc.files.journal.JournalWriter.view`); a kill during a view loses only that
 view. ``--resume`` re-plans the same views (a function of the rig and, for refinement
@@ -56,14 +64,15 @@ import math
 import queue
 import time
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 
 from fgloc.camera.blink_codes import CodeBook, code_book
-from fgloc.camera.blink_decoder import DecoderConfig, ViewDecode, decode_view
+from fgloc.camera.blink_decoder import DecoderConfig, ViewDecode, decode_view, decode_windows
+from fgloc.camera.blink_pairs import PairConfig
 from fgloc.camera.intrinsics import CameraIntrinsics
 from fgloc.camera.pixel_angles import pixel_to_pan_tilt
 from fgloc.core.errors import FglocError
@@ -86,9 +95,11 @@ from fgloc.survey.clock import (
     sum_times,
 )
 from fgloc.survey.coded_clock import SequentialClock
+from fgloc.survey.coded_readings import field_intrinsics
 from fgloc.survey.coded_views import (
     coded_observation,
     distinct_directions,
+    empty_view,
     into_search_box,
     needs_second_recording,
     on_off_centroid,
@@ -102,6 +113,7 @@ logger = logging.getLogger(__name__)
 
 
 Frame = tuple[float, np.ndarray]
+Blob = tuple[tuple[float, float], tuple[float, float], float]  #: (u, v) px, head (pan, tilt), zoom of a refused blob
 CLUSTER_SPREAD_PX = 6.0  #: refinement tiles also cover this far (px of the coarser view) around a blob
 
 
@@ -122,6 +134,29 @@ class CodedSettings:
     #: refinement zooms (fractions of the optical range, ascending; :meth:`CameraIntrinsics.at_zoom`:
     #: 2x, 4x, 10x), used where the rig can record at other zooms (the in-process rig)
     levels: tuple[float, ...] = (1 / 9, 3 / 9, 1.0)
+    #: how a view with curable refusals is recorded again: ``"continue"`` goes on recording L more
+    #: frames without moving and decodes the whole recording in sliding windows
+    #: (:func:`~fgloc.camera.blink_decoder.decode_windows`); ``"burst"`` records a new 3L + 2
+    retry: str = "burst"
+    #: crowded motes: ``"zoom"`` refinement ladder only; ``"radio"`` first pauses colour classes by
+    #: radio and records the wide views again (:mod:`fgloc.survey.coded_separation`), then zooms
+    #: on what is left
+    separate: str = "zoom"
+    #: fallback of a mote a camera did not decode: ``"blobs"`` looks at every blob the camera left
+    #: unexplained; ``"predicted"`` first places the mote from the other cameras' readings
+    #: (:func:`~fgloc.survey.coded_separation.predict_directions`) and looks only at the blobs
+    #: within :data:`~fgloc.survey.coded_levers.PREDICTED_RADIUS` of where it must be (none there: not found, no search)
+    fallback: str = "blobs"
+    #: ``"fields"``: record and decode interlaced video field by field (59.94 Hz, every second
+    #: row; the motes' bit period one field), on rigs that record fields and heads with
+    #: interlaced video; ``"frames"``: whole frames at 29.97 Hz
+    video: str = "frames"
+    #: ``"on"``: a recording starts with L + 2 frames and stops there when they show no blob (an
+    #: empty view), else goes on to 3L + 2 (one continuous recording); ``"off"``: always 3L + 2
+    probe: str = "off"
+    #: ``"on"``: refused blobs are also tried as two LEDs and labelled by both code words when
+    #: that is unique (:mod:`fgloc.camera.blink_pairs`; rotation-free books); ``"off"``: not
+    pairs: str = "off"
 
 
 @dataclass
@@ -138,6 +173,9 @@ class CodedStats:
     unassigned: int = 0
     confirmed: int = 0
     fallback_nodes: int = 0
+    classes: int = 0  #: radio separation: colour classes (rounds)
+    round_views: int = 0  #: radio separation: views recorded in rounds
+    pause_updates: int = 0  #: radio separation: pause-by-bitmap updates sent
     failed_views: list[str] = field(default_factory=list)
 
 
@@ -149,7 +187,9 @@ class CodedSurvey:
         from fgloc.drivers.tinyos.messages import node_address
 
         self.rig = rig
-        self.settings = settings or CodedSettings()
+        from fgloc.survey.coded_levers import coded_settings
+
+        self.settings = settings or coded_settings(rig)
         self.recorder = getattr(recorder, "record_blinks", None)
         if not callable(getattr(leds, "broadcast_codes", None)):
             raise FglocError(f"{rig.path}: identification: the base station ({rig.motes.driver}) cannot "
@@ -164,10 +204,19 @@ class CodedSurvey:
         self.book: CodeBook = code_book(count)
         self.node_of_code = {a - self.first: n for n, a in self.addresses.items()}
         self.frames = frames_for(self.book.length, self.settings.periods)
-        self.camera = CameraTiming()
+        self.fields = self.settings.video == "fields"
+        self.camera = CameraTiming().at_field_rate() if self.fields else CameraTiming()
         # the runner's heads and LEDs: fallback nodes are priced as a sequential survey's nodes are
         self.clock = SequentialClock(rig, open_head, leds)  # type: ignore[arg-type]
         self.open_head, self.leds, self.timing = self.clock.open_head, self.clock.leds, self.clock.timing
+        #: the camera lanes' clock (the fallback's sequential nodes keep ``timing``: whole frames)
+        self.lane_timing = {c: replace(t, camera=self.camera) for c, t in self.timing.items()}
+        if self.fields and not getattr(recorder, "blink_fields", False):
+            raise FglocError(f"{rig.path}: coded.video: \"fields\" needs a rig that records interlaced fields "
+                             "(the in-process rig); use \"frames\"")
+        if self.fields and not all(t.head.interlaced for t in self.timing.values()):
+            raise FglocError(f"{rig.path}: coded.video: \"fields\" needs heads with interlaced video "
+                             f"({', '.join(c.model for c in rig.cameras)}); use \"frames\"")
         self.stats = CodedStats()
         self.lanes: dict[str, list[Op]] = {c: [] for c in rig.camera_ids}
         self.radio_s = 0.0
@@ -178,6 +227,12 @@ class CodedSurvey:
         self.levels = self.settings.levels if getattr(recorder, "blink_zoom", False) else ()
         self.remaining: dict[str, int] = {}  # camera -> unexplained blobs and failed views after its last rung
         self.blobs: dict[str, list[tuple[float, float]] | None] = {}  # their directions (None: a view failed)
+        self._continue_at: dict[tuple[str, str], float] = {}  # (camera, view) -> clock s its recording ends
+        self.final_blobs: dict[str, np.ndarray] = {}  # camera -> (M, 2) directions of its unexplained blobs
+        self.here: dict[str, tuple[float, float]] = {}  # camera -> head (pan, tilt) after its last view
+        self.wide_records: dict[str, list[dict[str, Any] | None]] = {}
+        self._done_views = 0
+        self.stages = FieldTime({})  # barrier stages done (radio separation: wide pass, rounds), in series
 
     # ----- plan and clock
     def plan(self, camera: str) -> list[tuple[float, float]]:
@@ -191,27 +246,64 @@ class CodedSurvey:
                            tilt_limits=(s.tilt_min, s.tilt_max))
         return [into_search_box(p, t, s.pan_min, s.pan_max, s.tilt_min, s.tilt_max) for p, t in views]
 
+    def _lane_start(self, camera: str) -> float:
+        """Survey-clock seconds at which the camera's next operation starts."""
+        return self.radio_s + self.stages.total + price(self.lanes[camera], self.lane_timing[camera]).total
+
     def field_time(self) -> FieldTime:
         """Predicted field time so far: radio, the longest camera lane, the fallback nodes."""
-        lanes = [price(ops, self.timing[c]) for c, ops in self.lanes.items()]
+        lanes = [price(ops, self.lane_timing[c]) for c, ops in self.lanes.items()]
         radio = FieldTime({"radio": self.radio_s})
-        return sum_times([radio, parallel(lanes), FieldTime({"fallback": self.fallback.total})])
+        return sum_times([radio, self.stages, parallel(lanes), FieldTime({"fallback": self.fallback.total})])
 
     # ----- one camera
-    def _record(self, runner: SurveyRunner, camera: str, vid: str, attempt: int, target: tuple[float, float],
-                head: tuple[float, float], zoom: float, t_start: float) -> dict[str, Any]:
-        worker = runner.workers[camera]
-        key = f"{vid}/{attempt}"
+    def _grab(self, runner: SurveyRunner, camera: str, count: int, t_start: float, key: str) -> list[Frame]:
+        """``count`` consecutive frames (fields) from ``t_start`` on the survey clock: the simulated
+        rigs' ``record_blinks`` (seeded by ``key``), on hardware grabs stamped by the host clock."""
         if self.recorder is not None:
-            frames: list[Frame] = self.recorder(camera, self.frames, t_start, key)
-        else:  # hardware: consecutive grabs stamped by the host clock
-            frames = []
-            for _ in range(self.frames):
-                img = worker.call(lambda h: h.grab_frame())
-                frames.append((time.monotonic(), np.asarray(img)))
+            out: list[Frame] = (self.recorder(camera, count, t_start, key, fields=True) if self.fields
+                                else self.recorder(camera, count, t_start, key))
+            return out
+        frames = []
+        for _ in range(count):
+            img = runner.workers[camera].call(lambda h: h.grab_frame())
+            frames.append((time.monotonic(), np.asarray(img)))
+        return frames
+
+    def _record(self, runner: SurveyRunner, camera: str, vid: str, attempt: int, target: tuple[float, float],
+                head: tuple[float, float], zoom: float, t_start: float,
+                before: list[Frame] | None = None) -> tuple[dict[str, Any], list[Frame]]:
+        """Record and decode one recording of a view; returns its journal record and the view's
+        frames so far. ``before``: this process's frames of the view's earlier recordings, which
+        this one continues (L more frames from where they ended, decoded with them in sliding
+        windows); None: a new burst of 3L + 2."""
+        key = f"{vid}/{attempt}"
+        count = self.book.length if before else self.frames
+        if before:  # the recording goes on: the next frame period after the last one
+            t_start = self._continue_at[(camera, vid)]
         intr = self.intrinsics_at(camera, zoom)
-        dec: ViewDecode = decode_view(frames, self.camera.frame_period_s, self.book, intr, head[0], head[1],
-                                      self.settings.decoder)
+        probed = False
+        if not before and self.settings.probe == "on":
+            # the first L + 2 frames show every blinking mote on and off (each word has both bits in
+            # any L samples): a view where they show no blob at all is empty, and the recording stops
+            count = self.book.length + 2
+            frames = self._grab(runner, camera, count, t_start, key)
+            probed = True
+            if not empty_view(frames, self.camera.frame_period_s, self.settings.decoder):  # on to 3L + 2
+                frames += self._grab(runner, camera, self.frames - count, t_start + count * self.camera.frame_period_s,
+                                     key + "+")
+                count = self.frames
+        else:
+            frames = self._grab(runner, camera, count, t_start, key)
+        self._continue_at[(camera, vid)] = t_start + count * self.camera.frame_period_s
+        pairs = PairConfig() if self.settings.pairs == "on" else None
+        if before:
+            frames = before + frames
+            dec: ViewDecode = decode_windows(frames, self.camera.frame_period_s, self.book, intr, head[0], head[1],
+                                             self.frames, self.book.length, self.settings.decoder, pairs=pairs)
+        else:
+            dec = decode_view(frames, self.camera.frame_period_s, self.book, intr, head[0], head[1],
+                              self.settings.decoder, pairs=pairs)
         readings, refused = [], [{"kind": r.kind, "u": r.u, "v": r.v, "reason": r.reason} for r in dec.refused]
         st = runner.state
         taken: set[str] = set()
@@ -226,15 +318,17 @@ class CodedSurvey:
             if node in taken or have >= self.rig.repeats:
                 continue
             taken.add(node)
-            uv = on_off_centroid(stack, rd.u, rd.v) or (rd.u, rd.v)
+            # a pair-decoded LED keeps the pair decoder's centroid (its window holds both LEDs)
+            uv = (rd.u, rd.v) if rd.partner is not None else on_off_centroid(stack, rd.u, rd.v) or (rd.u, rd.v)
             obs = coded_observation(camera, vid, node, have, rd, intr, head, uv, self.rig.sigma,
                                     self.rig.head_repeatability)
             readings.append({"node": node, "index": obs.index, "pan": obs.pan, "tilt": obs.tilt, "code": rd.index,
-                             "u": uv[0], "v": uv[1]}
+                             "u": uv[0], "v": uv[1]} | ({} if rd.partner is None else {"partner": rd.partner})
                             | ({} if obs.view_sigma is None else {"sigma": obs.sigma, "view_sigma": obs.view_sigma}))
         return {"camera": camera, "view": vid, "attempt": attempt, "target": list(target), "head": list(head),
-                "zoom": zoom, "frames": self.frames, "erased": dec.erased, "clock_s": t_start, "readings": readings,
-                "refused": refused}
+                "zoom": zoom, "frames": count, "erased": dec.erased, "clock_s": t_start, "readings": readings,
+                "refused": refused} | ({"continued": True} if before else {}) | (
+                    {"probe": self.book.length + 2} if probed else {}), frames
 
     def _commit(self, runner: SurveyRunner, record: dict[str, Any]) -> None:
         """Journal one view (the commit of all its readings), then apply it to the state."""
@@ -257,7 +351,7 @@ class CodedSurvey:
                         f"({r['u']:.1f}, {r['v']:.1f}) px: {r['reason']}")
 
     def _visit(self, runner: SurveyRunner, camera: str, vid: str, target: tuple[float, float], zoom: float,
-               here: tuple[float, float]) -> dict[str, Any] | None:
+               here: tuple[float, float], extra: dict[str, Any] | None = None) -> dict[str, Any] | None:
         """Record one view (and its second recording when needed) unless journaled; prices it
         on the camera's lane. Returns the view's last record (None: the camera failed)."""
         worker, lane = runner.workers[camera], self.lanes[camera]
@@ -265,6 +359,7 @@ class CodedSurvey:
                  PositionRead()]
         head: tuple[float, float] | None = None
         last = None
+        video: list[Frame] | None = None  # this process's frames of the view (a resumed view has none)
         for attempt in range(1 + self.settings.retries):
             rec = runner.state.views.get((camera, vid, attempt))
             if rec is not None and ([float(x) for x in rec.get("target", [])] != list(target)
@@ -280,60 +375,88 @@ class CodedSurvey:
                         worker.call(go)
                         got = worker.call(lambda h: h.position())
                         head = (float(got[0]), float(got[1]))  # type: ignore[index]
-                    rec = self._record(runner, camera, vid, attempt, target, head, zoom,
-                                       self.radio_s + price(lane, self.timing[camera]).total)
+                    cont = video if self.settings.retry == "continue" and attempt > 0 else None
+                    rec, video = self._record(runner, camera, vid, attempt, target, head, zoom,
+                                              self._lane_start(camera), cont)
                 except CameraFailed as exc:
                     self.stats.failed_views.append(f"{camera}/{vid}")
                     logger.warning(f"{camera} view {vid}: camera error, view not recorded: {exc}")
                     return None
-                self._commit(runner, rec)
+                self._commit(runner, rec := rec | (extra or {}))
                 self._events.put(camera)
-            lane.append(Frames(self.frames))
+            else:
+                video = None  # journaled before a resume: its video is gone, a retry is a new burst
+            lane.append(Frames(int(rec.get("frames", self.frames)), "frames", bool(rec.get("continued"))))
             last = rec
             if not needs_second_recording(rec):
                 break
         return last
 
-    def blob_directions(self, camera: str, records: list[dict[str, Any] | None],
-                        spread_px: float = 0.0) -> np.ndarray:
-        """(M, 2) (pan, tilt) of the unexplained blobs in ``records`` (:func:`unexplained_blob`);
-        with ``spread_px`` each blob also gives the 8 directions ``spread_px`` (pixels of its own
-        recording) around it, so tiles cover every member of a cluster that merged into it."""
+    def unexplained(self, records: list[dict[str, Any] | None]) -> list[Blob]:
+        """The blobs no reading explains (:func:`unexplained_blob`) in ``records``: pixel, the
+        recording's head (pan, tilt) and zoom."""
         out = []
         for rec in records:
             if rec is None:
                 continue
-            intr = self.intrinsics_at(camera, float(rec.get("zoom", self.survey_zoom[camera])))
-            for r in rec["refused"]:
-                if unexplained_blob(r) and "u" in r:
-                    for du in (-spread_px, 0.0, spread_px) if spread_px else (0.0,):
-                        for dv in (-spread_px, 0.0, spread_px) if spread_px else (0.0,):
-                            p, t = pixel_to_pan_tilt(intr, np.array([r["u"] + du, r["v"] + dv]), *rec["head"])
-                            out.append((float(p), float(t)))
+            zoom = float(rec.get("zoom", self.survey_zoom[rec["camera"]]))
+            head = (float(rec["head"][0]), float(rec["head"][1]))
+            out += [((float(r["u"]), float(r["v"])), head, zoom) for r in rec["refused"]
+                    if unexplained_blob(r) and "u" in r]
+        return out
+
+    def blob_directions(self, camera: str, blobs: list[Blob], spread_px: float = 0.0) -> np.ndarray:
+        """(M, 2) (pan, tilt) of ``blobs``; with ``spread_px`` each blob also gives the 8
+        directions ``spread_px`` (pixels of its own recording) around it, so tiles cover every
+        member of a cluster that merged into it."""
+        out = []
+        steps = (-spread_px, 0.0, spread_px) if spread_px else (0.0,)
+        for (u, v), head, zoom in blobs:
+            intr = self.intrinsics_at(camera, zoom)
+            for du in steps:
+                for dv in steps:
+                    p, t = pixel_to_pan_tilt(intr, np.array([u + du, v + dv]), *head)
+                    out.append((float(p), float(t)))
         return np.array(out, dtype=float).reshape(-1, 2)
 
     def intrinsics_at(self, camera: str, zoom: float) -> CameraIntrinsics:
         """The camera's intrinsics at ``zoom`` (its own at the survey zoom; else the idealised
-        :meth:`~fgloc.camera.intrinsics.CameraIntrinsics.at_zoom` model, as the simulator renders)."""
+        :meth:`~fgloc.camera.intrinsics.CameraIntrinsics.at_zoom` model, as the simulator renders);
+        with fields, those of one field (:func:`~fgloc.survey.coded_readings.field_intrinsics`)."""
         intr = self.rig.cameras[self.rig.camera_ids.index(camera)].intrinsics
-        return intr if zoom == self.survey_zoom[camera] else intr.at_zoom(zoom)
+        intr = intr if zoom == self.survey_zoom[camera] else intr.at_zoom(zoom)
+        return field_intrinsics(intr) if self.fields else intr
 
     def run_camera(self, runner: SurveyRunner, camera: str, views: list[tuple[float, float]]) -> None:
-        """Record every view of ``camera`` that has no journal record yet (in plan order), then
-        the refinement rungs: tiles over the blobs no reading explains, at the next zoom of the
-        ladder, until none is left or the ladder ends; then zoom back to the survey zoom."""
+        """The wide pass (:meth:`run_wide`), then the zoom refinement of its unexplained blobs."""
+        self.run_wide(runner, camera, views)
+        recs = self.wide_records[camera]
+        self.run_refine(runner, camera, self.unexplained(recs), any(r is None for r in recs))
+
+    def run_wide(self, runner: SurveyRunner, camera: str, views: list[tuple[float, float]]) -> None:
+        """Record every view of ``camera`` that has no journal record yet (in plan order)."""
         here, zoom0 = runner.workers[camera].home, self.survey_zoom[camera]
         last: list[dict[str, Any] | None] = []
         for k, target in enumerate(views):
             last.append(self._visit(runner, camera, f"w{k:03d}", target, zoom0, here))
             here = target
         self.stats.views += len(views)
+        self.here[camera], self.wide_records[camera] = here, last
+
+    def run_refine(self, runner: SurveyRunner, camera: str, blobs: list[Blob], failed: bool,
+                   keep: list[Blob] | None = None) -> None:
+        """The refinement rungs: tiles over ``blobs`` (unexplained so far) at the next zoom of the
+        ladder, then over what those tiles left unexplained, until none is left or the ladder
+        ends; then zoom back to the survey zoom. ``failed``: a view failed (its blobs are
+        unknown; the fallback covers this camera). ``keep``: blobs the fallback must still
+        search even when every rung explains its own."""
+        here, zoom0 = self.here[camera], self.survey_zoom[camera]
         zoom = zoom0
         s = self.rig.search
         for rung, level in enumerate(self.levels, start=1):
-            if any(r is None for r in last):
-                break  # a view failed: its blobs are unknown, the fallback covers this camera
-            pts = self.blob_directions(camera, last, spread_px=CLUSTER_SPREAD_PX)
+            if failed:
+                break
+            pts = self.blob_directions(camera, blobs, spread_px=CLUSTER_SPREAD_PX)
             if not len(pts):
                 break
             tiles = [into_search_box(p, t, s.pan_min, s.pan_max, s.tilt_min, s.tilt_max) for p, t in plan_views(
@@ -345,10 +468,13 @@ class CodedSurvey:
                 last.append(self._visit(runner, camera, f"r{rung}-{k:03d}", target, level, here))
                 here = target
             self.stats.views += len(tiles)
-        blobs = self.blob_directions(camera, last)
-        self.remaining[camera] = sum(r is None for r in last) + len(blobs)
+            failed, blobs = any(r is None for r in last), self.unexplained(last)
+        blobs = blobs + (keep or [])
+        self.remaining[camera] = int(failed) + len(blobs)
         fov = min(runner.workers[camera].locator.pixels.field_of_view())  # at the survey zoom
-        self.blobs[camera] = None if any(r is None for r in last) else distinct_directions(blobs, 0.25 * fov)
+        self.final_blobs[camera] = self.blob_directions(camera, blobs)
+        self.blobs[camera] = None if failed else distinct_directions(self.final_blobs[camera], 0.25 * fov)
+        self.here[camera] = here
         if zoom != zoom0:
             self.lanes[camera].append(Zoom(zoom0 - zoom))
             try:
@@ -384,6 +510,21 @@ class CodedSurvey:
             logger.warning(f"{len(silent)} motes did not confirm their code (first: {silent[0]}); "
                            "they are read the sequential way if no camera decodes them")
 
+    def pause(self, paused: set[int]) -> None:
+        """Pause (LED dark, code running) the motes at ``paused`` addresses and resume the others:
+        the pause-by-bitmap packets over the survey's address range, each broadcast
+        ``PAUSE_REPEATS`` times (no report confirms a pause; a mote that missed all stays lit,
+        and its blob stays ambiguous: refused, never guessed)."""
+        from fgloc.drivers.tinyos.blink import pause_packets
+        from fgloc.survey.coded_separation import PAUSE_REPEATS
+
+        packets = pause_packets(paused, range(self.first, max(self.addresses.values()) + 1))
+        for packet in packets:
+            for _ in range(PAUSE_REPEATS):
+                self.leds.broadcast_codes(packet, set(), 0.0)
+        self.radio_s += price([Radio(broadcast=PAUSE_REPEATS * len(packets))], self.timing[self.rig.camera_ids[0]]).total
+        self.stats.pause_updates += 1
+
     def stop_codes(self, runner: SurveyRunner) -> None:
         from fgloc.drivers.tinyos.blink import BlinkCommand
 
@@ -399,6 +540,28 @@ class CodedSurvey:
             eta = (views_total - views_done) * (time.perf_counter() - t0) / views_done
         failures = len(st.not_found) + len(st.led_failed)
         return Progress(done, len(self.rig.node_ids), len(st.observations), failures, eta, self.field_time().total)
+
+    def pump(self, runner: SurveyRunner, futures: list[Future[None]], total: int, t0: float) -> None:
+        """Wait for the camera threads' ``futures``, with live estimates and progress per view."""
+        emit = runner.on_progress or (lambda _p: None)
+        since = 0
+        while not all(f.done() for f in futures) or not self._events.empty():
+            try:
+                self._events.get(timeout=0.05)
+            except queue.Empty:
+                continue
+            self._done_views, since = self._done_views + 1, since + 1
+            if since >= runner.live_every:
+                since = 0
+                runner.estimate(nodes_done=self._finished_nodes(runner))
+            emit(self.progress(runner, min(self._done_views, total), total, t0))
+        for f in futures:
+            f.result()
+
+    def next_stage(self) -> None:
+        """A barrier: every camera's lane so far is done before anything after it starts."""
+        self.stages = self.stages + parallel([price(ops, self.lane_timing[c]) for c, ops in self.lanes.items()])
+        self.lanes = {c: [] for c in self.rig.camera_ids}
 
     def _finished_nodes(self, runner: SurveyRunner) -> int:
         st = runner.state
@@ -421,21 +584,14 @@ class CodedSurvey:
             with ThreadPoolExecutor(max_workers=len(self.rig.camera_ids), thread_name_prefix="camera") as pool:
                 if todo:
                     self.start_codes(runner)
-                futures = [pool.submit(self.run_camera, runner, c, v) for c, v in plans.items()]
-                done_views = sum(1 for key in runner.state.views if key[2] == 0)
-                since = 0
-                while not all(f.done() for f in futures) or not self._events.empty():
-                    try:
-                        self._events.get(timeout=0.05)
-                    except queue.Empty:
-                        continue
-                    done_views, since = done_views + 1, since + 1
-                    if since >= runner.live_every:
-                        since = 0
-                        runner.estimate(nodes_done=self._finished_nodes(runner))
-                    emit(self.progress(runner, min(done_views, total), total, t0))
-                for f in futures:
-                    f.result()
+                radio = self.settings.separate == "radio"
+                self._done_views = sum(1 for key in runner.state.views if key[2] == 0)
+                self.pump(runner, [pool.submit(self.run_wide if radio else self.run_camera, runner, c, v)
+                                   for c, v in plans.items()], total, t0)
+                if radio:
+                    from fgloc.survey.coded_separation import run_separation
+
+                    run_separation(self, runner, pool, lambda fs: self.pump(runner, fs, total, t0))
                 self.stop_codes(runner)
                 self.run_fallback(runner, pool, total, t0)
                 if self.rig.repeat_budget > 0:
@@ -462,46 +618,7 @@ class CodedSurvey:
         return journal_to_survey(runner.state)
 
     def run_fallback(self, runner: SurveyRunner, pool: ThreadPoolExecutor, total: int, t0: float) -> None:
-        """Finish every node some camera has not read. A camera whose views left no blob
-        unexplained did not see a mote that confirmed its code: that is journaled ``not_found``
-        without a search. The rest (and motes that never confirmed) are measured the
-        sequential way, priced per node."""
-        st = runner.state
-        clean = {c for c in self.rig.camera_ids if self.remaining.get(c, 1) == 0}
-        starts = [set(r.get("silent", [])) for r in st.codes if r.get("action") == "start"]
-        silent = set.intersection(*starts) if starts else set(self.rig.node_ids)  # never confirmed a start
-        for node in self.rig.node_ids:
-            if node in st.done:
-                continue
-            if node not in silent:
-                for cam in sorted(clean):
-                    if not st.camera_finished(node, cam, self.rig.repeats):
-                        reason = "not decoded in any view of the camera, which left no blob unexplained"
-                        runner.journal.not_found(node, cam, reason)
-                        st.not_found[(node, cam)] = reason
-                        runner.stats.not_found += 1
-                        logger.info(f"{node}: not found by {cam}: {reason}")
-            if all(st.camera_finished(node, c, self.rig.repeats) for c in self.rig.camera_ids):
-                runner.journal.node_done(node)
-                st.done.add(node)
-                continue
-            self.stats.fallback_nodes += 1
-            logger.info(f"{node}: not decoded by every camera; measured the sequential way")
-            self.clock.begin()
-            grids = {c: w.locator.cells for c, w in runner.workers.items()}
-            try:
-                for cam, worker in runner.workers.items():
-                    blobs = self.blobs.get(cam)
-                    if node not in silent and blobs is not None:
-                        # a mote that blinks its code and was not decoded is in a blob no reading
-                        # explains (or not in view): look there only, not over the whole grid
-                        worker.locator.cells = [worker.locator.clamp(p, t) for p, t in blobs]
-                runner.run_node(node, pool, check_misses=False)
-            finally:
-                node_time = self.clock.end()
-                for cam, worker in runner.workers.items():
-                    worker.locator.cells = grids[cam]
-            runner.journal.field_time("fallback_node", dict(node_time.phases), node=node)
-            self.fallback = self.fallback + node_time
-            if runner.on_progress is not None:
-                runner.on_progress(self.progress(runner, total, total, t0))
+        """Finish every node some camera has not read (:func:`fgloc.survey.coded_fallback.run_fallback`)."""
+        from fgloc.survey.coded_fallback import run_fallback
+
+        run_fallback(self, runner, pool, total, t0)

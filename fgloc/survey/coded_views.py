@@ -3,7 +3,8 @@
 Pure functions used by :mod:`fgloc.survey.coded`: the on-off centroid of a decoded LED,
 the one place a decoded reading becomes a survey reading (:func:`coded_observation`),
 which refused blobs may hide a mote (:func:`unexplained_blob`), when a view is recorded a
-second time (:func:`needs_second_recording`), and thinning blob directions into looks.
+second time (:func:`needs_second_recording`), whether a probe shows an empty view
+(:func:`empty_view`), and thinning blob directions into looks.
 Pixels OpenCV convention; angles radians.
 """
 
@@ -14,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from fgloc.camera.blink_decoder import DecodedReading
+from fgloc.camera.blink_decoder import DecodedReading, DecoderConfig, sample_stack
 from fgloc.camera.intrinsics import CameraIntrinsics
 from fgloc.camera.pixel_angles import pixel_to_pan_tilt
 from fgloc.core.geometry import pan_tilt_bearing
@@ -113,3 +114,18 @@ def into_search_box(pan: float, tilt: float, pan_min: float, pan_max: float, til
     else:
         pan = math.remainder(pan, 2 * math.pi)
     return pan, min(max(tilt, tilt_min), tilt_max)
+
+
+def empty_view(frames: list[tuple[float, np.ndarray]], period: float, config: DecoderConfig) -> bool:
+    """True when ``frames`` (a probe of at least L + 2 frames: every blinking mote's word has
+    both bits in any L samples) show no blob at all: nothing the decoder's detector
+    (:func:`fgloc.camera.led_detection.detect_led` on the per-pixel maximum and minimum over
+    the delivered samples) finds or even rejects. Fewer than two delivered samples: not empty."""
+    from fgloc.camera.led_detection import detect_led
+
+    stack, valid = sample_stack(frames, period)
+    good = stack[valid]
+    if len(good) < 2:
+        return False
+    det = detect_led(good.max(axis=0), good.min(axis=0), config.detector)
+    return not det.candidates and not det.rejected

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import logging
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -158,11 +158,13 @@ def run_survey(
     on_progress: Callable[[Progress], None] | None = None,
     opened: OpenedRig | None = None,
     identification: str | None = None,
+    coded_levers: Mapping[str, str] | None = None,
 ) -> tuple[Survey, SurveyRunner]:
     """Run (or resume) a survey and write ``survey.json``; returns it and the runner.
 
     ``identification`` (``"sequential"`` or ``"coded"``, default: the rig's) picks the node
-    loop of :mod:`fgloc.survey.runner` or the blink-code survey of :mod:`fgloc.survey.coded`.
+    loop of :mod:`fgloc.survey.runner` or the blink-code survey of :mod:`fgloc.survey.coded`;
+    ``coded_levers`` overrides rig.json's coded-survey levers (:func:`fgloc.survey.coded_levers.coded_settings`).
 
     What goes wrong along the way (LED or camera failures, failed live estimates) is logged
     on the ``fgloc.survey.runner`` logger; ``on_progress`` is called before the first node
@@ -170,6 +172,10 @@ def run_survey(
     if identification not in (None, *IDENTIFICATIONS):
         raise FglocError(f"--identify: expected one of {', '.join(IDENTIFICATIONS)}, got {identification!r}")
     check_rig(rig, simulate)
+    if (identification or rig.identification) == "coded":
+        from fgloc.survey.coded_levers import coded_settings
+
+        coded_settings(rig, coded_levers)  # a bad lever is one line before anything is opened
     with SurveyLock(out_dir):
         remove_stale_temps(out_dir)
         own = opened is None
@@ -184,8 +190,10 @@ def run_survey(
                 coded = None
                 if (identification or rig.identification) == "coded":
                     from fgloc.survey.coded import CodedSurvey
+                    from fgloc.survey.coded_levers import coded_settings
 
-                    coded = CodedSurvey(rig, opened.open_head, opened.leds, opened.simulated)
+                    coded = CodedSurvey(rig, opened.open_head, opened.leds, opened.simulated,
+                                        coded_settings(rig, coded_levers))
                     devices: Any = coded
                 else:
                     from fgloc.survey.coded_clock import SequentialClock

@@ -1,0 +1,84 @@
+"""The coded survey's sequential fallback: every node some camera has not decoded.
+
+Split out of :mod:`fgloc.survey.coded`, whose :meth:`~fgloc.survey.coded.CodedSurvey.run_fallback`
+calls :func:`run_fallback`. Angles radians.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from concurrent.futures import ThreadPoolExecutor
+from typing import TYPE_CHECKING
+
+from fgloc.survey.coded_levers import PREDICTED_RADIUS, blobs_near, predicted_directions
+
+if TYPE_CHECKING:
+    from fgloc.survey.coded import CodedSurvey
+    from fgloc.survey.runner import SurveyRunner
+
+logger = logging.getLogger("fgloc.survey.coded")  # the coded survey's log, as before the split
+
+
+def run_fallback(coded: CodedSurvey, runner: SurveyRunner, pool: ThreadPoolExecutor, total: int, t0: float) -> None:
+    """Finish every node some camera has not read. A camera whose views left no blob
+    unexplained did not see a mote that confirmed its code: that is journaled ``not_found``
+    without a search. The rest (and motes that never confirmed) are measured the
+    sequential way, priced per node."""
+    st = runner.state
+    clean = {c for c in coded.rig.camera_ids if coded.remaining.get(c, 1) == 0}
+    predicted = predicted_directions(runner) if coded.settings.fallback == "predicted" else None
+    starts = [set(r.get("silent", [])) for r in st.codes if r.get("action") == "start"]
+    silent = set.intersection(*starts) if starts else set(coded.rig.node_ids)  # never confirmed a start
+    for node in coded.rig.node_ids:
+        if node in st.done:
+            continue
+        looks: dict[str, list[tuple[float, float]]] = {}
+        if node not in silent:
+            for cam in coded.rig.camera_ids:
+                at = (predicted or {}).get(cam, {}).get(node)
+                if cam in clean or at is None or coded.blobs.get(cam) is None or st.camera_finished(
+                        node, cam, coded.rig.repeats):
+                    continue
+                near = blobs_near(coded, cam, at)
+                if near:
+                    looks[cam] = near
+                else:
+                    reason = (f"not decoded by the camera, and no blob it left unexplained lies within "
+                              f"{math.degrees(PREDICTED_RADIUS):g} deg of where the other cameras' readings "
+                              f"place the mote (pan {math.degrees(at[0]):.2f}, tilt {math.degrees(at[1]):.2f} deg)")
+                    runner.journal.not_found(node, cam, reason)
+                    st.not_found[(node, cam)] = reason
+                    runner.stats.not_found += 1
+                    logger.info(f"{node}: not found by {cam}: {reason}")
+            for cam in sorted(clean):
+                if not st.camera_finished(node, cam, coded.rig.repeats):
+                    reason = "not decoded in any view of the camera, which left no blob unexplained"
+                    runner.journal.not_found(node, cam, reason)
+                    st.not_found[(node, cam)] = reason
+                    runner.stats.not_found += 1
+                    logger.info(f"{node}: not found by {cam}: {reason}")
+        if all(st.camera_finished(node, c, coded.rig.repeats) for c in coded.rig.camera_ids):
+            runner.journal.node_done(node)
+            st.done.add(node)
+            continue
+        coded.stats.fallback_nodes += 1
+        logger.info(f"{node}: not decoded by every camera; measured the sequential way")
+        coded.clock.begin()
+        grids = {c: w.locator.cells for c, w in runner.workers.items()}
+        try:
+            for cam, worker in runner.workers.items():
+                blobs = looks.get(cam, coded.blobs.get(cam))
+                if node not in silent and blobs is not None:
+                    # a mote that blinks its code and was not decoded is in a blob no reading
+                    # explains (or not in view): look there only, not over the whole grid
+                    worker.locator.cells = [worker.locator.clamp(p, t) for p, t in blobs]
+            runner.run_node(node, pool, check_misses=False)
+        finally:
+            node_time = coded.clock.end()
+            for cam, worker in runner.workers.items():
+                worker.locator.cells = grids[cam]
+        runner.journal.field_time("fallback_node", dict(node_time.phases), node=node)
+        coded.fallback = coded.fallback + node_time
+        if runner.on_progress is not None:
+            runner.on_progress(coded.progress(runner, total, total, t0))
