@@ -27,6 +27,18 @@ def lever_rig(n_nodes: int = 30, width: int = 320, **coded):
     return data
 
 
+def survey_reads_every_visible_pair(rig, out, max_error_deg: float = 0.2):
+    """Run the coded survey into ``out``: every visible (camera, mote) pair read once, none
+    twice, each reading within ``max_error_deg`` of its mote. Returns (runner, simulation, journal state)."""
+    rig_opened, sim = opened(rig)
+    _, runner = run_survey(rig, out, opened=rig_opened)
+    state = read_journal(out / "journal.jsonl")
+    assert {(c, n) for (n, c, _) in state.observations} == sim.scene.visible_pairs()
+    assert state.duplicates_ignored == 0
+    check_labels(rig, sim.scene, state, max_error_deg=max_error_deg)
+    return runner, sim, state
+
+
 @pytest.fixture(scope="module")
 def defaults30(tmp_path_factory):
     """The 30-mote coded survey with every lever at its default (burst retries, frames, no
@@ -42,12 +54,7 @@ def test_continued_retry_goes_on_recording_and_reads_what_the_burst_missed(tmp_p
     recording ended (the survey clock continues, no new burst) and decodes the whole recording
     in sliding windows; what it reads is new (no mote twice) and correctly labelled."""
     rig = parsed(lever_rig(30, retry="continue"))
-    rig_opened, sim = opened(rig)
-    _, runner = run_survey(rig, tmp_path, opened=rig_opened)
-    state = read_journal(tmp_path / "journal.jsonl")
-    assert {(c, n) for (n, c, _) in state.observations} == sim.scene.visible_pairs()
-    assert state.duplicates_ignored == 0
-    check_labels(rig, sim.scene, state, max_error_deg=0.2)
+    runner, sim, state = survey_reads_every_visible_pair(rig, tmp_path, 0.2)
     recs = view_records(tmp_path / "journal.jsonl")
     first = {(r["camera"], r["view"]): r for r in recs if r["attempt"] == 0}
     again = [r for r in recs if r["attempt"] > 0]
@@ -167,12 +174,7 @@ def test_radio_separation_reads_crowded_motes_at_the_wide_zoom(tmp_path):
     from fgloc.drivers.tinyos.blink import BlinkPause, parse_blink_command
 
     rig = parsed(lever_rig(30, separate="radio"))
-    rig_opened, sim = opened(rig)
-    _, runner = run_survey(rig, tmp_path, opened=rig_opened)
-    state = read_journal(tmp_path / "journal.jsonl")
-    assert {(c, n) for (n, c, _) in state.observations} == sim.scene.visible_pairs()
-    assert state.duplicates_ignored == 0
-    check_labels(rig, sim.scene, state, max_error_deg=0.2)
+    runner, sim, state = survey_reads_every_visible_pair(rig, tmp_path, 0.2)
     recs = view_records(tmp_path / "journal.jsonl")
     rounds = [r for r in recs if r["view"].startswith("s")]
     assert rounds and all(r["zoom"] == 0.0 and r["view"].startswith(f"s{r['round']}-") for r in rounds)
@@ -261,11 +263,7 @@ def test_fields_decode_interlaced_video_at_twice_the_rate(tmp_path, defaults30):
     from fgloc.drivers.tinyos.blink import BlinkBroadcast, parse_blink_command
 
     rig = parsed(lever_rig(30, video="fields"))
-    rig_opened, sim = opened(rig)
-    _, runner = run_survey(rig, tmp_path / "f", opened=rig_opened)
-    state = read_journal(tmp_path / "f" / "journal.jsonl")
-    assert {(c, n) for (n, c, _) in state.observations} == sim.scene.visible_pairs()
-    check_labels(rig, sim.scene, state, max_error_deg=0.3)
+    runner, sim, state = survey_reads_every_visible_pair(rig, tmp_path / "f", 0.3)
     starts = [c for c in map(parse_blink_command, sim.leds.received) if isinstance(c, BlinkBroadcast)]
     assert starts and all(c.bit_period_s == pytest.approx(PERIOD / 2, abs=1e-5) for c in starts)
     frames = sim.record_blinks("cam0", 5, 1.0, "probe", fields=True)
@@ -309,11 +307,7 @@ def test_probe_stops_the_recording_of_empty_views_only(tmp_path, defaults30):
     from fgloc.camera.pixel_angles import pan_tilt_to_pixel
 
     rig = parsed(lever_rig(30, probe="on"))
-    rig_opened, sim = opened(rig)
-    _, runner = run_survey(rig, tmp_path / "p", opened=rig_opened)
-    state = read_journal(tmp_path / "p" / "journal.jsonl")
-    assert {(c, n) for (n, c, _) in state.observations} == sim.scene.visible_pairs()
-    check_labels(rig, sim.scene, state, max_error_deg=0.2)
+    runner, sim, state = survey_reads_every_visible_pair(rig, tmp_path / "p", 0.2)
     recs = [r for r in view_records(tmp_path / "p" / "journal.jsonl") if r["attempt"] == 0]
     length = runner_book_length(rig)
     empty = [r for r in recs if r["frames"] == length + 2]
@@ -336,11 +330,7 @@ def test_pair_decoding_labels_blobs_of_two_motes_in_the_survey(tmp_path, default
     gives two readings naming each other (``partner``), both correctly labelled and close to
     their motes' bearings; every visible pair is read, and fewer refinement tiles are needed."""
     rig = parsed(lever_rig(30, pairs="on"))
-    rig_opened, sim = opened(rig)
-    run_survey(rig, tmp_path, opened=rig_opened)
-    state = read_journal(tmp_path / "journal.jsonl")
-    assert {(c, n) for (n, c, _) in state.observations} == sim.scene.visible_pairs()
-    check_labels(rig, sim.scene, state, max_error_deg=0.2)
+    runner, sim, state = survey_reads_every_visible_pair(rig, tmp_path, 0.2)
     recs = view_records(tmp_path / "journal.jsonl")
     paired = [(r, rd) for r in recs for rd in r["readings"] if "partner" in rd]
     assert paired
