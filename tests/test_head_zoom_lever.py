@@ -360,3 +360,59 @@ def test_result_block_lists_the_lever_arm_per_zoom_and_old_readers_keep_working(
     cals = read_head_calibrations(path, s.camera_ids)  # a reader that knows one lever arm per camera
     np.testing.assert_allclose(cals["cam0"][0].values, cam["values"])
     assert math.isfinite(float(np.sum(cals["cam1"][0].values)))
+
+
+# ----- simulated rigs
+
+
+def test_rig_json_lever_by_zoom_and_the_in_process_head_at_each_zoom() -> None:
+    """rig.json's ``lever_by_zoom`` parses (baseline units), enters the rig's meaning, is refused
+    in one line when bad; the in-process scene shows a camera's LEDs through the lever arm of the
+    zoom its head is at (the directions the head model predicts with that zoom's lever arm)."""
+    from fgloc.core.geometry import pan_tilt_bearing
+    from fgloc.core.head_model import head_pan_tilt
+    from fgloc.drivers.imperfect_head import ideal_equivalent_directions
+    from fgloc.drivers.inprocess_rig import InProcessRig
+    from fgloc.files.rig_config import parse_rig, rig_meaning
+    from tests.test_head_rig import CAM0_ERRORS, EXAMPLE, head_rig_data
+
+    errors = {"cam0": CAM0_ERRORS | {"lever_by_zoom": [{"zoom": 0.5, "lever_y_baseline": 0.004,
+                                                         "lever_z_baseline": -0.002}]}}
+    rig = parse_rig(head_rig_data(n_nodes=8, cameras=2, head_errors=errors), str(EXAMPLE), EXAMPLE.parent)
+    assert rig.simulation.head_zoom_levers == {"cam0": {0.5: (0.004, -0.002)}}
+    assert rig_meaning(rig, simulated=True)["simulation.head_errors.lever_by_zoom"] == {"cam0": [[0.5, 0.004, -0.002]]}
+    sim = InProcessRig(rig)
+    scene = sim.scene
+    head = sim.open_head("cam0")
+    i, j = rig.camera_ids.index("cam0"), 3
+    assert scene.zoom[i] == rig.cameras[i].zoom
+    head.set_zoom(0.5)  # the head tells the scene its zoom
+    assert scene.zoom[i] == 0.5
+    base = np.array(scene.heads[i])
+    q = np.linalg.norm(scene.nodes[j] - scene.cameras[i].position) * pan_tilt_bearing(*scene.apparent[i, j])
+    for zoom, lever in ((None, base[5:7]), (0.5, (0.004, -0.002)), (0.2, base[5:7])):
+        scene.zoom[i] = zoom
+        p = base.copy()
+        p[5:7] = lever
+        np.testing.assert_array_equal(scene.head(i), p)
+        pan, tilt, _, _ = head_pan_tilt(q, p, jacobians=False)
+        shown = scene.led_directions(i, [j], float(pan), float(tilt))[0]
+        np.testing.assert_allclose(shown, ideal_equivalent_directions(p, float(pan), float(tilt), q)[0], atol=1e-12)
+    bad = head_rig_data(n_nodes=8, cameras=2, head_errors={"cam0": {"lever_by_zoom": [{"zoom": 1.5}]}})
+    with pytest.raises(FglocError) as err:
+        parse_rig(bad, "rig.json", EXAMPLE.parent)
+    assert "simulation.head_errors.cam0.lever_by_zoom[0].zoom" in str(err.value) and "\n" not in str(err.value)
+
+
+def test_injected_lever_arm_follows_the_reading_zoom() -> None:
+    """inject_head_errors: a reading at a listed zoom moves by that zoom's lever arm, others by the head's."""
+    s = two_zooms(7, 10)
+    heads = {c: np.zeros(HEAD_DIM) for c in s.camera_ids}
+    heads["cam0"][5] = 0.003
+    moved = inject_head_errors(s, heads, zoom_levers={"cam0": {0.5: (-0.003, 0.0)}})
+    for o, m in zip(s.observations, moved.observations):
+        if o.camera != "cam0":
+            assert (o.pan, o.tilt) == (m.pan, m.tilt)
+        else:  # opposite lever arms turn the pan reading opposite ways
+            sign = 1.0 if o.zoom == 0.0 else -1.0
+            assert sign * (m.pan - o.pan) < -1e-4
