@@ -69,13 +69,18 @@ def _is_id(x: object) -> bool:
 
 
 def _plain_observation(o: Any) -> bool:
-    """Pre-accepts the common observation (no own sigma or subset); never laxer than the schema."""
+    """Pre-accepts the common observation (no own sigma or subset, a zoom at most); never laxer than the schema."""
     if type(o) is not dict:
         return False
     tilt: Any = o.get("tilt")
     return (_is_id(o.get("camera")) and _is_id(o.get("node")) and is_number(o.get("pan"))
             and is_number(tilt) and -_TILT_LIMIT <= tilt <= _TILT_LIMIT and "sigma" not in o and "subset" not in o
-            and "view" not in o and "sigma_axes" not in o and "zoom" not in o)
+            and "view" not in o and "sigma_axes" not in o and _plain_zoom(o.get("zoom", 0)))
+
+
+def _plain_zoom(z: Any) -> bool:
+    """An absent or plain zoom (a number in [0, 1], as the schema's ``zoom``)."""
+    return is_number(z) and 0 <= z <= 1
 
 
 def _plain_node(v: Any) -> bool:
