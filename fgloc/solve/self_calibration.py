@@ -259,9 +259,11 @@ def build_self_calibration_problem(
     values = gtsam.Values(base.initial)
     head_keys: dict[str, int] = {}
 
-    def start_of(cid: str) -> FloatArray:
+    def start_of(cid: str) -> FloatArray:  # a 7-vector start gives every zoom its lever arm
         zero = np.zeros(dims[cid])
-        return zero if head_start is None else np.asarray(head_start.get(cid, zero), dtype=float)
+        if head_start is None or cid not in head_start:
+            return zero
+        return extend_vector(np.asarray(head_start[cid], dtype=float), len(zooms[cid]))
 
     for i, cid in enumerate(survey.camera_ids):
         idx = tuple(sorted(active.get(cid, ())))
