@@ -17,9 +17,14 @@ same readings shows the base direction ``M^T (q - o)``
 and the simulated encoders read what the imperfect head reads: the point is centred in
 the image exactly when ``(pan, tilt) = head_pan_tilt(q, p)`` (tested in
 tests/test_head_rig.py). Radians, survey length units.
+
+The optical centre moves with zoom: :func:`head_at_zoom` gives the calibration vector of a
+head at a zoom whose lever arm a rig lists (rig.json ``lever_by_zoom``).
 """
 
 from __future__ import annotations
+
+from collections.abc import Mapping
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -27,6 +32,17 @@ from numpy.typing import ArrayLike
 from fgloc.camera.pixel_angles import head_rotation
 from fgloc.core.geometry import FloatArray, pan_tilt_bearing, rot_x, rot_y, rot_z
 from fgloc.core.head_model import HEAD_DIM
+
+
+def head_at_zoom(params: ArrayLike, levers: Mapping[float, tuple[float, float]] | None,
+                 zoom: float | None) -> FloatArray:
+    """``params`` (7,) with the lever arm ``levers`` gives at ``zoom`` (unchanged where it gives none)."""
+    p = np.array(params, dtype=float).reshape(HEAD_DIM)
+    if levers and zoom is not None:
+        for z, lever in levers.items():
+            if abs(float(z) - float(zoom)) < 1e-9:
+                p[5], p[6] = float(lever[0]), float(lever[1])
+    return p
 
 
 def head_view(params: ArrayLike, pan: float, tilt: float) -> tuple[FloatArray, FloatArray]:

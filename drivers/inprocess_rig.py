@@ -57,7 +57,7 @@ from fgloc.core.errors import FglocError
 from fgloc.core.geometry import FloatArray, pan_tilt_bearing, project_pan_tilt, wrap_angle
 from fgloc.core.head_model import head_pan_tilt
 from fgloc.core.model import CameraPose, NodeMode, Truth
-from fgloc.drivers.imperfect_head import head_view, ideal_equivalent_directions
+from fgloc.drivers.imperfect_head import head_at_zoom, head_view, ideal_equivalent_directions
 from fgloc.drivers.rendered_camera import LedScene, RenderedCamera, RenderSettings
 from fgloc.drivers.tinyos.blink import (
     BlinkBroadcast,
@@ -100,12 +100,16 @@ class SimScene:
     dead: set[str]
     lights: FloatArray = field(default_factory=lambda: np.zeros((0, 3)))  # (K, 3) static lights (rendered frames)
     heads: FloatArray | None = None  # (n_cam, 7) head errors (fgloc.core.head_model order); None: ideal heads
+    #: camera index -> zoom -> lever arm (l_y, l_z) at that zoom (rig.json ``lever_by_zoom``)
+    zoom_levers: dict[int, dict[float, tuple[float, float]]] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         self.lit: set[str] = set()
         self.lock = threading.Lock()
         #: (camera index, pan counts, tilt counts) -> settles there so far (head repeatability seeds)
         self.settles: dict[tuple[int, int, int], int] = {}
+        #: each camera's zoom now (its head sets it; None: the survey zoom), for the lever arm of that zoom
+        self.zoom: list[float | None] = [None] * len(self.cameras)
         #: (n_cam, N) pan the imperfect head reads for each pair (fgloc.core.head_model), NaN for ideal heads
         self.head_pan = np.full(self.visible.shape, np.nan)
         for i in range(len(self.cameras)):
@@ -121,7 +125,12 @@ class SimScene:
         return np.asarray(bearings * ranges[:, None], dtype=float)
 
     def has_head_errors(self, index: int) -> bool:
-        return self.heads is not None and bool(np.any(self.heads[index]))
+        return self.heads is not None and (bool(np.any(self.heads[index])) or bool(self.zoom_levers.get(index)))
+
+    def head(self, index: int) -> FloatArray:
+        """Camera ``index``'s head errors (7,) at its zoom now (the lever arm of that zoom where listed)."""
+        assert self.heads is not None
+        return head_at_zoom(self.heads[index], self.zoom_levers.get(index), self.zoom[index])
 
     def led_directions(self, index: int, nodes: list[int], pan: float, tilt: float) -> FloatArray:
         """Base-frame directions (K, 3) at which an ideal head at encoder readings (pan, tilt)
@@ -143,7 +152,7 @@ class SimScene:
         for k, j in enumerate(nodes):
             model_pan = float(self.head_pan[index, j])
             branch_pan = model_pan + float(wrap_angle(pan - model_pan))  # = pan (mod 2 pi), nearest the LED's reading
-            out[k] = ideal_equivalent_directions(self.heads[index], branch_pan, tilt, points[k:k + 1])[0]
+            out[k] = ideal_equivalent_directions(self.head(index), branch_pan, tilt, points[k:k + 1])[0]
         return out
 
     def view_correction(self, index: int, pan: float, tilt: float) -> FloatArray | None:
@@ -152,7 +161,7 @@ class SimScene:
         if not self.has_head_errors(index):
             return None
         assert self.heads is not None
-        return head_view(self.heads[index], pan, tilt)[0]
+        return head_view(self.head(index), pan, tilt)[0]
 
     @property
     def truth(self) -> Truth:
@@ -202,10 +211,11 @@ def build_scene(rig: RigConfig) -> SimScene:
         lights = np.column_stack([lrng.uniform(-0.2, 1.2, size=(STATIC_LIGHTS, 2)),
                                   lrng.uniform(0.0, 0.05, size=STATIC_LIGHTS)])
     heads = None
-    if sim.head_errors:
+    if sim.head_errors or sim.head_zoom_levers:
         heads = np.array([sim.head_errors.get(c, (0.0,) * 7) for c in ids], dtype=float)
+    levers = {ids.index(c): dict(v) for c, v in sim.head_zoom_levers.items()}
     return SimScene(list(ids), cameras, list(rig.node_ids), nodes, visible, apparent, set(sim.dead_nodes), lights,
-                    heads)
+                    heads, levers)
 
 
 def render_frame(scene: SimScene, index: int, pixels: PinholePixelModel, pan: float, tilt: float) -> np.ndarray:
@@ -291,6 +301,7 @@ class SceneHead:
         self.repeatability = rig.head_repeatability
         self.seed = rig.simulation.seed
         self._zoom = rig.cameras[index].zoom
+        scene.zoom[index] = self._zoom
         self.time_scale = rig.simulation.time_scale
         self.faults = faults
         self.rng = np.random.default_rng(_stable_seed(rig.simulation.seed, rig.camera_ids[index], generation))
@@ -336,6 +347,7 @@ class SceneHead:
     def set_zoom(self, zoom: float) -> None:
         self._command()
         self._zoom = zoom
+        self.scene.zoom[self.index] = zoom  # the imperfect head's optical centre moves with zoom
 
     def zoom(self) -> float:
         self._command()

@@ -4,7 +4,8 @@ The node-eliminated factor (:mod:`fgloc.factors.eliminated_readings`) leaves a r
 system over everything that is not a node. Besides the camera poses that can be
 
 * one **head calibration vector per camera** (:mod:`fgloc.core.head_model`; the
-  camera's *active* entries of the 7-vector, the rest held at fixed values), or
+  camera's *active* entries of its extended vector, the rest held at fixed values; with
+  several zooms a reading sees the shared five and its zoom group's lever arm), or
 * one **(pan, tilt) head error per view** (:mod:`fgloc.factors.view_offset`), shared
   by the readings of that view.
 
@@ -26,7 +27,7 @@ import gtsam
 import numpy as np
 
 from fgloc.core.geometry import FloatArray, bearing_pan_tilt, pan_tilt_jacobian
-from fgloc.core.head_model import HEAD_DIM, head_pan_tilt
+from fgloc.core.head_model import HEAD_DIM, head_pan_tilt, local_index, reading_params
 from fgloc.factors.view_offset import rotate_by_view
 
 
@@ -34,7 +35,7 @@ from fgloc.factors.view_offset import rotate_by_view
 class SideState:
     """The extra variables' values at one linearization point."""
 
-    params: FloatArray  # (k, 7) full head vectors per camera slot (fixed values where not active)
+    params: FloatArray  # (k, D) full (extended) head vectors per camera slot (fixed values where not active)
     offsets: FloatArray  # (V, 2) view offsets
     vector: FloatArray  # (size,) the active entries, in column order
 
@@ -46,8 +47,9 @@ class CameraSide:
         n_cameras: k, the camera slots of the reduced system (columns 0..6k-1 are poses).
         camera: (m,) each reading's camera slot.
         head_keys, head_active: per camera slot, the key of its head Vector (-1: none)
-            and the indices (into the 7-vector) it holds.
-        head_fixed: (k, 7) parameter values where not active.
+            and the indices (into its extended vector) it holds.
+        head_fixed: (k, D) extended parameter values where not active (D = 7 for one zoom).
+        head_group: (m,) each reading's zoom group (None: all 0).
         view_keys: GTSAM keys of the views (``Vector2``); view: (m,) each reading's view
             slot (-1: none); view_pan: (m,) head pan of the reading's view, radians.
     """
@@ -62,6 +64,7 @@ class CameraSide:
         view_keys: list[int] | None = None,
         view: np.ndarray | None = None,
         view_pan: FloatArray | None = None,
+        head_group: np.ndarray | None = None,
     ) -> None:
         self.k = n_cameras
         self.camera = np.asarray(camera, dtype=np.int64)
@@ -73,6 +76,15 @@ class CameraSide:
         self.view_keys = [] if view_keys is None else [int(x) for x in view_keys]
         self.view = np.full(len(self.camera), -1, dtype=np.int64) if view is None else np.asarray(view, np.int64)
         self.view_pan = np.zeros(len(self.camera)) if view_pan is None else np.asarray(view_pan, dtype=float)
+        self.group = (np.zeros(len(self.camera), dtype=np.int64) if head_group is None
+                      else np.asarray(head_group, dtype=np.int64))
+        # Per camera slot and zoom group: (positions in the active vector, places in the 7-vector).
+        self._seen: dict[tuple[int, int], tuple[list[int], list[int]]] = {}
+        for i, idx in enumerate(self.head_active):
+            for g in np.unique(self.group[self.camera == i]) if idx else ():
+                pairs = [(j, local_index(e, int(g))) for j, e in enumerate(idx)]
+                self._seen[(i, int(g))] = ([j for j, k in pairs if k is not None],
+                                           [k for _, k in pairs if k is not None])
         self.has_heads = any(self.head_active)
         self.has_views = bool(self.view_keys)
         if self.has_heads and self.has_views:
@@ -96,6 +108,7 @@ class CameraSide:
     def reorder(self, order: np.ndarray) -> None:
         """Permute the per-reading arrays (the factor sorts readings by camera)."""
         self.camera, self.view, self.view_pan = self.camera[order], self.view[order], self.view_pan[order]
+        self.group = self.group[order]
 
     def state(self, values: gtsam.Values) -> SideState:
         params = self.head_fixed.copy()
@@ -115,15 +128,18 @@ class CameraSide:
         and (when asked) d(pan, tilt)/dq (m, 2, 3) and d(pan, tilt)/d(extra) (m, 2, width)."""
         cam = self.camera if rows is None else self.camera[rows]
         if self.has_heads:
-            pan, tilt, d_q, d_p = head_pan_tilt(q, state.params[cam], jacobians)
+            group = self.group if rows is None else self.group[rows]
+            params = (state.params[cam] if state.params.shape[1] == HEAD_DIM
+                      else reading_params(state.params[cam], group))
+            pan, tilt, d_q, d_p = head_pan_tilt(q, params, jacobians)
             if not jacobians:
                 return pan, tilt, None, None
             assert d_p is not None
             dx = np.zeros((len(q), 2, self.width))
-            for i, idx in enumerate(self.head_active):
-                if idx:
-                    sel = cam == i
-                    dx[sel, :, : len(idx)] = d_p[sel][:, :, list(idx)]
+            for (i, g), (cols, loc) in self._seen.items():
+                sel = (cam == i) & (group == g)
+                if cols and sel.any():
+                    dx[np.ix_(sel, [0, 1], cols)] = d_p[np.ix_(sel, [0, 1], loc)]
             return pan, tilt, d_q, dx
         view = self.view if rows is None else self.view[rows]
         has = view >= 0

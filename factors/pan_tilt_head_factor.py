@@ -3,8 +3,11 @@
 Variables: the camera base ``Pose3`` ``T = (R, c)`` (as in
 :mod:`fgloc.factors.pan_tilt_factor`), the node (``Point2`` on z = 0 or
 ``Point3``) and, optionally, the camera's head calibration: a ``gtsam`` Vector
-holding the *active* entries of the 7-vector of :mod:`fgloc.core.head_model`
-(``active`` lists their indices; the rest are held at fixed values, zero by default).
+holding the *active* entries of the camera's extended head vector of
+:mod:`fgloc.core.head_model` (``active`` lists their indices; the rest are held at fixed
+values, zero by default). With one zoom the extended vector is the 7-vector; with
+several, a reading of zoom group g sees the shared five and group g's lever arm, and
+its Jacobian has zero columns for the other groups' lever arms.
 
 Error (2-vector, radians, measured minus predicted, pan wrapped)::
 
@@ -27,7 +30,7 @@ import gtsam
 import numpy as np
 
 from fgloc.core.geometry import FloatArray, pan_tilt_residual, skew
-from fgloc.core.head_model import DEFAULT_PRIOR_SIGMAS, HEAD_DIM, head_pan_tilt
+from fgloc.core.head_model import DEFAULT_PRIOR_SIGMAS, head_pan_tilt, local_index
 
 
 def head_pan_tilt_error(
@@ -54,11 +57,20 @@ def head_prior_factor(
 ) -> gtsam.NonlinearFactor:
     """Gaussian prior on a head-calibration Vector of the ``active`` parameters.
 
-    ``mean`` and ``sigmas`` are full 7-vectors (default: zero mean, datasheet tolerances).
+    ``mean`` and ``sigmas`` are full (extended) vectors (default: zero mean, datasheet tolerances;
+    :func:`fgloc.core.head_model.extend_vector` repeats the lever arm's per zoom).
     """
     idx = list(active)
-    mu = np.zeros(HEAD_DIM) if mean is None else np.asarray(mean, dtype=float)
+    mu = np.zeros(len(sigmas)) if mean is None else np.asarray(mean, dtype=float)
     return gtsam.PriorFactorVector(key, mu[idx].copy(), gtsam.noiseModel.Diagonal.Sigmas(np.asarray(sigmas)[idx]))
+
+
+def _seen(active: tuple[int, ...], group: int) -> tuple[list[int], list[int]]:
+    """Of the ``active`` extended indices, the positions a zoom-``group`` reading sees and
+    their places in its 7-vector."""
+    pairs = [(j, local_index(e, group)) for j, e in enumerate(active)]
+    kept = [(j, k) for j, k in pairs if k is not None]
+    return [j for j, _ in kept], [k for _, k in kept]
 
 
 class HeadFactorSet:
@@ -68,9 +80,10 @@ class HeadFactorSet:
         camera_keys, node_keys: (M,) keys of each reading's camera ``Pose3`` and node.
         head_keys: (M,) key of the reading camera's head Vector, or -1 for a camera
             whose calibration is held fixed (then the factor has two keys).
-        active: per head key, the indices (into the 7-vector) it holds.
-        fixed: (M, 7) parameter values used where not active (e.g. zeros).
+        active: per head key, the indices (into the camera's extended vector) it holds.
+        fixed: (M, 7) each reading's parameter values used where not active (e.g. zeros).
         pan, tilt: (M,) readings in radians; noise_models: (M,) 2-D noise models.
+        zoom_group: (M,) each reading's zoom group (None: all 0, one zoom).
     """
 
     def __init__(
@@ -84,6 +97,7 @@ class HeadFactorSet:
         tilt: FloatArray,
         noise_models: list[gtsam.noiseModel.Base],
         planar: bool,
+        zoom_group: np.ndarray | None = None,
     ) -> None:
         self.camera_keys = np.asarray(camera_keys, dtype=np.int64)
         self.node_keys = np.asarray(node_keys, dtype=np.int64)
@@ -93,6 +107,8 @@ class HeadFactorSet:
         self.pan = np.asarray(pan, dtype=float)
         self.tilt = np.asarray(tilt, dtype=float)
         self.planar = planar
+        self.zoom_group = (np.zeros(len(self.pan), dtype=np.int64) if zoom_group is None
+                           else np.asarray(zoom_group, dtype=np.int64))
         self.inv_sigmas = np.array([1.0 / np.asarray(nm.sigmas(), dtype=float) for nm in noise_models]).reshape(-1, 2)
         self._values: gtsam.Values | None = None
         self._errors = np.empty((0, 2))
@@ -105,8 +121,12 @@ class HeadFactorSet:
     def _params(self, values: gtsam.Values) -> FloatArray:
         params = self.fixed.copy()
         for key, idx in self.active.items():
-            rows = self.head_keys == key
-            params[np.ix_(rows, idx)] = np.asarray(values.atVector(key), dtype=float)[None, :]
+            vec = np.asarray(values.atVector(key), dtype=float)
+            mine = self.head_keys == key
+            for g in np.unique(self.zoom_group[mine]):
+                rows = mine & (self.zoom_group == g)
+                j, loc = _seen(idx, int(g))
+                params[np.ix_(rows, loc)] = vec[j][None, :]
         return params
 
     def _evaluate(self, values: gtsam.Values, rows: np.ndarray) -> tuple[FloatArray, list[FloatArray]]:
@@ -128,6 +148,7 @@ class HeadFactorSet:
         cache = self
         head = int(self.head_keys[i])
         idx = list(self.active.get(head, ())) if head >= 0 else []
+        cols, loc = _seen(tuple(idx), int(self.zoom_group[i]))
         keys = [int(self.camera_keys[i]), int(self.node_keys[i])] + ([head] if head >= 0 else [])
 
         def error(this: gtsam.CustomFactor, values: gtsam.Values, H: list[np.ndarray] | None) -> np.ndarray:
@@ -140,7 +161,9 @@ class HeadFactorSet:
                 H[0] = hs[0][row]
                 H[1] = hs[1][row]
                 if idx:
-                    H[2] = np.ascontiguousarray(hs[2][row][:, idx])
+                    h = np.zeros((2, len(idx)))
+                    h[:, cols] = hs[2][row][:, loc]
+                    H[2] = h
             return e[row]
 
         return gtsam.CustomFactor(noise, keys, error)

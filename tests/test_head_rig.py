@@ -83,7 +83,7 @@ def test_rig_json_head_errors_parse_in_model_units(tmp_path):
      "rig.json: simulation.head_errors.cam0.tilt_index_deg: expected a finite number, got \"0.3\""),
     ({"cam0": {"tilt_index_deg": 45}}, "rig.json: simulation.head_errors.cam0.tilt_index_deg: must lie in [-5, 5], got 45"),
     ({"cam0": {"tilt_index": 0.3}}, "rig.json: simulation.head_errors.cam0: expected one of tilt_index_deg, "
-     "collimation_deg, trunnion_deg, pan_scale_percent, tilt_scale_percent, lever_y_baseline, lever_z_baseline, "
+     "collimation_deg, trunnion_deg, pan_scale_percent, tilt_scale_percent, lever_y_baseline, lever_z_baseline, lever_by_zoom, "
      "got 'tilt_index'"),
     ({"cam0": "large"}, "rig.json: simulation.head_errors.cam0: expected \"typical\" or an object of head errors, "
      "got 'large'"),

@@ -33,19 +33,32 @@ Left out because bearings cannot observe them at all: a **pan index offset**
 (the encoder zero's azimuth) is the base yaw; a **vertical-axis tilt** is the
 base roll and pitch; the lever arm **along the line of sight** (``l_x``) slides
 the centre along the ray it sees. Pan scale acts on the wrapped pan in
-(-pi, pi] (an encoder's range does not cross +-180 degrees). One vector per
-camera and zoom: a survey at several zooms needs one per zoom (fgloc surveys
-use one zoom).
+(-pi, pi] (an encoder's range does not cross +-180 degrees).
+
+**Zoom.** The optical centre moves with zoom (the paper: the centre of rotation
+coincides with the focal point only at the widest zoom), the axes and encoders do
+not. A camera whose readings were taken at G distinct zooms (``Observation.zoom``,
+:func:`zoom_groups`) has the *extended* vector of :func:`head_dim` (G) = 5 + 2 G
+entries: the five angular and scale parameters (indices 0..4, shared) and one lever
+arm ``(l_y, l_z)`` per zoom group g at indices ``5 + 2 g, 6 + 2 g`` (groups in
+ascending zoom, readings without a zoom first). A reading of group g sees the
+7-vector ``extended[reading_index(g)]``. With one zoom (G = 1) the extended vector
+*is* the 7-vector above.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import ArrayLike
 
 from fgloc.core.geometry import FloatArray, wrap_angle
+
+if TYPE_CHECKING:
+    from fgloc.core.model import Survey
 
 HEAD_PARAMETERS: tuple[str, ...] = (
     "tilt_index", "collimation", "trunnion", "pan_scale", "tilt_scale", "lever_y", "lever_z",
@@ -71,6 +84,103 @@ DATASHEET_TOLERANCES: FloatArray = np.array(
 #: 0.5 %, lever arm 0.05 % of the baseline). The simulator draws heads from this same
 #: population (:func:`fgloc.sim.head_errors.sample_head_errors`), so the prior describes it.
 DEFAULT_PRIOR_SIGMAS: FloatArray = DATASHEET_TOLERANCES / 2.0
+
+#: Entries of the extended vector shared by every zoom (tilt index ... tilt scale).
+SHARED_DIM = 5
+#: Zooms equal to this many decimals (fraction of the optical range) are one zoom group.
+ZOOM_DIGITS = 6
+
+
+def head_dim(n_zooms: int = 1) -> int:
+    """Length of a camera's extended head vector with ``n_zooms`` lever arms (7 for one zoom)."""
+    return SHARED_DIM + 2 * max(int(n_zooms), 1)
+
+
+def reading_index(group: int) -> tuple[int, ...]:
+    """Extended-vector index of each of the 7 parameters a reading of zoom ``group`` sees."""
+    return (0, 1, 2, 3, 4, SHARED_DIM + 2 * group, SHARED_DIM + 2 * group + 1)
+
+
+def lever_group(index: int) -> int | None:
+    """The zoom group whose lever arm extended index ``index`` is, None for a shared parameter."""
+    return None if index < SHARED_DIM else (index - SHARED_DIM) // 2
+
+
+def local_index(index: int, group: int) -> int | None:
+    """Position in a zoom-``group`` reading's 7-vector of extended index ``index`` (None: another
+    group's lever arm, which the reading does not see)."""
+    g = lever_group(index)
+    if g is None:
+        return index
+    return None if g != group else 5 + (index - SHARED_DIM) % 2
+
+
+def extend_vector(values7: FloatArray, n_zooms: int) -> FloatArray:
+    """A 7-vector (e.g. prior sigmas) as an extended vector: its lever arm repeated per zoom group."""
+    v = np.asarray(values7, dtype=float)
+    if len(v) == head_dim(n_zooms):
+        return v.copy()
+    return np.concatenate([v[:SHARED_DIM]] + [v[SHARED_DIM:HEAD_DIM]] * max(int(n_zooms), 1))
+
+
+def reading_params(extended: FloatArray, group: np.ndarray) -> FloatArray:
+    """(M, 7) parameters each reading sees: ``extended`` (D,) or (M, D), ``group`` (M,) zoom groups."""
+    ext = np.asarray(extended, dtype=float)
+    g = np.asarray(group, dtype=np.int64)
+    idx = np.array([reading_index(0)] * len(g), dtype=np.int64).reshape(-1, HEAD_DIM)
+    idx[:, 5] += 2 * g
+    idx[:, 6] += 2 * g
+    if ext.ndim == 1:
+        return ext[idx]
+    return np.take_along_axis(ext, idx, axis=1)
+
+
+def zoom_label(zoom: float | None) -> str:
+    """How a zoom group is named in reports: ``zoom 0.25`` or ``survey zoom`` (no zoom given)."""
+    return "survey zoom" if zoom is None else f"zoom {zoom:g}"
+
+
+def parameter_names(zooms: Sequence[float | None]) -> tuple[str, ...]:
+    """Names of the extended vector's entries: :data:`HEAD_PARAMETERS` for one zoom, else the
+    shared five and ``lever_y@<zoom>``, ``lever_z@<zoom>`` per group (``@-`` : no zoom given)."""
+    if len(zooms) <= 1:
+        return HEAD_PARAMETERS
+    out = list(HEAD_PARAMETERS[:SHARED_DIM])
+    for z in zooms:
+        tag = "-" if z is None else f"{z:g}"
+        out += [f"lever_y@{tag}", f"lever_z@{tag}"]
+    return tuple(out)
+
+
+def head_groups(zooms: Sequence[float | None]) -> dict[str, tuple[int, ...]]:
+    """Parameter groups of the extended vector: :data:`HEAD_GROUPS` for one zoom, else the shared
+    five and ``lever_arm@<zoom>`` per group."""
+    if len(zooms) <= 1:
+        return dict(HEAD_GROUPS)
+    out = {k: v for k, v in HEAD_GROUPS.items() if k != "lever_arm"}
+    names = parameter_names(zooms)
+    for g in range(len(zooms)):
+        out["lever_arm@" + names[SHARED_DIM + 2 * g].split("@")[1]] = (SHARED_DIM + 2 * g, SHARED_DIM + 2 * g + 1)
+    return out
+
+
+def zoom_groups(survey: Survey) -> tuple[dict[str, tuple[float | None, ...]], np.ndarray]:
+    """Per camera its distinct reading zooms (ascending, None first: readings without a zoom),
+    and (M,) each observation's group index into its camera's tuple. A camera without readings
+    has one group (None)."""
+    per_cam: dict[str, list[float | None]] = {c: [] for c in survey.camera_ids}
+    keys = []
+    for o in survey.observations:
+        z = None if o.zoom is None else round(float(o.zoom), ZOOM_DIGITS)
+        keys.append(z)
+        if z not in per_cam[o.camera]:
+            per_cam[o.camera].append(z)
+    groups: dict[str, tuple[float | None, ...]] = {}
+    for c, zs in per_cam.items():
+        groups[c] = tuple(sorted(zs, key=lambda z: (z is not None, z or 0.0))) or (None,)
+    index = np.array([groups[o.camera].index(z) for o, z in zip(survey.observations, keys)], dtype=np.int64)
+    return groups, index
+
 
 _NEWTON_STEPS = 4
 _X, _Y, _Z = np.eye(3)

@@ -67,6 +67,10 @@ class Observation:
     ``sigma_axes`` (optional, radians) gives pan's and tilt's total standard deviations
     where they differ (e.g. a decoder's pixel error maps to angles differently per axis);
     ``sigma`` then stays one value for both (e.g. their RMS) for readers that know no more.
+
+    ``zoom`` (optional, fraction 0 widest ... 1 optical tele) is the zoom the reading was
+    taken at; readings without it share the survey's one zoom. The head model gives each
+    zoom a camera used its own lever arm (:mod:`fgloc.core.head_model`).
     """
 
     camera: str
@@ -79,6 +83,7 @@ class Observation:
     view_sigma: float | None = None
     view_pan: float | None = None
     sigma_axes: tuple[float, float] | None = None
+    zoom: float | None = None
 
 
 @dataclass(frozen=True)

@@ -116,6 +116,7 @@ class JournalObservation:
     #: coded surveys with a head repeatability: the view's shared head sigma (radians, part of ``sigma``)
     view_sigma: float | None = None
     view_pan: float | None = None  #: radians, the head pan the view was read at (with ``view_sigma``)
+    zoom: float | None = None  #: coded surveys: zoom of the view's recording (fraction of the optical range)
 
     @property
     def key(self) -> ObservationKey:
@@ -128,7 +129,7 @@ class JournalObservation:
         return Observation(camera=self.camera, node=self.node, pan=self.pan, tilt=self.tilt, sigma=self.sigma,
                            view=f"{self.camera}/{self.view}" if shared else None,
                            view_sigma=self.view_sigma if shared else None,
-                           view_pan=self.view_pan if shared else None)
+                           view_pan=self.view_pan if shared else None, zoom=self.zoom)
 
 
 @dataclass
@@ -293,7 +294,7 @@ class _Replay:
             return
         self.state.views[key] = rec
         for r in rec["readings"]:
-            self.state.add_observation(view_observation(camera, str(rec["view"]), r, _head_pan(rec)))
+            self.state.add_observation(view_observation(camera, str(rec["view"]), r, _head_pan(rec), _zoom(rec)))
 
 
 def _head_pan(record: dict[str, Any]) -> float | None:
@@ -302,15 +303,22 @@ def _head_pan(record: dict[str, Any]) -> float | None:
     return float(head[0]) if isinstance(head, list) and head else None
 
 
+def _zoom(record: dict[str, Any]) -> float | None:
+    """The zoom (fraction of the optical range) of a ``view`` record, None without one."""
+    zoom = record.get("zoom")
+    return None if zoom is None else float(zoom)
+
+
 def view_observation(camera: str, view: str, reading: dict[str, Any],
-                     head_pan: float | None = None) -> JournalObservation:
+                     head_pan: float | None = None, zoom: float | None = None) -> JournalObservation:
     """The observation a ``view`` record's reading stands for (the reading keeps its view id;
-    with a ``view_sigma`` also that shared sigma and the view's read-back ``head_pan``)."""
+    with a ``view_sigma`` also that shared sigma and the view's read-back ``head_pan``; the
+    recording's ``zoom``, the head model's zoom group of the reading)."""
     sigma, shared = reading.get("sigma"), reading.get("view_sigma")
     return JournalObservation(reading["node"], camera, int(reading["index"]), float(reading["pan"]),
                               float(reading["tilt"]), None if sigma is None else float(sigma), view,
                               None if shared is None else float(shared),
-                              None if shared is None or head_pan is None else float(head_pan))
+                              None if shared is None or head_pan is None else float(head_pan), zoom)
 
 
 def _header(rec: dict, path: str, line: int) -> JournalHeader:

@@ -114,7 +114,10 @@ class SimulationConfig:
     drivers/rendered_camera.py: textured background, static bright lights, sensor noise).
     ``head_errors`` maps a camera id to its simulated head's errors, a 7-tuple in
     :data:`fgloc.core.head_model.HEAD_PARAMETERS` order and units (radians, unit-less
-    scales, survey units); cameras not listed have ideal heads.
+    scales, survey units); cameras not listed have ideal heads. ``head_zoom_levers`` (rig.json
+    ``simulation.head_errors.<cam>.lever_by_zoom``) maps a camera id to zoom -> lever arm
+    ``(l_y, l_z)`` (survey units): at a zoom listed the head's optical centre sits there
+    instead (:data:`fgloc.sim.head_errors.ZoomLevers`).
     """
 
     seed: int = 0
@@ -129,6 +132,7 @@ class SimulationConfig:
     twin: str = "inprocess"
     frames: str = "spot"
     head_errors: dict[str, tuple[float, ...]] = field(default_factory=dict)
+    head_zoom_levers: dict[str, dict[float, tuple[float, float]]] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -204,13 +208,31 @@ def _head_errors(section: dict[str, Any], ids: list[str], seed: int, path: str) 
         if cid not in ids:
             raise _fail(path, f"simulation.head_errors.{cid}", f"camera {cid!r} is not in cameras")
         text = spec if isinstance(spec, str) else ",".join(
-            f"{HEAD_ERROR_FIELDS[k]}={float(v)!r}" for k, v in spec.items())
+            f"{HEAD_ERROR_FIELDS[k]}={float(v)!r}" for k, v in spec.items() if k != "lever_by_zoom")
         rng = np.random.default_rng(zlib.crc32(f"{seed}/head-errors/{cid}".encode()))
         try:
             values = parse_head_errors(text, [cid], rng)[cid]
         except FglocError as exc:  # the schema admits only what the parser accepts; kept for safety
             raise _fail(path, f"simulation.head_errors.{cid}", str(exc)) from None
         out[cid] = tuple(float(v) for v in values)
+    return out
+
+
+def _zoom_levers(section: dict[str, Any], path: str) -> dict[str, dict[float, tuple[float, float]]]:
+    """``simulation.head_errors.<cam>.lever_by_zoom`` (schema-checked): camera id -> zoom ->
+    (l_y, l_z) in baseline units; a zoom listed twice is refused."""
+    out: dict[str, dict[float, tuple[float, float]]] = {}
+    for cid, spec in section.items():
+        if not isinstance(spec, dict) or "lever_by_zoom" not in spec:
+            continue
+        levers: dict[float, tuple[float, float]] = {}
+        for i, item in enumerate(spec["lever_by_zoom"]):
+            zoom = float(item["zoom"])
+            if zoom in levers:
+                raise _fail(path, f"simulation.head_errors.{cid}.lever_by_zoom[{i}].zoom",
+                            f"zoom {zoom:g} is listed twice")
+            levers[zoom] = (float(item.get("lever_y_baseline", 0.0)), float(item.get("lever_z_baseline", 0.0)))
+        out[cid] = levers
     return out
 
 
@@ -327,6 +349,7 @@ def parse_rig(data: Any, path: str = "rig.json", base: Path | None = None) -> Ri
         twin=sim.get("twin", "inprocess"),
         frames=sim.get("frames", "spot"),
         head_errors=_head_errors(sim.get("head_errors", {}), ids, int(sim.get("seed", 0)), path),
+        head_zoom_levers=_zoom_levers(sim.get("head_errors", {}), path),
     )
     repeat_budget = int(top.get("repeat_budget", 0))
     if repeat_budget and top.get("nodes", "planar") != "planar":
@@ -395,6 +418,9 @@ def rig_meaning(rig: RigConfig, simulated: bool = False) -> dict[str, Any]:
               "simulation.occlusion": sim.occlusion, "simulation.dead_nodes": list(sim.dead_nodes)}
         if sim.head_errors:
             m["simulation.head_errors"] = {c: list(v) for c, v in sim.head_errors.items()}
+        if sim.head_zoom_levers:  # absent without, so journals of rigs without it compare as before
+            m["simulation.head_errors.lever_by_zoom"] = {c: [[z, *lv] for z, lv in sorted(v.items())]
+                                                         for c, v in sim.head_zoom_levers.items()}
     if rig.head_repeatability:  # absent at 0, so journals of rigs without it compare as before
         m["head_repeatability_deg"] = math.degrees(rig.head_repeatability)
     return m

@@ -69,13 +69,18 @@ def _is_id(x: object) -> bool:
 
 
 def _plain_observation(o: Any) -> bool:
-    """Pre-accepts the common observation (no own sigma or subset); never laxer than the schema."""
+    """Pre-accepts the common observation (no own sigma or subset, a zoom at most); never laxer than the schema."""
     if type(o) is not dict:
         return False
     tilt: Any = o.get("tilt")
     return (_is_id(o.get("camera")) and _is_id(o.get("node")) and is_number(o.get("pan"))
             and is_number(tilt) and -_TILT_LIMIT <= tilt <= _TILT_LIMIT and "sigma" not in o and "subset" not in o
-            and "view" not in o and "sigma_axes" not in o)
+            and "view" not in o and "sigma_axes" not in o and _plain_zoom(o.get("zoom", 0)))
+
+
+def _plain_zoom(z: Any) -> bool:
+    """An absent or plain zoom (a number in [0, 1], as the schema's ``zoom``)."""
+    return is_number(z) and 0 <= z <= 1
 
 
 def _plain_node(v: Any) -> bool:
@@ -197,7 +202,8 @@ def read_survey(path: str | os.PathLike[str]) -> Survey:
                                         sigma=None if sigma is None else float(sigma), subset=o.get("subset"),
                                         view=o.get("view"), view_sigma=None if view is None else float(view["sigma"]),
                                         view_pan=None if view is None or "pan" not in view else float(view["pan"]),
-                                        sigma_axes=None if axes is None else (float(axes[0]), float(axes[1]))))
+                                        sigma_axes=None if axes is None else (float(axes[0]), float(axes[1])),
+                                        zoom=None if o.get("zoom") is None else float(o["zoom"])))
 
     truth = None
     if "truth" in data:
@@ -261,6 +267,7 @@ def survey_to_json(survey: Survey) -> dict:
             | ({} if o.subset is None else {"subset": o.subset})
             | ({} if o.view is None or o.view_sigma is None else {"view": o.view})
             | ({} if o.sigma_axes is None else {"sigma_axes": list(o.sigma_axes)})
+            | ({} if o.zoom is None else {"zoom": o.zoom})
             for o in survey.observations
         ],
     }

@@ -97,9 +97,10 @@ class EliminatedProblem:
 class HeadSpec:
     """Head calibration vectors for :func:`build_eliminated` (as
     :func:`fgloc.solve.self_calibration.build_self_calibration_problem`): ``active[cid]``
-    the 7-vector indices estimated for camera ``cid``, ``start[cid]`` (7,) the starting
-    (and, where not active, fixed) values, a zero-mean prior of ``prior_sigmas`` (7,) when
-    ``with_prior``."""
+    the extended-vector indices estimated for camera ``cid`` (:mod:`fgloc.core.head_model`:
+    one lever arm per zoom group), ``start[cid]`` the starting (and, where not active, fixed)
+    extended values, a zero-mean prior of ``prior_sigmas`` (7,, lever arm repeated per zoom)
+    when ``with_prior``."""
 
     active: dict[str, tuple[int, ...]]
     start: dict[str, FloatArray] | None
@@ -149,22 +150,24 @@ def build_eliminated(
     side = fixed = None
     if heads is not None or views:
         # Imported here: an ideal survey without views (the common case) needs neither.
-        from fgloc.core.head_model import HEAD_DIM
+        from fgloc.core.head_model import extend_vector, head_dim, zoom_groups
         from fgloc.factors.camera_side import CameraSide
 
-        fixed = np.zeros((len(camera_keys), HEAD_DIM))
+        zooms, group_of = zoom_groups(survey) if heads is not None else ({}, None)
+        fixed = np.zeros((len(camera_keys), max([head_dim(len(z)) for z in zooms.values()] + [head_dim(1)])))
     if heads is not None and fixed is not None:
         for slot, cid in enumerate(camera_keys):
             idx = tuple(sorted(heads.active.get(cid, ())))
             if heads.start is not None and cid in heads.start:
-                fixed[slot] = heads.start[cid]
+                fixed[slot, :len(heads.start[cid])] = heads.start[cid]
             if idx:
                 head_keys[cid], active[cid] = head_key(survey.camera_ids.index(cid)), idx
     if fixed is not None:
         side = CameraSide(
             len(camera_keys), cam_slot[table.camera_index[used]],
             head_keys=[head_keys.get(c, -1) for c in camera_keys], head_active=[active.get(c, ()) for c in camera_keys],
-            head_fixed=fixed, view_keys=[view_key(v) for v in views], view=obs_view, view_pan=table.view_pan[used])
+            head_fixed=fixed, view_keys=[view_key(v) for v in views], view=obs_view, view_pan=table.view_pan[used],
+            head_group=None if group_of is None else group_of[used])
     readings = EliminatedReadings(
         list(camera_keys.values()),
         cam_slot[table.camera_index[used]],
@@ -196,7 +199,7 @@ def build_eliminated(
 
         values.insert(key, fixed[list(camera_keys).index(cid)][list(active[cid])].copy())
         if heads.with_prior:
-            graph.add(head_prior_factor(key, active[cid], None, heads.prior_sigmas))
+            graph.add(head_prior_factor(key, active[cid], None, extend_vector(heads.prior_sigmas, len(zooms[cid]))))
     return EliminatedProblem(survey, graph, values, camera_keys, node_ids, readings, np.flatnonzero(used),
                              dict(initial.unlocalized), {survey.view_ids[v]: view_key(v) for v in views},
                              head_keys, active)

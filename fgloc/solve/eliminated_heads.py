@@ -3,7 +3,7 @@
 :func:`solve_self_calibrated_eliminated` is
 :func:`fgloc.solve.self_calibration.solve_self_calibrated` with the nodes eliminated in
 closed form: the camera graph of :func:`fgloc.solve.eliminated.build_eliminated` with
-one head calibration vector per camera as an extra camera-side variable
+one head calibration vector per camera (one lever arm per zoom group) as an extra camera-side variable
 (:mod:`fgloc.factors.camera_side`), the same datasheet prior, gauge and start. Same
 optimum and marginals as the reference graph (``tests/test_camera_side.py``).
 
@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from fgloc.core.geometry import FloatArray
-from fgloc.core.head_model import HEAD_DIM
+from fgloc.core.head_model import head_dim, zoom_groups
 from fgloc.core.model import Survey
 from fgloc.init.start import InitialEstimate
 from fgloc.solve.eliminated import (
@@ -48,8 +48,10 @@ def solve_self_calibrated_eliminated(
     heads: dict[str, tuple[FloatArray, FloatArray]] = {}
     sigma = camera_covariance(fast, outcome.values) if fast.head_keys and options.compute_marginals else None
     offsets = dict(zip(fast.readings.keys, np.cumsum([0] + fast.readings.dims[:-1]).tolist()))
+    zooms, _ = zoom_groups(survey)
     for cid in survey.camera_ids:
-        vals, cov = np.zeros(HEAD_DIM), np.zeros((HEAD_DIM, HEAD_DIM))
+        d = head_dim(len(zooms[cid]))
+        vals, cov = np.zeros(d), np.zeros((d, d))
         if cid in fast.head_keys:
             idx = list(fast.active[cid])
             key = fast.head_keys[cid]

@@ -39,7 +39,7 @@ import gtsam
 import numpy as np
 
 from fgloc.core.geometry import FloatArray, pan_tilt_residual, rot_z
-from fgloc.core.head_model import HEAD_DIM, HEAD_PARAMETERS, HeadCalibration, head_pan_tilt
+from fgloc.core.head_model import HEAD_DIM, HeadCalibration, head_pan_tilt, reading_index
 from fgloc.core.model import CameraPose, Result, Survey
 from fgloc.init.start import InitialEstimate
 from fgloc.solve.self_calibration import HeadCalibrationReport, HeadModel, build_self_calibration_problem
@@ -125,7 +125,7 @@ def known_motes_from_survey(
     active: dict[str, tuple[int, ...]] = {}
     values: dict[str, FloatArray] = {}
     for cid, est in report.cameras.items():
-        idx = tuple(HEAD_PARAMETERS.index(n) for n in est.estimated)
+        idx = tuple(est.names.index(n) for n in est.estimated)  # extended indices (one lever arm per zoom)
         if not idx and report.model is HeadModel.AUTO:
             idx = tuple(int(i) for i in np.flatnonzero(np.isfinite(est.data_std)))
         active[cid], values[cid] = idx, np.asarray(est.values, dtype=float)
@@ -137,7 +137,7 @@ def known_motes_from_survey(
     cam_key = problem.camera_keys[camera]
     rows: dict[int, int] = {}  # node key -> first factor of this camera reading it
     for j in range(len(problem.heads)):
-        if int(problem.heads.camera_keys[j]) == cam_key:
+        if int(problem.heads.camera_keys[j]) == cam_key and problem.heads.zoom_group[j] == 0:
             rows.setdefault(int(problem.heads.node_keys[j]), j)
     node_of_key = {k: n for n, k in problem.node_keys.items()}
     ids = tuple(node_of_key[k] for k in rows)
@@ -163,7 +163,9 @@ def known_motes_from_survey(
     cov = G @ S @ G.T
     pose = result.cameras[camera]
     q = np.array([pose.rotation.T @ (result.nodes[n].position - pose.position) for n in ids]).reshape(-1, 3)
-    pan, tilt, _, _ = head_pan_tilt(q, values.get(camera, np.zeros(HEAD_DIM)), jacobians=False)
+    # predicted at the camera's first zoom (its survey zoom), where the motes are re-read
+    params = values.get(camera, np.zeros(HEAD_DIM))[list(reading_index(0))]
+    pan, tilt, _, _ = head_pan_tilt(q, params, jacobians=False)
     return KnownMotes(ids, np.asarray(pan), np.asarray(tilt), cov[1::2, 1::2], cov[0::2, 0::2])
 
 

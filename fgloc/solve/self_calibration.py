@@ -36,7 +36,19 @@ import numpy as np
 
 from fgloc.core.errors import FglocError
 from fgloc.core.geometry import FloatArray
-from fgloc.core.head_model import DEFAULT_PRIOR_SIGMAS, HEAD_DIM, HEAD_GROUPS, HEAD_PARAMETERS
+from fgloc.core.head_model import (
+    DEFAULT_PRIOR_SIGMAS,
+    HEAD_DIM,
+    HEAD_PARAMETERS,
+    SHARED_DIM,
+    extend_vector,
+    head_dim,
+    head_groups,
+    lever_group,
+    parameter_names,
+    reading_params,
+    zoom_groups,
+)
 from fgloc.core.model import FlaggedObservation, Result, Survey
 from fgloc.factors.pan_tilt_head_factor import HeadFactorSet, head_prior_factor
 from fgloc.init.start import InitialEstimate
@@ -73,6 +85,10 @@ class HeadModel(str, enum.Enum):
 RANK_TOL = 1e-12
 #: Level of the plain likelihood-ratio test, reported beside the Bayes score test that decides.
 LR_ALPHA = 0.05
+#: Readings a zoom group needs before its lever arm counts as determinable: with one reading
+#: the two lever-arm components absorb its two residuals exactly, with two they leave two
+#: residual dof to check four numbers; from three the group's readings over-determine it.
+MIN_ZOOM_READINGS = 3
 
 
 def chi2_quantile(p: float, dof: int) -> float:
@@ -121,6 +137,32 @@ class CameraHeadEstimate:
     estimated: tuple[str, ...]
     data_std: FloatArray
     covariance: FloatArray | None = None
+    #: The camera's zoom groups: with several, ``values``/``std``/``data_std`` are extended
+    #: vectors (one lever arm per zoom, :mod:`fgloc.core.head_model`) and ``estimated`` names
+    #: the lever arms ``lever_y@<zoom>``.
+    zooms: tuple[float | None, ...] = (None,)
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """Names of the entries of ``values`` (:func:`fgloc.core.head_model.parameter_names`)."""
+        return parameter_names(self.zooms)
+
+    def block(self) -> dict:
+        """This camera's entry of the result's ``head_calibration`` block. ``values``/``std``
+        stay 7-vectors in :data:`HEAD_PARAMETERS` order (the first zoom group's lever arm, so a
+        reader that knows one lever arm per camera keeps working); with several zooms the
+        optional ``lever_arm_per_zoom`` lists each zoom's lever arm."""
+        first = [*range(SHARED_DIM), SHARED_DIM, SHARED_DIM + 1]
+        names = self.names
+        est = set(self.estimated)
+        out: dict = {"estimated": [HEAD_PARAMETERS[k] for k, i in enumerate(first) if names[i] in est],
+                     "values": [float(self.values[i]) for i in first], "std": [float(self.std[i]) for i in first]}
+        if len(self.zooms) > 1:
+            out["lever_arm_per_zoom"] = [
+                {"zoom": z, "values": [float(self.values[i]) for i in ix], "std": [float(self.std[i]) for i in ix],
+                 "estimated": all(names[i] in est for i in ix)}
+                for g, z in enumerate(self.zooms) for ix in [(SHARED_DIM + 2 * g, SHARED_DIM + 2 * g + 1)]]
+        return out
 
 
 @dataclass
@@ -146,11 +188,7 @@ class HeadCalibrationReport:
             **({} if self.score is None else {"score_test": {
                 "statistic": self.score.statistic, "threshold": self.score.threshold,
                 "p_value": self.score.p_value, "level": self.score.alpha}}),
-            "cameras": {
-                cid: {"estimated": list(c.estimated), "values": [float(v) for v in c.values],
-                      "std": [float(v) for v in c.std], "fisher_rank": self.ranks.get(cid, {})}
-                for cid, c in self.cameras.items()
-            },
+            "cameras": {cid: c.block() | {"fisher_rank": self.ranks.get(cid, {})} for cid, c in self.cameras.items()},
         }
 
     def summary(self) -> str:
@@ -162,7 +200,7 @@ class HeadCalibrationReport:
                 continue
             parts = []
             for name in c.estimated:
-                i = HEAD_PARAMETERS.index(name)
+                i = c.names.index(name)
                 if i <= 2:
                     parts.append(f"{name} {np.rad2deg(c.values[i]):+.4f}±{np.rad2deg(c.std[i]):.4f}°")
                 elif i <= 4:
@@ -180,6 +218,8 @@ class SelfCalibrationProblem(LocalizationProblem):
     heads: HeadFactorSet | None = None
     head_keys: dict[str, int] = field(default_factory=dict)
     active: dict[str, tuple[int, ...]] = field(default_factory=dict)
+    #: Per camera its zoom groups (:func:`fgloc.core.head_model.zoom_groups`): one lever arm each.
+    zooms: dict[str, tuple[float | None, ...]] = field(default_factory=dict)
 
     def prepare(self, values: gtsam.Values) -> None:
         assert self.heads is not None
@@ -215,29 +255,40 @@ def build_self_calibration_problem(
     prior_sigmas: FloatArray = DEFAULT_PRIOR_SIGMAS,
     with_prior: bool = True,
 ) -> SelfCalibrationProblem:
-    """The reference problem with head factors; ``active[cid]`` lists the indices estimated for it."""
+    """The reference problem with head factors; ``active[cid]`` lists the indices estimated for it
+    (into the camera's extended vector, :func:`fgloc.core.head_model.head_dim` of its zoom groups;
+    ``head_start[cid]`` and ``prior_sigmas`` as extended vectors, a 7-vector prior is extended)."""
     base = build_problem(survey, initial, replace(options, robust=RobustKernel.NONE), exclude)
+    zooms, group_of = zoom_groups(survey)
+    dims = {cid: head_dim(len(zooms[cid])) for cid in survey.camera_ids}
     values = gtsam.Values(base.initial)
     head_keys: dict[str, int] = {}
+
+    def start_of(cid: str) -> FloatArray:  # a 7-vector start gives every zoom its lever arm
+        zero = np.zeros(dims[cid])
+        if head_start is None or cid not in head_start:
+            return zero
+        return extend_vector(np.asarray(head_start[cid], dtype=float), len(zooms[cid]))
+
     for i, cid in enumerate(survey.camera_ids):
         idx = tuple(sorted(active.get(cid, ())))
         if cid in base.camera_keys and idx:
             head_keys[cid] = head_key(i)
-            start = np.zeros(HEAD_DIM) if head_start is None else np.asarray(head_start.get(cid, np.zeros(HEAD_DIM)))
-            values.insert(head_keys[cid], np.asarray(start, dtype=float)[list(idx)].copy())
+            values.insert(head_keys[cid], start_of(cid)[list(idx)].copy())
     pt = base.pan_tilt
     cam_of_key = {v: k for k, v in base.camera_keys.items()}
     obs_head = np.array([head_keys.get(cam_of_key[int(k)], -1) for k in pt.camera_keys], dtype=np.int64)
+    obs_group = group_of[base.observation_index] if len(pt) else np.zeros(0, dtype=np.int64)
     fixed = np.zeros((len(pt), HEAD_DIM))
     if head_start is not None:
         for j, k in enumerate(pt.camera_keys):
-            fixed[j] = head_start.get(cam_of_key[int(k)], np.zeros(HEAD_DIM))
+            fixed[j] = reading_params(start_of(cam_of_key[int(k)]), obs_group[j:j + 1])[0]
     sigma = survey.observation_table.sigma[base.observation_index]
     noise = {float(s): gtsam.noiseModel.Isotropic.Sigma(2, float(s)) for s in np.unique(sigma)}
     heads = HeadFactorSet(
         pt.camera_keys, pt.node_keys, obs_head,
         {head_keys[c]: tuple(sorted(active[c])) for c in head_keys}, fixed, pt.pan, pt.tilt,
-        [noise[float(s)] for s in sigma], planar=pt.planar,
+        [noise[float(s)] for s in sigma], planar=pt.planar, zoom_group=obs_group,
     )
     graph = gtsam.NonlinearFactorGraph()
     for f in heads.factors:
@@ -246,11 +297,12 @@ def build_self_calibration_problem(
         graph.add(base.graph.at(i))
     if with_prior:
         for cid, key in head_keys.items():
-            graph.add(head_prior_factor(key, tuple(sorted(active[cid])), None, prior_sigmas))
+            graph.add(head_prior_factor(key, tuple(sorted(active[cid])), None,
+                                        extend_vector(prior_sigmas, len(zooms[cid]))))
     return SelfCalibrationProblem(
         survey=survey, graph=graph, initial=values, camera_keys=base.camera_keys, node_keys=base.node_keys,
         pan_tilt=pt, observation_index=base.observation_index, unlocalized=dict(base.unlocalized),
-        heads=heads, head_keys=head_keys, active={c: tuple(sorted(active[c])) for c in head_keys},
+        heads=heads, head_keys=head_keys, active={c: tuple(sorted(active[c])) for c in head_keys}, zooms=zooms,
     )
 
 
@@ -329,53 +381,98 @@ def head_observability(
 
     Linearized at ``estimate`` with ideal heads. ``ranks[cid][group]`` is the
     numerical rank of that group's (Schur-complemented) information, its size
-    when fully determined; ``data_std[cid]`` (7,) is inf where the data say nothing.
+    when fully determined; ``data_std[cid]`` (the camera's extended vector, 7 for one
+    zoom) is inf where the data say nothing. A zoom group with fewer than
+    :data:`MIN_ZOOM_READINGS` readings has rank 0 and inf for its lever arm.
     """
-    info_n, labels = whitened_head_information(survey, estimate, prior_sigmas, exclude)
-    return observability_from_information(info_n, labels, prior_sigmas)
+    return observability_from_information(whitened_head_information(survey, estimate, prior_sigmas, exclude))
+
+
+@dataclass(frozen=True)
+class HeadInformation:
+    """The data-only information of every camera's head parameters (all its zooms' lever arms),
+    poses and nodes eliminated, in prior-sigma units (``info``), its rows as (camera, extended
+    index) (``labels``), each row's prior sigma (``scale``), the camera's zoom groups
+    (``zooms``) and the lever-arm rows of zoom groups with too few readings (``thin``)."""
+
+    info: FloatArray
+    labels: list[tuple[str, int]]
+    scale: FloatArray
+    zooms: dict[str, tuple[float | None, ...]]
+    thin: set[tuple[str, int]]
 
 
 def whitened_head_information(
     survey: Survey, estimate: InitialEstimate, prior_sigmas: FloatArray = DEFAULT_PRIOR_SIGMAS,
     exclude: frozenset[int] = frozenset(),
-) -> tuple[FloatArray, list[tuple[str, int]]]:
-    """Data-only information of every camera's 7 head parameters (poses and nodes eliminated),
-    linearized at ``estimate`` with ideal heads, in prior-sigma units; rows as (camera, index)."""
-    all_active = {cid: tuple(range(HEAD_DIM)) for cid in survey.camera_ids if cid in estimate.cameras}
-    problem = build_self_calibration_problem(survey, estimate, all_active, options=SolverOptions(gauge_sigma=None),
-                                             exclude=exclude, with_prior=False)
+) -> HeadInformation:
+    """:class:`HeadInformation` linearized at ``estimate`` with ideal heads (one dense-free
+    computation, shared by observability, the determinable subset and ``auto``'s test)."""
+    problem = _all_parameters_problem(survey, estimate, exclude)
     info, labels = head_information(problem, problem.initial)
-    scale = np.array([prior_sigmas[i] for _, i in labels])
-    return info * np.outer(scale, scale), labels
+    scale = np.array([extend_vector(prior_sigmas, len(problem.zooms[c]))[i] for c, i in labels])
+    zooms = {cid: tuple(problem.zooms[cid]) for cid in problem.head_keys}
+    return HeadInformation(info * np.outer(scale, scale), labels, scale, zooms, _thin_levers(problem))
 
 
 def observability_from_information(
-    info_n: FloatArray, labels: list[tuple[str, int]], prior_sigmas: FloatArray = DEFAULT_PRIOR_SIGMAS,
+    hi: HeadInformation,
 ) -> tuple[dict[str, dict[str, int]], dict[str, FloatArray]]:
-    """:func:`head_observability` from the whitened information of :func:`whitened_head_information`."""
-    scale = np.array([prior_sigmas[i] for _, i in labels])
+    """:func:`head_observability` from :func:`whitened_head_information`."""
+    info_n, labels, scale, thin = hi.info, hi.labels, hi.scale, hi.thin
     ranks: dict[str, dict[str, int]] = {}
     data_std: dict[str, FloatArray] = {}
     for cid in dict.fromkeys(c for c, _ in labels):
         rows = [r for r, (c, _) in enumerate(labels) if c == cid]
         ranks[cid] = {}
-        for group, idx in HEAD_GROUPS.items():
+        for group, idx in head_groups(hi.zooms[cid]).items():
             sel = [r for r in rows if labels[r][1] in idx]
             sv = np.linalg.svd(info_n[np.ix_(sel, sel)], compute_uv=False)
-            ranks[cid][group] = int(np.sum(sv > RANK_TOL * max(np.max(np.abs(info_n)), 1e-300)))
-        std = np.full(HEAD_DIM, np.inf)
+            ranks[cid][group] = 0 if (cid, idx[0]) in thin else int(
+                np.sum(sv > RANK_TOL * max(np.max(np.abs(info_n)), 1e-300)))
+        std = np.full(head_dim(len(hi.zooms[cid])), np.inf)
         # Data-only std of each parameter with all others of every camera free (pseudo-inverse).
         w, v = np.linalg.eigh(0.5 * (info_n + info_n.T))
         good = w > RANK_TOL * max(w.max(), 1e-300)
         cov_n = (v[:, good] / w[good]) @ v[:, good].T
         for r in rows:
             null_part = np.sum(v[r, ~good] ** 2)
-            std[labels[r][1]] = np.inf if null_part > 1e-6 else math.sqrt(max(cov_n[r, r], 0.0)) * scale[r]
+            thin_r = (cid, labels[r][1]) in thin
+            std[labels[r][1]] = np.inf if null_part > 1e-6 or thin_r else math.sqrt(max(cov_n[r, r], 0.0)) * scale[r]
         data_std[cid] = std
     return ranks, data_std
 
 
-#: Order in which AUTO admits parameters when the survey cannot determine them all.
+def _all_parameters_problem(survey: Survey, estimate: InitialEstimate, exclude: frozenset[int],
+                            options: SolverOptions = SolverOptions()) -> SelfCalibrationProblem:
+    """The extended problem with every parameter of every camera (all its zooms' lever arms), no prior."""
+    zooms, _ = zoom_groups(survey)
+    all_active = {cid: tuple(range(head_dim(len(zooms[cid])))) for cid in survey.camera_ids
+                  if cid in estimate.cameras}
+    return build_self_calibration_problem(survey, estimate, all_active, options=options, exclude=exclude,
+                                          with_prior=False)
+
+
+def _thin_levers(problem: SelfCalibrationProblem) -> set[tuple[str, int]]:
+    """(camera, extended index) of the lever-arm entries whose zoom group has fewer than
+    :data:`MIN_ZOOM_READINGS` readings in ``problem`` (only with several zooms: a camera's one
+    lever arm is judged by the rank alone, as before zoom groups)."""
+    heads = problem.heads
+    assert heads is not None
+    out: set[tuple[str, int]] = set()
+    for cid, key in problem.head_keys.items():
+        if len(problem.zooms[cid]) <= 1:
+            continue
+        mine = heads.zoom_group[heads.head_keys == key]
+        for i in problem.active[cid]:
+            g = lever_group(i)
+            if g is not None and int(np.sum(mine == g)) < MIN_ZOOM_READINGS:
+                out.add((cid, i))
+    return out
+
+
+#: Order in which AUTO admits parameters when the survey cannot determine them all (the
+#: lever arms of further zoom groups, extended indices 7, 8, ..., come last).
 ADMIT_ORDER = (0, 3, 1, 2, 4, 5, 6)
 
 
@@ -384,16 +481,21 @@ def determinable_subset(
     prior_sigmas: FloatArray = DEFAULT_PRIOR_SIGMAS,
 ) -> dict[str, tuple[int, ...]]:
     """A largest set of head parameters with full-rank information, admitted greedily in
-    :data:`ADMIT_ORDER` (camera by camera for each parameter); the rest stay pinned."""
-    return determinable_from_information(*whitened_head_information(survey, estimate, prior_sigmas, exclude))
+    :data:`ADMIT_ORDER` (camera by camera for each parameter); the rest stay pinned. A zoom
+    group with fewer than :data:`MIN_ZOOM_READINGS` readings keeps its lever arm pinned."""
+    return determinable_from_information(whitened_head_information(survey, estimate, prior_sigmas, exclude))
 
 
-def determinable_from_information(info_n: FloatArray, labels: list[tuple[str, int]]) -> dict[str, tuple[int, ...]]:
-    """:func:`determinable_subset` from the whitened information of :func:`whitened_head_information`."""
+def determinable_from_information(hi: HeadInformation) -> dict[str, tuple[int, ...]]:
+    """:func:`determinable_subset` from :func:`whitened_head_information`."""
+    info_n, labels, thin = hi.info, hi.labels, hi.thin
     tol = RANK_TOL * max(float(np.max(np.abs(info_n))), 1e-300)
     chosen: list[int] = []
-    for i in ADMIT_ORDER:
-        for cid in dict.fromkeys(c for c, _ in labels):
+    widest = max((head_dim(len(z)) for z in hi.zooms.values()), default=HEAD_DIM)
+    for i in ADMIT_ORDER + tuple(range(HEAD_DIM, widest)):
+        for cid in hi.zooms:
+            if (cid, i) not in labels or (cid, i) in thin:
+                continue
             r = labels.index((cid, i))
             trial = chosen + [r]
             if np.linalg.eigvalsh(info_n[np.ix_(trial, trial)])[0] > tol:
@@ -412,7 +514,7 @@ class SelfCalibratedSolve:
     problem: SelfCalibrationProblem
     values: gtsam.Values
     result: Result
-    heads: dict[str, tuple[FloatArray, FloatArray]]  # cid -> (values (7,), covariance (7, 7))
+    heads: dict[str, tuple[FloatArray, FloatArray]]  # cid -> (values (D,), covariance (D, D)), D = 7 per zoom
     chi2: float
 
 
@@ -445,7 +547,8 @@ def solve_self_calibrated(
         problem.prepare(outcome.values)
         marginals = gtsam.Marginals(problem.graph.linearize(outcome.values), outcome.values)
     for cid in survey.camera_ids:
-        vals, cov = np.zeros(HEAD_DIM), np.zeros((HEAD_DIM, HEAD_DIM))
+        d = head_dim(len(problem.zooms.get(cid, (None,))))
+        vals, cov = np.zeros(d), np.zeros((d, d))
         if cid in problem.head_keys:
             idx = list(problem.active[cid])
             vals[idx] = np.asarray(outcome.values.atVector(problem.head_keys[cid]))
@@ -481,15 +584,18 @@ def _fit_and_flag(
 def _report(model: HeadModel, fit: SelfCalibratedSolve | None, survey: Survey, decision: str,
             data_std: dict[str, FloatArray], ranks: dict[str, dict[str, int]]) -> HeadCalibrationReport:
     cams = {}
+    zooms, _ = zoom_groups(survey)
     for cid in survey.camera_ids:
+        d = head_dim(len(zooms[cid]))
         if fit is None or cid not in fit.problem.head_keys:
-            cams[cid] = CameraHeadEstimate(np.zeros(HEAD_DIM), np.zeros(HEAD_DIM), (),
-                                           data_std.get(cid, np.full(HEAD_DIM, np.inf)))
+            cams[cid] = CameraHeadEstimate(np.zeros(d), np.zeros(d), (), data_std.get(cid, np.full(d, np.inf)),
+                                           zooms=zooms[cid])
             continue
         vals, cov = fit.heads[cid]
-        est = tuple(HEAD_PARAMETERS[i] for i in fit.problem.active[cid])
+        names = parameter_names(zooms[cid])
+        est = tuple(names[i] for i in fit.problem.active[cid])
         cams[cid] = CameraHeadEstimate(vals, np.sqrt(np.clip(np.diag(cov), 0, None)), est,
-                                       data_std.get(cid, np.full(HEAD_DIM, np.inf)), cov)
+                                       data_std.get(cid, np.full(d, np.inf)), cov, zooms[cid])
     return HeadCalibrationReport(model, cams, decision, ranks=ranks)
 
 
@@ -534,24 +640,24 @@ def solve_with_head_model(
                             nodes={n: e.position for n, e in ideal.nodes.items()}, unlocalized=dict(ideal.unlocalized))
     if model is HeadModel.IDEAL:
         return ideal, _report(model, None, survey, "ideal head (not estimated)", {}, {})
-    info_n, labels = whitened_head_information(survey, start, prior_sigmas, exclude)
-    ranks, data_std = observability_from_information(info_n, labels, prior_sigmas)
+    hi = whitened_head_information(survey, start, prior_sigmas, exclude)
+    ranks, data_std = observability_from_information(hi)
     if model is HeadModel.FULL:
         for cid, std in data_std.items():
-            bad = [HEAD_PARAMETERS[i] for i in range(HEAD_DIM) if not np.isfinite(std[i])]
+            bad = [_names(survey, cid)[i] for i in range(len(std)) if not np.isfinite(std[i])]
             if bad:
                 raise SelfCalibrationError(
                     f"--head-model full: camera {cid}: the survey cannot determine {', '.join(bad)} "
-                    "(Fisher information rank deficient); use --head-model auto")
-        active = {cid: tuple(range(HEAD_DIM)) for cid in data_std}
+                    f"(Fisher information rank deficient{_thin_note(survey, cid, bad)}); use --head-model auto")
+        active = {cid: tuple(range(len(std))) for cid, std in data_std.items()}
         fit, exclude, flagged = _fit_and_flag(survey, start, active, options, prior_sigmas, fast_path)
         return _finish(fit, flagged, _report(model, fit, survey, "all parameters estimated", data_std, ranks))
     # AUTO: candidates are the parameters the data determine at all (full-rank information);
     # when the survey cannot determine them all, a largest determinable subset, the rest pinned.
     if all(np.all(np.isfinite(std)) for std in data_std.values()):
-        active = {cid: tuple(range(HEAD_DIM)) for cid in data_std}
+        active = {cid: tuple(range(len(std))) for cid, std in data_std.items()}
     else:
-        active = determinable_from_information(info_n, labels)
+        active = determinable_from_information(hi)
     k = sum(len(a) for a in active.values())
     if k == 0:
         return ideal, _report(model, None, survey, "ideal head: the survey determines no head parameter", data_std, ranks)
@@ -561,10 +667,9 @@ def solve_with_head_model(
                                        prior_sigmas, fast_path).chi2
     lr = chi2_ideal - fit.chi2
     lr_threshold = chi2_quantile(1.0 - LR_ALPHA, k)
-    rows = [r for r, (cid, i) in enumerate(labels) if i in fit.problem.active.get(cid, ())]
-    prior_chi2 = sum(float(np.sum((fit.heads[cid][0][list(idx)] / prior_sigmas[list(idx)]) ** 2))
-                     for cid, idx in fit.problem.active.items())
-    test = bayes_score_test(chi2_ideal, fit.chi2, prior_chi2, info_n[np.ix_(rows, rows)])
+    rows = [r for r, (cid, i) in enumerate(hi.labels) if i in fit.problem.active.get(cid, ())]
+    prior_chi2 = sum(float((fit.heads[hi.labels[r][0]][0][hi.labels[r][1]] / hi.scale[r]) ** 2) for r in rows)
+    test = bayes_score_test(chi2_ideal, fit.chi2, prior_chi2, hi.info[np.ix_(rows, rows)])
     verdict = (f"Bayes score {test.statistic:.1f} {'>' if test.rejects_ideal else '<'} {test.threshold:.1f} "
                f"(p {test.p_value:.3g}, level {test.alpha:g}; LR {lr:.1f}, {k} dof)")
     if not test.rejects_ideal:
@@ -584,6 +689,24 @@ def solve_with_head_model(
                      f"{n_est} parameters on {len(fit.problem.active)} cameras", data_std, ranks)
     report.lr_statistic, report.lr_threshold, report.score = lr, lr_threshold, test
     return _finish(fit, flagged, report)
+
+
+def _names(survey: Survey, cid: str) -> tuple[str, ...]:
+    """Names of camera ``cid``'s extended head vector."""
+    return parameter_names(zoom_groups(survey)[0][cid])
+
+
+def _thin_note(survey: Survey, cid: str, bad: list[str]) -> str:
+    """``, or zoom Z has N readings, a lever arm needs 3`` for the refused lever arms of thin zoom groups."""
+    zooms, group_of = zoom_groups(survey)
+    cam = np.array([o.camera == cid for o in survey.observations], dtype=bool)
+    notes = []
+    for g, z in enumerate(zooms[cid]):
+        n = int(np.sum(cam & (group_of == g)))
+        if len(zooms[cid]) > 1 and n < MIN_ZOOM_READINGS and parameter_names(zooms[cid])[SHARED_DIM + 2 * g] in bad:
+            notes.append(f"{'no zoom given' if z is None else f'zoom {z:g}'} has {n} readings, "
+                         f"a lever arm needs {MIN_ZOOM_READINGS}")
+    return "".join(f"; {n}" for n in notes)
 
 
 def _with_posterior_mse(ideal: Result, extended: Result) -> Result:
