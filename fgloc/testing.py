@@ -7,14 +7,18 @@ part of fgloc, and nothing in fgloc imports it.
 
 from __future__ import annotations
 
+import gtsam
 import numpy as np
+from gtsam.utils.numerical_derivative import numericalDerivative31, numericalDerivative32, numericalDerivative33
 
+from fgloc.core.geometry import FloatArray
 from fgloc.core.model import NodeMode, Survey
+from fgloc.factors.pan_tilt_head_factor import HeadFactorSet
 from fgloc.init.start import InitialEstimate
 from fgloc.sim.scenes import RandomScene, random_scene
 from fgloc.solve.joint import build_problem, solve, solve_survey
 
-__all__ = ["reaches_global_optimum", "stress_scene"]
+__all__ = ["assert_head_factor_jacobians", "reaches_global_optimum", "stress_scene"]
 
 
 def stress_scene(index: int, mode: NodeMode) -> Survey:
@@ -47,3 +51,39 @@ def reaches_global_optimum(survey: Survey, rel_tol: float = 1e-6) -> tuple[bool,
     assert ref.stats is not None
     ok = ours.stats.final_error <= ref.stats.final_error * (1 + rel_tol) + 1e-6
     return ok, ours.stats.final_error, ref.stats.final_error
+
+
+def assert_head_factor_jacobians(
+    heads: HeadFactorSet, keys: tuple[int, int, int], pose: gtsam.Pose3, node: FloatArray, head_values: FloatArray,
+    sigma: float,
+) -> tuple[FloatArray, FloatArray]:
+    """Assert that the first head-model factor's analytic Jacobians equal GTSAM's numerical
+    derivatives (step 1e-6, tolerance 1e-6), computed without and then with the set's prepared
+    cache. ``keys`` are its (camera pose, node, head vector) keys, ``sigma`` its isotropic noise.
+    Returns the analytic unwhitened Jacobian (columns: pose 6, node 2 or 3, head vector) and the
+    numerical one of the head vector."""
+    factor = heads.factors[0]
+
+    def values_of(p: gtsam.Pose3, x: FloatArray, h: FloatArray) -> gtsam.Values:
+        v = gtsam.Values()
+        v.insert(keys[0], p)
+        v.insert(keys[1], x)
+        v.insert(keys[2], h)
+        return v
+
+    def f(p: gtsam.Pose3, x: FloatArray, h: FloatArray) -> FloatArray:
+        return np.asarray(factor.unwhitenedError(values_of(p, x, h)))
+
+    values = values_of(pose, node, head_values)
+    num = [d(f, pose, node, head_values, 1e-6) for d in (numericalDerivative31, numericalDerivative32,
+                                                          numericalDerivative33)]
+    dp = len(node)
+    A = np.zeros((2, 0))
+    for use_cache in (False, True):
+        if use_cache:
+            heads.prepare(values)
+        A = np.asarray(factor.linearize(values).jacobian()[0]) * sigma
+        np.testing.assert_allclose(A[:, :6], num[0], atol=1e-6)
+        np.testing.assert_allclose(A[:, 6:6 + dp], num[1], atol=1e-6)
+        np.testing.assert_allclose(A[:, 6 + dp:], num[2], atol=1e-6)
+    return A, np.asarray(num[2])

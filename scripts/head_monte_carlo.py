@@ -47,6 +47,7 @@ from fgloc.evaluate.crlb import cramer_rao_bound  # noqa: E402
 from fgloc.init.start import InitialEstimate  # noqa: E402
 from fgloc.sim.head_errors import inject_head_errors, limit_pan_range, sample_head_errors  # noqa: E402
 from fgloc.sim.scenes import PaperScenario, RandomScene, observe, paper_scenario, random_scene  # noqa: E402
+from fgloc.solve.head_problem import node_rms_bound  # noqa: E402
 from fgloc.solve.self_calibration import (  # noqa: E402
     HeadCalibrationReport,
     HeadModel,
@@ -96,9 +97,7 @@ def extended_crb(survey: Survey, heads: dict[str, np.ndarray]) -> float:
     start = InitialEstimate(cameras=dict(truth.cameras), nodes=dict(truth.nodes))
     active = {c: tuple(range(HEAD_DIM)) for c in survey.camera_ids}
     problem = build_self_calibration_problem(survey, start, active, heads)
-    problem.prepare(problem.initial)
-    marg = gtsam.Marginals(problem.graph.linearize(problem.initial), problem.initial)
-    return float(np.sqrt(np.mean([np.trace(marg.marginalCovariance(k)) for k in problem.node_keys.values()])))
+    return node_rms_bound(problem)
 
 
 def node_errors(result: Result, survey: Survey) -> tuple[float, float, int]:

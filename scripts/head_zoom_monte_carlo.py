@@ -31,7 +31,6 @@ from dataclasses import replace
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-import gtsam  # noqa: E402
 import numpy as np  # noqa: E402
 from scipy.stats import chi2  # noqa: E402
 
@@ -40,6 +39,7 @@ from fgloc.core.model import Result, Survey  # noqa: E402
 from fgloc.init.start import InitialEstimate  # noqa: E402
 from fgloc.sim.head_errors import inject_head_errors, sample_head_errors, sample_zoom_levers  # noqa: E402
 from fgloc.sim.scenes import RandomScene, observe, random_scene  # noqa: E402
+from fgloc.solve.head_problem import node_rms_bound  # noqa: E402
 from fgloc.solve.joint import SolverOptions  # noqa: E402
 from fgloc.solve.self_calibration import HeadModel, build_self_calibration_problem, solve_with_head_model  # noqa: E402
 
@@ -81,9 +81,7 @@ def extended_crb(survey: Survey, truth_ext: dict[str, np.ndarray], sigmas: np.nd
     start = InitialEstimate(cameras=dict(truth.cameras), nodes=dict(truth.nodes))
     problem = build_self_calibration_problem(survey, start, {c: tuple(range(9)) for c in survey.camera_ids},
                                              truth_ext, SolverOptions(), prior_sigmas=sigmas)
-    problem.prepare(problem.initial)
-    marg = gtsam.Marginals(problem.graph.linearize(problem.initial), problem.initial)
-    return float(np.sqrt(np.mean([np.trace(marg.marginalCovariance(k)) for k in problem.node_keys.values()])))
+    return node_rms_bound(problem)
 
 
 def node_stats(result: Result, survey: Survey) -> tuple[float, float, int]:

@@ -4,12 +4,12 @@ against numerical differentiation (numpy and GTSAM tangent conventions)."""
 import gtsam
 import numpy as np
 import pytest
-from gtsam.utils.numerical_derivative import numericalDerivative31, numericalDerivative32, numericalDerivative33
 
 from fgloc.core.geometry import bearing_pan_tilt, rot_x, rot_y, rot_z
 from fgloc.core.head_model import DATASHEET_TOLERANCES, DEFAULT_PRIOR_SIGMAS, HEAD_DIM, head_pan_tilt
 from fgloc.factors.pan_tilt_head_factor import HeadFactorSet
 from fgloc.sim.head_errors import TYPICAL_MAGNITUDES, sample_head_errors
+from fgloc.testing import assert_head_factor_jacobians
 
 C, L, H = gtsam.symbol_shorthand.C, gtsam.symbol_shorthand.L, gtsam.symbol_shorthand.H
 
@@ -96,31 +96,7 @@ def test_factor_jacobians_match_gtsam_numerical(planar: bool, seed: int) -> None
     fixed[list(active)] = 0.0
     heads = HeadFactorSet(np.array([C(0)]), np.array([L(0)]), np.array([H(0)]), {H(0): active}, fixed[None],
                           np.array([pan]), np.array([tilt]), [gtsam.noiseModel.Isotropic.Sigma(2, 0.01)], planar)
-    factor = heads.factors[0]
-
-    def values_of(p: gtsam.Pose3, x: np.ndarray, h: np.ndarray) -> gtsam.Values:
-        v = gtsam.Values()
-        v.insert(C(0), p)
-        v.insert(L(0), x)
-        v.insert(H(0), h)
-        return v
-
-    def f(p: gtsam.Pose3, x: np.ndarray, h: np.ndarray) -> np.ndarray:
-        return factor.unwhitenedError(values_of(p, x, h))
-
-    hv = params[list(active)].copy()
-    values = values_of(pose, node, hv)
-    A, _ = factor.linearize(values).jacobian()
-    A = A * 0.01
-    dp = 2 if planar else 3
-    for use_cache in (False, True):
-        if use_cache:
-            heads.prepare(values)
-            A, _ = factor.linearize(values).jacobian()
-            A = A * 0.01
-        np.testing.assert_allclose(A[:, :6], numericalDerivative31(f, pose, node, hv, 1e-6), atol=1e-6)
-        np.testing.assert_allclose(A[:, 6:6 + dp], numericalDerivative32(f, pose, node, hv, 1e-6), atol=1e-6)
-        np.testing.assert_allclose(A[:, 6 + dp:], numericalDerivative33(f, pose, node, hv, 1e-6), atol=1e-6)
+    assert_head_factor_jacobians(heads, (C(0), L(0), H(0)), pose, node, params[list(active)].copy(), 0.01)
 
 
 def test_prior_is_the_population_the_simulator_draws_heads_from() -> None:

@@ -19,7 +19,6 @@ import gtsam
 import numpy as np
 import pytest
 from gtsam.symbol_shorthand import C, H, L
-from gtsam.utils.numerical_derivative import numericalDerivative31, numericalDerivative32, numericalDerivative33
 from scipy.stats import chi2
 
 import fgloc  # noqa: F401  (first: importing factors.* before fgloc is circular)
@@ -60,6 +59,7 @@ from fgloc.solve.self_calibration import (
     solve_with_head_model,
 )
 from fgloc.survey.head_check import read_head_calibrations
+from fgloc.testing import assert_head_factor_jacobians
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
@@ -135,33 +135,12 @@ def test_factor_jacobians_match_gtsam_numerical(planar: bool, group: int, seed: 
     heads = HeadFactorSet(np.array([C(0)]), np.array([L(0)]), np.array([H(0)]), {H(0): active}, fixed,
                           np.array([pan]), np.array([tilt]), [gtsam.noiseModel.Isotropic.Sigma(2, 0.01)], planar,
                           zoom_group=np.array([group]))
-    factor = heads.factors[0]
-
-    def values_of(p: gtsam.Pose3, x: np.ndarray, h: np.ndarray) -> gtsam.Values:
-        v = gtsam.Values()
-        v.insert(C(0), p)
-        v.insert(L(0), x)
-        v.insert(H(0), h)
-        return v
-
-    def f(p: gtsam.Pose3, x: np.ndarray, h: np.ndarray) -> np.ndarray:
-        return factor.unwhitenedError(values_of(p, x, h))
-
-    hv = values_ext[list(active)].copy()
-    values = values_of(pose, node, hv)
+    A, num_h = assert_head_factor_jacobians(heads, (C(0), L(0), H(0)), pose, node, values_ext[list(active)].copy(),
+                                            0.01)
     dp = 2 if planar else 3
-    for use_cache in (False, True):
-        if use_cache:
-            heads.prepare(values)
-        A, _ = factor.linearize(values).jacobian()
-        A = A * 0.01
-        np.testing.assert_allclose(A[:, :6], numericalDerivative31(f, pose, node, hv, 1e-6), atol=1e-6)
-        np.testing.assert_allclose(A[:, 6:6 + dp], numericalDerivative32(f, pose, node, hv, 1e-6), atol=1e-6)
-        num_h = numericalDerivative33(f, pose, node, hv, 1e-6)
-        np.testing.assert_allclose(A[:, 6 + dp:], num_h, atol=1e-6)
-        own, other = ([3, 4], [5, 6]) if group == 0 else ([5, 6], [3, 4])  # lever-arm positions in ``active``
-        assert np.all(A[:, 6 + dp + np.array(other)] == 0.0)
-        assert np.max(np.abs(num_h[:, own])) > 1e-3
+    own, other = ([3, 4], [5, 6]) if group == 0 else ([5, 6], [3, 4])  # lever-arm positions in ``active``
+    assert np.all(A[:, 6 + dp + np.array(other)] == 0.0)
+    assert np.max(np.abs(num_h[:, own])) > 1e-3
 
 
 def test_predicted_readings_use_the_lever_arm_of_their_zoom() -> None:

@@ -125,3 +125,11 @@ def build_self_calibration_problem(
         pan_tilt=pt, observation_index=base.observation_index, unlocalized=dict(base.unlocalized),
         heads=heads, head_keys=head_keys, active={c: tuple(sorted(active[c])) for c in head_keys}, zooms=zooms,
     )
+
+
+def node_rms_bound(problem: SelfCalibrationProblem) -> float:
+    """sqrt(mean over nodes of the trace of their marginal covariance) at ``problem.initial``:
+    the Cramer-Rao (with the head prior: Bayesian) RMS bound when ``initial`` is the truth."""
+    problem.prepare(problem.initial)
+    marginals = gtsam.Marginals(problem.graph.linearize(problem.initial), problem.initial)
+    return float(np.sqrt(np.mean([np.trace(marginals.marginalCovariance(k)) for k in problem.node_keys.values()])))
