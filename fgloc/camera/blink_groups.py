@@ -177,8 +177,8 @@ def decode_group(
     else:
         return _refuse(f"levels not 0..3 LEDs (off the equal spacing by {skew:.2f} step)")
     c = c[0] + step * np.arange(4.0) if top == 2 else c
-    if step < cfg.min_snr * noise:
-        return _refuse(f"one-LED step {step:.0f} < {cfg.min_snr} x {noise:.1f}")
+    if step < cfg.group_min_snr * noise:
+        return _refuse(f"one-LED step {step:.0f} < {cfg.group_min_snr} x {noise:.1f}")
     if abs(c[0]) > cfg.max_off_level * step + 4.0 * noise:
         return _refuse(f"never dark (off level {c[0]:.0f} of step {step:.0f})")
     above = int(np.count_nonzero(valid & (flux > c[3] + cfg.level_band * step)))
