@@ -46,7 +46,13 @@ from fgloc.camera.intrinsics import CameraIntrinsics
 from fgloc.camera.pixel_angles import pixel_to_pan_tilt
 from fgloc.core.geometry import pan_tilt_bearing
 from fgloc.core.model import CameraPose
-from fgloc.drivers.blink_frames import BlinkRenderConfig, close_groups, motes_synchronized, motes_with_codes, render_view
+from fgloc.drivers.blink_frames import (
+    BlinkRenderConfig,
+    close_groups,
+    motes_synchronized,
+    motes_with_codes,
+    render_view,
+)
 from fgloc.drivers.rendered_camera import LedScene, RenderedCamera
 from fgloc.survey.coded_readings import field_intrinsics
 from fgloc.survey.field_plans import frames_for
