@@ -1,4 +1,4 @@
-"""Pair decoding in the field plan: only crowded groups of exactly two, at the measured rate."""
+"""Pair and group decoding in the field plan: only crowded groups of exactly two (three), at the measured rate."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from fgloc.camera.intrinsics import CameraIntrinsics
-from fgloc.survey.field_plans import pair_decoding, pair_rate_table
+from fgloc.survey.field_plans import group_decoding, pair_decoding, pair_rate_table
 from fgloc.survey.view_planner import neighbour_px, plan_refinement
 
 INTR = CameraIntrinsics.from_fov(640, 480, 65.0)
@@ -77,3 +77,27 @@ def test_rate_table_parsing() -> None:
     for bad in ("1.2", "8:0.4,6:0.1,inf:0.9", "6:0.1", ""):
         with pytest.raises(ValueError):
             pair_rate_table(bad)
+
+
+def test_group_decoding_only_groups_of_exactly_three() -> None:
+    """The chain (2, 3, 4) is the one group of three; pairs and singles are no group; at rate
+    1 its motes are resolved, at 0 none; the fourth mote's distance picks the table's rate."""
+    gd = group_decoding(INTR, SCENE, 4.0, 1.0, np.random.default_rng(0))
+    assert gd.groups.tolist() == [[2, 3, 4]] and gd.fourth_px.tolist() == [math.inf]
+    assert np.flatnonzero(gd.resolved).tolist() == [2, 3, 4] and gd.resolved_groups == 1
+    assert not group_decoding(INTR, SCENE, 4.0, 0.0, np.random.default_rng(0)).resolved.any()
+    near = np.vstack([SCENE, _at_px([(110.0, 2.0)])])  # a fourth mote 6 px from (104, 2)
+    gn = group_decoding(INTR, near, 4.0, ((8.0, 0.0), (math.inf, 1.0)), np.random.default_rng(0))
+    assert gn.fourth_px[0] == pytest.approx(6.0, abs=0.05) and not gn.resolved.any()
+    four = np.vstack([SCENE, _at_px([(106.0, 3.0)])])  # the chain grows to four: no group of three
+    assert len(group_decoding(INTR, four, 4.0, 1.0, np.random.default_rng(0)).groups) == 0
+
+
+def test_group_rate_is_the_share_resolved() -> None:
+    grid = np.array([(-1.5 + 0.15 * i, -1.0 + 0.05 * j) for i in range(20) for j in range(20)])
+    cos = np.cos(grid[:, 1])
+    pt = np.vstack([grid, grid + np.column_stack([2.0 / (INTR.fx * cos), np.zeros(len(grid))]),
+                    grid + np.column_stack([1.0 / (INTR.fx * cos), np.full(len(grid), 2.0 / INTR.fy)])])
+    gd = group_decoding(INTR, pt, 4.0, 0.4, np.random.default_rng(5))
+    assert len(gd.groups) == 400
+    assert abs(gd.resolved_groups / 400 - 0.4) < 3.5 * math.sqrt(0.4 * 0.6 / 400)  # binomial, 3.5 sigma
