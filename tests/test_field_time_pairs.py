@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -101,3 +102,40 @@ def test_group_rate_is_the_share_resolved() -> None:
     gd = group_decoding(INTR, pt, 4.0, 0.4, np.random.default_rng(5))
     assert len(gd.groups) == 400
     assert abs(gd.resolved_groups / 400 - 0.4) < 3.5 * math.sqrt(0.4 * 0.6 / 400)  # binomial, 3.5 sigma
+
+
+def test_group_lever_in_the_coded_readings() -> None:
+    """With ``group_rate`` 1 the readings model reads every crowded group of exactly three in
+    the wide views (its motes leave the refinement) and exactly (zero noise)."""
+    from fgloc.core.model import CameraPose
+    from fgloc.survey.coded_readings import CodedNoise, coded_observations
+
+    rng = np.random.default_rng(4)  # 6 crowded groups of three over the two cameras
+    cams = [CameraPose(np.array([0.0, 0.0, 0.1]), np.eye(3)), CameraPose(np.array([1.0, 0.0, 0.1]), np.eye(3))]
+    nodes = np.column_stack([rng.uniform(0, 1, (150, 2)), np.zeros(150)])
+    g = np.linspace(0, 1, 41)
+    area = np.column_stack([np.repeat(g, 41), np.tile(g, 41), np.zeros(41 * 41)])
+    ids = [f"n{j}" for j in range(150)]
+    exact = CodedNoise(head_sigma=0.0, decoder_sigma_pan=0.0, decoder_sigma_tilt=0.0)
+    off = coded_observations(["a", "b"], cams, ids, nodes, area, INTR, exact, np.random.default_rng(1))
+    on = coded_observations(["a", "b"], cams, ids, nodes, area, INTR, replace(exact, group_rate=1.0),
+                            np.random.default_rng(1))
+    from fgloc.core.geometry import bearing_pan_tilt, world_to_base
+
+    n_group = 0
+    for cid, cam in zip(["a", "b"], cams):
+        d = world_to_base(cam.rotation, cam.position, nodes)
+        pt = np.column_stack(bearing_pan_tilt(d / np.linalg.norm(d, axis=1, keepdims=True)))
+        n_group += int(group_decoding(INTR, pt, 4.0, 1.0, np.random.default_rng(0)).resolved.sum())
+    assert n_group == 18
+    # each group mote leaves the refinement (or the unresolved: no zoom separated it)
+    assert (sum(on.refined.values()) + sum(on.unresolved.values())
+            == sum(off.refined.values()) + sum(off.unresolved.values()) - n_group)
+    truth = {}
+    for cid, cam in zip(["a", "b"], cams):
+        d = world_to_base(cam.rotation, cam.position, nodes)
+        p, t = bearing_pan_tilt(d / np.linalg.norm(d, axis=1, keepdims=True))
+        truth.update({(cid, ids[j]): (p[j], t[j]) for j in range(150)})
+    for o in on.observations:
+        tp, tt = truth[(o.camera, o.node)]
+        assert abs(math.remainder(o.pan - tp, 2 * math.pi)) < 1e-9 and abs(o.tilt - tt) < 1e-9
