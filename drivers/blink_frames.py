@@ -215,3 +215,31 @@ def close_pairs(centres: np.ndarray, separation_px: np.ndarray, rng: np.random.G
     ang = rng.uniform(0.0, math.pi, len(c))
     half = 0.5 * np.asarray(separation_px, float)[:, None] * np.column_stack([np.cos(ang), np.sin(ang)])
     return np.stack([c - half, c + half], axis=1).reshape(-1, 2)
+
+
+def close_groups(n: int, size: int, width: float, height: float, rng: np.random.Generator,
+                 others: np.ndarray | None = None, link_px: float = 4.0, clear_px: float = 4.0,
+                 margin_px: float = 20.0) -> np.ndarray:
+    """(n size, 2) pixels of ``n`` crowded groups of ``size`` LEDs (rows ``size k`` ..
+    ``size k + size - 1``): each LED after a group's first (uniform in the image, ``margin_px``
+    from its edges) lies ``link_px sqrt(U)`` px from a uniformly chosen earlier LED of the
+    group in a uniformly random direction (a connected group at the ``link_px`` conflict
+    criterion, spaced as uniformly scattered motes); no pixel of ``others`` ((M, 2)) or of an
+    earlier group lies within ``clear_px`` of any LED of a group."""
+    placed = np.zeros((0, 2)) if others is None else np.asarray(others, float).reshape(-1, 2)
+    out: list[np.ndarray] = []
+    while len(out) < n:
+        pts = [np.array([rng.uniform(margin_px, width - margin_px), rng.uniform(margin_px, height - margin_px)])]
+        for _ in range(size - 1):
+            a = rng.uniform(0.0, 2.0 * math.pi)
+            base = pts[int(rng.integers(len(pts)))]
+            pts.append(base + link_px * math.sqrt(rng.uniform()) * np.array([math.cos(a), math.sin(a)]))
+        g = np.array(pts)
+        if not ((g >= 2.0).all() and (g[:, 0] <= width - 3.0).all() and (g[:, 1] <= height - 3.0).all()):
+            continue
+        if len(placed) and float(np.min(np.hypot(placed[:, None, 0] - g[None, :, 0],
+                                                 placed[:, None, 1] - g[None, :, 1]))) < clear_px:
+            continue
+        out.append(g)
+        placed = np.vstack([placed, g])
+    return np.vstack(out) if out else np.zeros((0, 2))

@@ -14,11 +14,13 @@ cameras, so these bounds are tight).
 
     OPENBLAS_NUM_THREADS=1 .venv/bin/python scripts/blink_accuracy.py --trials 200 \
         [--fields] [--decoder-pan DEG --decoder-tilt DEG] [--fx-error 0.005] [--miss-rate Q]
-        [--pair-rate P --pair-pan DEG --pair-tilt DEG]
+        [--pair-rate P --pair-pan DEG --pair-tilt DEG] [--group-rate P --group-pan DEG --group-tilt DEG]
 
 ``--pair-rate``: crowded groups of exactly two motes are read in the wide views as pairs
 with that probability, with the pair decoder's centroid error (``--pair-pan``,
 ``--pair-tilt``; measured by scripts/blink_montecarlo.py --pairs), and not refined.
+``--group-rate``: the same for crowded groups of exactly three and the group decoder
+(``--group-pan``, ``--group-tilt``; scripts/blink_montecarlo.py --groups).
 """
 
 from __future__ import annotations
@@ -50,6 +52,11 @@ def main() -> None:
                     "per bound on the distance to the nearest third mote (px), as field_time.py --pair-decode")
     ap.add_argument("--pair-pan", type=float, default=None, help="deg, pair-decoded centroid error RMS (pan x cos tilt)")
     ap.add_argument("--pair-tilt", type=float, default=None, help="deg, pair-decoded centroid error RMS (tilt)")
+    ap.add_argument("--group-rate", default="", metavar="RATE|PX:RATE,...,inf:RATE",
+                    help="group decoding: share of crowded groups of exactly three read as a group in the wide view, "
+                    "or per bound on the distance to the nearest fourth mote (px), as field_time.py --group-decode")
+    ap.add_argument("--group-pan", type=float, default=None, help="deg, group-decoded centroid error RMS (pan x cos tilt)")
+    ap.add_argument("--group-tilt", type=float, default=None, help="deg, group-decoded centroid error RMS (tilt)")
     ap.add_argument("--independent-head", action="store_true",
                     help="diagnostic: an independent head error per reading instead of one per view")
     ap.add_argument("--no-views", action="store_true",
@@ -59,13 +66,20 @@ def main() -> None:
         table = pair_rate_table(args.pair_rate) if args.pair_rate else ((math.inf, 0.0),)
     except ValueError as exc:
         ap.error(f"--pair-rate: {exc} ({args.pair_rate})")
+    try:
+        gtable = pair_rate_table(args.group_rate) if args.group_rate else ((math.inf, 0.0),)
+    except ValueError as exc:
+        ap.error(f"--group-rate: {exc} ({args.group_rate})")
     noise = CodedNoise(decoder_sigma_pan=math.radians(args.decoder_pan),
                        decoder_sigma_tilt=math.radians(args.decoder_tilt), fx_error=args.fx_error,
                        miss_rate=args.miss_rate, field_rows=args.fields,
                        shared_head=not args.independent_head, views=not args.no_views,
                        pair_rate=table[0][1] if len(table) == 1 else table,
                        pair_sigma_pan=None if args.pair_pan is None else math.radians(args.pair_pan),
-                       pair_sigma_tilt=None if args.pair_tilt is None else math.radians(args.pair_tilt))
+                       pair_sigma_tilt=None if args.pair_tilt is None else math.radians(args.pair_tilt),
+                       group_rate=gtable[0][1] if len(gtable) == 1 else gtable,
+                       group_sigma_pan=None if args.group_pan is None else math.radians(args.group_pan),
+                       group_sigma_tilt=None if args.group_tilt is None else math.radians(args.group_tilt))
     intr = CameraIntrinsics.from_fov(640, 480, 65.0)
     sq = {"seq": [], "coded": []}  # type: dict[str, list[np.ndarray]]
     ne = {"seq": [], "coded": []}  # type: dict[str, list[np.ndarray]]
@@ -89,7 +103,8 @@ def main() -> None:
           f"fx error {args.fx_error}, miss rate {args.miss_rate}, {'fields' if args.fields else 'frames'}, "
           f"head error {'per reading' if args.independent_head else 'per view'}"
           f"{', views not named' if args.no_views else ''}"
-          f"{f', pair decoding at {args.pair_rate} ({args.pair_pan} / {args.pair_tilt} deg)' if args.pair_rate else ''}, "
+          f"{f', pair decoding at {args.pair_rate} ({args.pair_pan} / {args.pair_tilt} deg)' if args.pair_rate else ''}"
+          f"{f', group decoding at {args.group_rate} ({args.group_pan} / {args.group_tilt} deg)' if args.group_rate else ''}, "
           f"{dt:.0f} s")
     print(f"per scene: {views / args.trials:.1f} views (both cameras), {refined / args.trials:.1f} refined readings, "
           f"{unresolved / args.trials:.2f} unresolved, {missed / args.trials:.2f} missed, "

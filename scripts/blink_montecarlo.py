@@ -14,6 +14,11 @@ motes start at a broadcast epoch, each off by up to +-2 ms and drifting at 50 pp
 (sd), and the view is recorded a uniform 0..``--resync`` s after the last (re)start.
 ``--slide N``: the recording goes on for N more code lengths and is decoded in
 sliding windows (:func:`fgloc.camera.blink_decoder.decode_windows`, keys ``sl_*``).
+``--groups N``: each view also holds N crowded groups of three
+(:func:`fgloc.drivers.blink_frames.close_groups`: each LED ``4 sqrt(U)`` px from an earlier
+one of its group, no other mote within 4 px of any) and is decoded with group decoding on
+(``PairConfig(max_group=3)``, :mod:`fgloc.camera.blink_groups`); a group decode is
+resolved when all three motes are read within 2 px (keys ``grp_*``).
 ``--pairs N``: each view also holds N crowded pairs (two motes closer than 4 px in the
 view's pixels, field pixels for ``--fields``: the field plan's criterion; separation
 ``4 sqrt(U)`` px, as for uniformly scattered motes, in a random direction; no third mote
@@ -22,7 +27,7 @@ within 6 px of the pair's centre) and is decoded with pair decoding on
 both its motes are read within 2 px; mislabels are counted over all readings as above.
 
     OPENBLAS_NUM_THREADS=1 .venv/bin/python scripts/blink_montecarlo.py --trials 250 [--fields] [--sync] [--slide 1]
-        [--pairs 40 [--time-decode]]
+        [--pairs 40 [--time-decode]] [--groups 20]
 """
 
 from __future__ import annotations
@@ -41,7 +46,13 @@ from fgloc.camera.intrinsics import CameraIntrinsics
 from fgloc.camera.pixel_angles import pixel_to_pan_tilt
 from fgloc.core.geometry import pan_tilt_bearing
 from fgloc.core.model import CameraPose
-from fgloc.drivers.blink_frames import BlinkRenderConfig, motes_synchronized, motes_with_codes, render_view
+from fgloc.drivers.blink_frames import (
+    BlinkRenderConfig,
+    close_groups,
+    motes_synchronized,
+    motes_with_codes,
+    render_view,
+)
 from fgloc.drivers.rendered_camera import LedScene, RenderedCamera
 from fgloc.survey.coded_readings import field_intrinsics
 from fgloc.survey.field_plans import frames_for
@@ -49,7 +60,7 @@ from fgloc.survey.field_plans import frames_for
 
 def trial(seed: int, n_motes: int, book_size: int, glints: int, fields: bool = False,
           frames: int | None = None, extend: int = 0, sync: bool = False, resync_s: float = 10.0,
-          slide: int = 0, pairs: int = 0, time_decode: bool = False) -> dict[str, float]:
+          slide: int = 0, pairs: int = 0, time_decode: bool = False, groups: int = 0) -> dict[str, float]:
     """One view. ``frames`` recorded (default 3L + 2); with ``extend`` > 0 the recording
     goes on for ``extend`` more frames and the whole stack is decoded again (keys ``ext_*``):
     the retry of a view whose motes were missed, without moving the head. ``slide``:
@@ -68,6 +79,10 @@ def trial(seed: int, n_motes: int, book_size: int, glints: int, fields: bool = F
     n_single = n_motes
     if pairs:
         uv = np.vstack([uv, _pair_pixels(rng, uv, pairs, intr.width, intr.height)])
+        n_motes = len(uv)
+    g0 = n_motes
+    if groups:
+        uv = np.vstack([uv, close_groups(groups, 3, intr.width, intr.height, rng, uv)])
         n_motes = len(uv)
     pans, tilts = pixel_to_pan_tilt(intr, uv, head_pan, head_tilt)
     dist = rng.uniform(3.0, 30.0, n_motes)
@@ -103,7 +118,7 @@ def trial(seed: int, n_motes: int, book_size: int, glints: int, fields: bool = F
         return [f for f in stack if f[0] < t_start + (periods - 0.5) / cfg.frame_rate_hz]
 
     runs = [""] + (["ext_"] if extend else []) + (["sl_"] if slide else [])
-    pc = PairConfig() if pairs else None
+    pc = PairConfig(max_group=3) if groups else PairConfig() if pairs else None
     for prefix in runs:
         if prefix == "sl_":
             res = decode_windows(stack, 1.0 / cfg.frame_rate_hz, book, intr, head_pan, head_tilt, k0, sync=timing,
@@ -132,6 +147,9 @@ def trial(seed: int, n_motes: int, book_size: int, glints: int, fields: bool = F
             else:
                 mislabelled += 1
         iso_missed = sum(1 for k, i in enumerate(ids) if isolated[k] and int(i) not in found)
+        if groups:
+            out.update({prefix + k: v for k, v in _group_stats(res.readings, ids, uv, truth, g0, found,
+                                                                pans, tilts).items()})
         if pairs:
             out.update({prefix + k: v for k, v in _pair_stats(res.readings, ids, uv, truth, n_single, found,
                                                                isolated, pans, tilts).items()})
@@ -209,6 +227,54 @@ def _pair_stats(readings: tuple, ids: np.ndarray, uv: np.ndarray, truth: dict, n
     return st
 
 
+FOURTH_BINS = THIRD_BINS  #: bins (px) of the nearest fourth mote to any LED of a group
+
+
+def _group_stats(readings: tuple, ids: np.ndarray, uv: np.ndarray, truth: dict, g0: int, found: set,
+                 pans: np.ndarray, tilts: np.ndarray) -> dict[str, float]:
+    """Group decodes of one view (rows ``g0``.. in threes): resolved groups (all three read
+    within 2 px as a group), by the nearest fourth mote, partial groups, and the pixel and
+    angle errors of their readings."""
+    got = {r.index: r for r in readings}
+    st: dict[str, float] = {"grp_n": 0, "grp_resolved": 0, "grp_partial": 0, "grp_sq_u": 0.0, "grp_sq_v": 0.0,
+                            "grp_n_px": 0, "grp_sq_x": 0.0, "grp_sq_y": 0.0}
+    for b in range(len(FOURTH_BINS) - 1):
+        st[f"grp_n_t{b}"] = st[f"grp_res_t{b}"] = 0
+    for k in range(g0, len(ids), 3):
+        mem = [k, k + 1, k + 2]
+        rest = np.delete(uv, mem, axis=0)
+        fourth = min(float(np.min(np.hypot(*(rest - uv[m]).T))) for m in mem) if len(rest) else math.inf
+        t = min(int(np.searchsorted(FOURTH_BINS, fourth, side="right")) - 1, len(FOURTH_BINS) - 2)
+        st["grp_n"] += 1
+        st[f"grp_n_t{t}"] += 1
+        ok = [int(ids[m]) in found and bool(got[int(ids[m])].group) for m in mem]
+        st["grp_partial"] += 0 < sum(int(int(ids[m]) in found) for m in mem) < 3
+        if all(ok):
+            st["grp_resolved"] += 1
+            st[f"grp_res_t{t}"] += 1
+            for m in mem:
+                r = got[int(ids[m])]
+                st["grp_sq_u"] += (r.u - uv[m][0]) ** 2
+                st["grp_sq_v"] += (r.v - uv[m][1]) ** 2
+                st["grp_n_px"] += 1
+                st["grp_sq_x"] += (math.remainder(r.pan - pans[m], 2 * math.pi) * math.cos(tilts[m])) ** 2
+                st["grp_sq_y"] += (r.tilt - tilts[m]) ** 2
+    return st
+
+
+def _print_groups(tot: dict[str, float], p: str) -> None:
+    n, res = tot[p + "grp_n"], tot[p + "grp_resolved"]
+    npx = max(tot[p + "grp_n_px"], 1)
+    print(f"  group decodes {n:.0f}: resolved {res:.0f} ({res / max(n, 1):.2%}),"
+          f" partly read (1 or 2 of 3) {tot[p + 'grp_partial']:.0f}")
+    print("  resolved by nearest fourth mote: " + ", ".join(
+        f"{FOURTH_BINS[b]:.0f}-{FOURTH_BINS[b + 1]:.0f} px {tot[f'{p}grp_res_t{b}'] / max(tot[f'{p}grp_n_t{b}'], 1):.1%}"
+        f" of {tot[f'{p}grp_n_t{b}']:.0f}" for b in range(len(FOURTH_BINS) - 1)))
+    print(f"  centroid error RMS, u / v (px): group LEDs {math.sqrt(tot[p + 'grp_sq_u'] / npx):.3f} / "
+          f"{math.sqrt(tot[p + 'grp_sq_v'] / npx):.3f} ({npx:.0f}); angle error RMS, pan (x cos tilt) / tilt: "
+          f"{math.degrees(math.sqrt(tot[p + 'grp_sq_x'] / npx)):.5f} / {math.degrees(math.sqrt(tot[p + 'grp_sq_y'] / npx)):.5f} deg")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--trials", type=int, default=250)
@@ -223,6 +289,8 @@ def main() -> None:
     ap.add_argument("--resync", type=float, default=10.0, help="seconds between synchronized (re)starts")
     ap.add_argument("--slide", type=int, default=0, help="record this many more code lengths, sliding windows")
     ap.add_argument("--pairs", type=int, default=0, help="crowded pairs per view, decoded with pair decoding on")
+    ap.add_argument("--groups", type=int, default=0,
+                    help="crowded groups of three per view, decoded with group decoding on (max_group=3)")
     ap.add_argument("--time-decode", action="store_true",
                     help="also decode each first window without pair decoding; print both medians (s per view)")
     args = ap.parse_args()
@@ -231,7 +299,8 @@ def main() -> None:
     t0 = time.perf_counter()
     for k in range(args.trials):
         for key, v in trial(args.seed + k, args.motes, args.book, args.glints, args.fields, args.frames,
-                             args.extend, args.sync, args.resync, args.slide, args.pairs, args.time_decode).items():
+                             args.extend, args.sync, args.resync, args.slide, args.pairs, args.time_decode,
+                             args.groups).items():
             if key in times:
                 times[key].append(v)
             else:
@@ -261,6 +330,8 @@ def main() -> None:
               f" deg, tilt {math.degrees(math.sqrt(tot[prefix + 'sq_y'] / n_xy)):.5f} deg")
         if args.pairs:
             _print_pairs(tot, prefix)
+        if args.groups:
+            _print_groups(tot, prefix)
     if times["t_on"]:
         print(f"decode_view per view, median of {len(times['t_on'])}: without pair decoding "
               f"{1e3 * float(np.median(times['t_off'])):.0f} ms, with {1e3 * float(np.median(times['t_on'])):.0f} ms")

@@ -35,6 +35,10 @@ labelled by the pair decoder (:mod:`fgloc.camera.blink_pairs`) with the measured
 ``RATE`` (or, as ``PX:RATE,...,inf:RATE``, the rate by the distance to the pair's nearest
 third mote; seeded draw per pair, :func:`fgloc.survey.field_plans.pair_decoding`) and need
 no refinement or radio round from that camera; the rest as before.
+``--group-decode RATE`` (or ``PX:RATE,...,inf:RATE`` by the distance to the nearest fourth
+mote): the same for crowded groups of exactly three motes and the group decoder
+(:mod:`fgloc.camera.blink_groups`, :func:`fgloc.survey.field_plans.group_decoding`; its own
+seeded draws, so the pair draws do not change).
 
 ``--old`` prices the previous plan (rotation-free book, burst retries of wide views only,
 separate tiles on the fixed ladder, zoom-out). The sequential column is the same in
@@ -60,6 +64,7 @@ from fgloc.survey.field_plans import (
     SequentialTime,
     coded_survey_time,
     frames_for,
+    group_decoding,
     pair_decoding,
     pair_rate_table,
     radio_separation,
@@ -108,6 +113,8 @@ class Variant:
     #: pair decoding: share of crowded groups of exactly two that the pair decoder resolves in
     #: the wide view (measured, scripts/blink_montecarlo.py --pairs); 0: off
     pair_rate: float | tuple[tuple[float, float], ...] = 0.0
+    #: group decoding: the same for crowded groups of exactly three (blink_montecarlo.py --groups); 0: off
+    group_rate: float | tuple[tuple[float, float], ...] = 0.0
 
 
 _SEQUENTIAL: dict[tuple[int, int, int, RigTiming], SequentialTime] = {}
@@ -152,12 +159,17 @@ def run(n_motes: int, n_cams: int, timing: RigTiming, miss_rate: float, seed: in
     resolved = {c: neighbour_px(pts[c], intr, fields) >= SEPARATION_PX for c in cams}
     pair_rng = np.random.default_rng([seed, 16])
     pairs = {c: pair_decoding(intr, pts[c], SEPARATION_PX, variant.pair_rate, pair_rng, fields) for c in cams}
+    group_rng = np.random.default_rng([seed, 17])  # its own stream: the pair draws stay as they were
+    groups = {c: group_decoding(intr, pts[c], SEPARATION_PX, variant.group_rate, group_rng, fields) for c in cams}
     for c in cams:
-        resolved[c] = resolved[c] | pairs[c].resolved
+        resolved[c] = resolved[c] | pairs[c].resolved | groups[c].resolved
     needed: dict[str, np.ndarray | None] = (
         dict(needed_from(resolved, variant.need)) if variant.need else {c: None for c in cams})
     if variant.pair_rate:  # pair-decoded motes need nothing more from that camera
         needed = {c: (np.ones(n_motes, bool) if needed[c] is None else needed[c]) & ~pairs[c].resolved  # type: ignore[operator]
+                  for c in cams}
+    if variant.group_rate:  # group-decoded motes too
+        needed = {c: (np.ones(n_motes, bool) if needed[c] is None else needed[c]) & ~groups[c].resolved  # type: ignore[operator]
                   for c in cams}
     extend = variant.extend * book.length
     retry_frames = book.length if variant.continuous_retry else None
@@ -239,6 +251,9 @@ def run(n_motes: int, n_cams: int, timing: RigTiming, miss_rate: float, seed: in
         "pairs": sum(len(p.pairs) for p in pairs.values()),
         "pairs_resolved": sum(p.resolved_pairs for p in pairs.values()),
         "pairs_third8": sum(int((p.third_px < 8.0).sum()) for p in pairs.values()),
+        "groups": sum(len(g.groups) for g in groups.values()),
+        "groups_resolved": sum(g.resolved_groups for g in groups.values()),
+        "groups_fourth8": sum(int((g.fourth_px < 8.0).sum()) for g in groups.values()),
         "crowded": sum(int((~(neighbour_px(pts[c], intr, fields) >= SEPARATION_PX)).sum()) for c in cams),
     }
 
@@ -264,6 +279,10 @@ def main() -> None:
                     help="crowded groups of exactly two motes are resolved by the pair decoder in the wide view with "
                     "this measured success rate (scripts/blink_montecarlo.py --pairs), or per bound on the distance "
                     "to the nearest third mote (px); default off")
+    ap.add_argument("--group-decode", default="", metavar="RATE|PX:RATE,...,inf:RATE",
+                    help="crowded groups of exactly three motes are resolved by the group decoder in the wide view "
+                    "with this measured rate (scripts/blink_montecarlo.py --groups), or per bound on the distance to "
+                    "the nearest fourth mote (px); default off")
     ap.add_argument("--need", type=int, default=0,
                     help="refine a mote only where fewer than this many other cameras resolve it (0: always)")
     ap.add_argument("--old", action="store_true", help="the previous plan: rotation-free book, burst retries of "
@@ -285,6 +304,12 @@ def main() -> None:
         except ValueError as exc:
             ap.error(f"--pair-decode: {exc} ({args.pair_decode})")
         variant = replace(variant, pair_rate=table[0][1] if len(table) == 1 else table)
+    if args.group_decode:
+        try:
+            table = pair_rate_table(args.group_decode)
+        except ValueError as exc:
+            ap.error(f"--group-decode: {exc} ({args.group_decode})")
+        variant = replace(variant, group_rate=table[0][1] if len(table) == 1 else table)
     if args.old:
         variant = replace(OLD, fields=not args.frames, broadcast=not args.unicast)
     print(f"head {args.head}, {args.fps:.2f} frames/s, miss rate {args.miss_rate}, refinement zooms {levels}, {variant}")
@@ -305,6 +330,9 @@ def main() -> None:
             print(f"|   | pair decoding: {r['pairs']} crowded pairs of exactly two over the cameras "
                   f"({r['pairs_third8']} with a third mote within 8 px), {r['pairs_resolved']} resolved; "
                   f"{r['crowded']} crowded mote-views |||||||||||")
+        if variant.group_rate:
+            print(f"|   | group decoding: {r['groups']} crowded groups of exactly three over the cameras "
+                  f"({r['groups_fourth8']} with a fourth mote within 8 px), {r['groups_resolved']} resolved |||||||||||")
 
 
 if __name__ == "__main__":

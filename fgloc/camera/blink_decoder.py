@@ -26,7 +26,8 @@ period, and the :class:`~fgloc.camera.blink_codes.CodeBook`. Steps:
    decoded from two blobs is reported *duplicate* for both. Unknown words, conflicts
    and incomplete words are *rejected* with the reason. Nothing is ever guessed. With
    ``pairs`` (off by default) refused blobs are tried as two LEDs and labelled by both
-   code words when that is unique (:mod:`fgloc.camera.blink_pairs`).
+   code words when that is unique (:mod:`fgloc.camera.blink_pairs`); with
+   ``PairConfig(max_group=3)`` a refused pair is tried as three LEDs (:mod:`fgloc.camera.blink_groups`).
 6. **Angles.** The decoded centroid (mean over on frames) becomes (pan, tilt) by the
    exact composition :func:`fgloc.camera.pixel_angles.pixel_to_pan_tilt`.
 
@@ -57,6 +58,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from fgloc.camera.blink_codes import CodeBook, word_of
+from fgloc.camera.blink_groups import decode_group
 from fgloc.camera.blink_pairs import PairConfig, decode_pair
 from fgloc.camera.intrinsics import CameraIntrinsics
 from fgloc.camera.led_detection import DetectorConfig, detect_led, to_gray
@@ -99,6 +101,7 @@ class DecodedReading:
     tilt: float
     on_samples: int
     partner: int | None = None  #: book index of the other LED of a pair-decoded blob (None: a single LED)
+    group: tuple[int, ...] = ()  #: book indices of the other LEDs of a group-decoded blob (three LEDs)
 
 
 @dataclass(frozen=True)
@@ -338,7 +341,7 @@ def decode_windows(
             continue
         kept[code] = max(rds, key=lambda r: r.on_samples)
     clash = {a for a in kept for b in kept
-             if a != b and kept[a].partner != b and math.hypot(kept[a].u - kept[b].u, kept[a].v - kept[b].v) <= blob_px}
+             if a != b and kept[a].partner != b and b not in kept[a].group and math.hypot(kept[a].u - kept[b].u, kept[a].v - kept[b].v) <= blob_px}
     for code in sorted(clash):
         rd = kept.pop(code)
         refused.append(RefusedBlob(rd.u, rd.v, "ambiguous", f"code {code}: one blob read as two codes", code))
@@ -385,6 +388,17 @@ def _pair_readings(
         if any(math.hypot(rd.u - u0, rd.v - v0) <= cfg.single_px for rd in readings):
             continue
         res = decode_pair(stack, valid, positions, u0, v0, book, noise_sigma, cfg)
+        if (res.index is None or res.uv is None) and cfg.max_group >= 3:
+            grp = decode_group(stack, valid, positions, u0, v0, book, noise_sigma, cfg)
+            if grp.index is not None and grp.uv is not None:
+                drop.update(g)
+                for k in range(3):
+                    (u, v), s = grp.uv[k], grp.sigma_px[k]
+                    p_, t_ = pixel_to_pan_tilt(intr, np.array([u, v]), head_pan, head_tilt)
+                    rest = tuple(grp.index[m] for m in range(3) if m != k)
+                    out.append(DecodedReading(grp.index[k], u, v, s, float(p_), float(t_), grp.exclusive[k],
+                                              rest[0], rest))
+            continue
         if res.index is None or res.uv is None:
             continue
         drop.update(g)

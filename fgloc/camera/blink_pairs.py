@@ -60,6 +60,10 @@ class PairConfig:
     max_both_px: float = 0.5  #: both-on centroid vs the midpoint of the two LEDs
     min_gap_px: float = 0.5  #: one-LED centroid clusters at least this far apart to tell the sides
     gap_spreads: float = 5.0  #: ... and at least this many times their robust spread
+    max_group: int = 2  #: 3: a refused pair is tried as three LEDs (:mod:`fgloc.camera.blink_groups`)
+    group_radius_px: int = 7  #: aperture half-width for a group of three
+    group_min_snr: float = 8.0  #: one-LED step in flux-noise sigmas, group aperture (level band 2.4 sigma)
+    min_template_sigmas: float = 8.0  #: one-LED templates this many noise sigmas apart to read a two-LED sample
 
 
 @dataclass(frozen=True)

@@ -28,7 +28,9 @@ the decoder misses twice (``miss_rate`` per recording, one retry), are missing
 Pair decoding (``pair_rate`` > 0): crowded groups of exactly two motes are read in the
 wide views with that probability per pair (:func:`fgloc.survey.field_plans.pair_decoding`),
 with the pair decoder's centroid error (``pair_sigma_pan`` / ``pair_sigma_tilt``), and
-need no refinement; the others are refined as before.
+need no refinement; the others are refined as before. Group decoding (``group_rate`` > 0)
+does the same for crowded groups of exactly three
+(:func:`fgloc.survey.field_plans.group_decoding`, ``group_sigma_pan`` / ``group_sigma_tilt``).
 
 Each reading carries ``sigma = sqrt(head_sigma^2 + decoder^2)`` as its total noise, with
 ``decoder`` the centroid error mapped to angles at that pixel
@@ -78,6 +80,10 @@ class CodedNoise:
     pair_rate: float | tuple[tuple[float, float], ...] = 0.0  #: or by third-mote distance (pair_rate_table)
     pair_sigma_pan: float | None = None  #: pair-decoded centroid error (radians at the survey zoom; None: decoder's)
     pair_sigma_tilt: float | None = None
+    #: group decoding: share of crowded groups of exactly three read in the wide view as a group (0: off)
+    group_rate: float | tuple[tuple[float, float], ...] = 0.0  #: or by fourth-mote distance
+    group_sigma_pan: float | None = None  #: group-decoded centroid error (radians, survey zoom; None: the pair's)
+    group_sigma_tilt: float | None = None
 
 
 @dataclass(frozen=True)
@@ -112,6 +118,12 @@ def coded_observations(
             from fgloc.survey.field_plans import pair_decoding
 
             paired = pair_decoding(intr, pt, noise.separation_px, noise.pair_rate, rng, noise.field_rows).resolved
+        grouped = np.zeros(len(pt), bool)  # crowded motes the group decoder reads in the wide views
+        if noise.group_rate:
+            from fgloc.survey.field_plans import group_decoding
+
+            grouped = group_decoding(intr, pt, noise.separation_px, noise.group_rate, rng, noise.field_rows).resolved
+            paired = paired | grouped
         passes, _ = plan_refinement(intr, pt, noise.separation_px, noise.levels, start=wide[-1] if wide else (0, 0),
                                     field_rows=noise.field_rows, needed=~paired if paired.any() else None)
         # every (view, mote) pair that gives a reading: the mote is inside the view and separable at its zoom
@@ -149,6 +161,11 @@ def coded_observations(
                     (noise.pair_sigma_pan if noise.pair_sigma_pan is not None else noise.decoder_sigma_pan) * intr.fx,
                     (noise.pair_sigma_tilt if noise.pair_sigma_tilt is not None else noise.decoder_sigma_tilt)
                     * wide_fy])
+            if grouped[j] and z == 0.0 and need[j] > 1.0:  # read as one of a group of three
+                gp = noise.group_sigma_pan if noise.group_sigma_pan is not None else noise.pair_sigma_pan
+                gt = noise.group_sigma_tilt if noise.group_sigma_tilt is not None else noise.pair_sigma_tilt
+                sigma_px = np.array([(gp if gp is not None else noise.decoder_sigma_pan) * intr.fx,
+                                     (gt if gt is not None else noise.decoder_sigma_tilt) * wide_fy])
             uv = uv + rng.normal(0.0, 1.0, 2) * sigma_px
             assumed = replace(dec, fx=dec.fx * (1.0 + noise.fx_error), fy=dec.fy * (1.0 + noise.fx_error))
             e = head_err[view]

@@ -30,7 +30,9 @@ static light still go to zoom refinement.
 **Pair decoding** (optional, :func:`pair_decoding`): a crowded group of exactly two
 motes in a camera's wide view is labelled by the pair decoder
 (:mod:`fgloc.camera.blink_pairs`) with the measured success rate; those motes need no
-refinement or radio round from that camera.
+refinement or radio round from that camera. **Group decoding** (optional,
+:func:`group_decoding`): the same for crowded groups of exactly three motes
+(:mod:`fgloc.camera.blink_groups`).
 
 Angles radians, times seconds.
 """
@@ -494,3 +496,65 @@ def pair_decoding(intr: CameraIntrinsics, pan_tilt: np.ndarray, separation_px: f
         hit = rng.random(len(pairs)) < p
         resolved[pairs[hit].ravel()] = True
     return PairDecoding(pairs, resolved, third)
+
+
+@dataclass(frozen=True)
+class GroupDecoding:
+    """Which crowded groups of exactly three motes the group decoder labels, per camera."""
+
+    groups: np.ndarray  #: (G, 3) mote indices of the crowded groups of exactly three
+    resolved: np.ndarray  #: (N,) bool: the motes of the groups the group decoder resolves
+    fourth_px: np.ndarray  #: (G,) px from the group to the nearest fourth mote (any LED)
+
+    @property
+    def resolved_groups(self) -> int:
+        return int(self.resolved.sum()) // 3
+
+
+def group_decoding(intr: CameraIntrinsics, pan_tilt: np.ndarray, separation_px: float,
+                   rate: float | Sequence[tuple[float, float]], rng: np.random.Generator,
+                   field_rows: bool = False) -> GroupDecoding:
+    """As :func:`pair_decoding` for crowded groups of **exactly three** motes (connected
+    components of three in the conflict graph at ``separation_px``): each is labelled by
+    the group decoder (:mod:`fgloc.camera.blink_groups`, ``PairConfig(max_group=3)``) in
+    the wide view with probability ``rate`` (measured by ``scripts/blink_montecarlo.py
+    --groups``; or a table by the distance to the nearest fourth mote, px, any LED of the
+    group), drawn from ``rng``; those motes need no refinement."""
+    pt = np.asarray(pan_tilt, float)
+    n = len(pt)
+    edges = conflict_pairs(pt, intr, separation_px, field_rows)
+    parent = list(range(n))
+
+    def root(i: int) -> int:
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    for x, y in edges.tolist():
+        parent[root(x)] = root(y)
+    members: dict[int, list[int]] = {}
+    for i in {int(v) for v in edges.ravel().tolist()}:
+        members.setdefault(root(i), []).append(i)
+    groups = np.array(sorted(sorted(m) for m in members.values() if len(m) == 3), np.int64).reshape(-1, 3)
+    resolved = np.zeros(n, bool)
+    fourth = np.full(len(groups), np.inf)
+    if len(groups):
+        wide = conflict_pairs(pt, intr, 3.0 * separation_px, field_rows)  # neighbours up to 12 px
+        adj: dict[int, set[int]] = {}
+        for x, y in wide.tolist():
+            adj.setdefault(x, set()).add(y)
+            adj.setdefault(y, set()).add(x)
+        fy = intr.fy / (2.0 if field_rows else 1.0)
+        for k, g in enumerate(groups.tolist()):
+            for m in set().union(*(adj.get(s, set()) for s in g)) - set(g):
+                for s in g:
+                    dp = math.remainder(pt[m, 0] - pt[s, 0], 2 * math.pi) * math.cos(0.5 * (pt[m, 1] + pt[s, 1]))
+                    fourth[k] = min(fourth[k], math.hypot(dp * intr.fx, (pt[m, 1] - pt[s, 1]) * fy))
+        if isinstance(rate, (int, float)):
+            p = np.full(len(groups), float(rate))
+        else:
+            p = np.array([next((r for b, r in rate if t < b), rate[-1][1]) for t in fourth])
+        hit = rng.random(len(groups)) < p
+        resolved[groups[hit].ravel()] = True
+    return GroupDecoding(groups, resolved, fourth)
