@@ -40,7 +40,7 @@ from dataclasses import replace
 import numpy as np
 
 from fgloc.camera.blink_codes import code_book, sync_code_book
-from fgloc.camera.blink_decoder import SyncTiming, decode_view, decode_windows
+from fgloc.camera.blink_decoder import DecodedReading, SyncTiming, decode_view, decode_windows  # noqa: E402
 from fgloc.camera.blink_pairs import PairConfig
 from fgloc.camera.intrinsics import CameraIntrinsics
 from fgloc.camera.pixel_angles import pixel_to_pan_tilt
@@ -212,12 +212,7 @@ def _pair_stats(readings: tuple, ids: np.ndarray, uv: np.ndarray, truth: dict, n
             st[f"pair_res_b{b}"] += 1
             st[f"pair_res_t{t}"] += 1
             for m in (k, k + 1):
-                r = got[int(ids[m])]
-                st["pair_sq_u"] += (r.u - uv[m][0]) ** 2
-                st["pair_sq_v"] += (r.v - uv[m][1]) ** 2
-                st["pair_n_px"] += 1
-                st["pair_sq_x"] += (math.remainder(r.pan - pans[m], 2 * math.pi) * math.cos(tilts[m])) ** 2
-                st["pair_sq_y"] += (r.tilt - tilts[m]) ** 2
+                _add_errors(st, "pair", got[int(ids[m])], uv[m], pans[m], tilts[m])
     for k in range(n_single):
         r = got.get(int(ids[k]))
         if isolated[k] and r is not None and int(ids[k]) in found:
@@ -253,12 +248,7 @@ def _group_stats(readings: tuple, ids: np.ndarray, uv: np.ndarray, truth: dict, 
             st["grp_resolved"] += 1
             st[f"grp_res_t{t}"] += 1
             for m in mem:
-                r = got[int(ids[m])]
-                st["grp_sq_u"] += (r.u - uv[m][0]) ** 2
-                st["grp_sq_v"] += (r.v - uv[m][1]) ** 2
-                st["grp_n_px"] += 1
-                st["grp_sq_x"] += (math.remainder(r.pan - pans[m], 2 * math.pi) * math.cos(tilts[m])) ** 2
-                st["grp_sq_y"] += (r.tilt - tilts[m]) ** 2
+                _add_errors(st, "grp", got[int(ids[m])], uv[m], pans[m], tilts[m])
     return st
 
 
@@ -273,6 +263,16 @@ def _print_groups(tot: dict[str, float], p: str) -> None:
     print(f"  centroid error RMS, u / v (px): group LEDs {math.sqrt(tot[p + 'grp_sq_u'] / npx):.3f} / "
           f"{math.sqrt(tot[p + 'grp_sq_v'] / npx):.3f} ({npx:.0f}); angle error RMS, pan (x cos tilt) / tilt: "
           f"{math.degrees(math.sqrt(tot[p + 'grp_sq_x'] / npx)):.5f} / {math.degrees(math.sqrt(tot[p + 'grp_sq_y'] / npx)):.5f} deg")
+
+
+
+def _add_errors(st: dict, prefix: str, r: DecodedReading, uv: tuple[float, float], pan: float, tilt: float) -> None:
+    """Accumulate one reading's squared centroid (px) and angle (rad; pan x cos tilt, tilt) errors."""
+    st[f"{prefix}_sq_u"] += (r.u - uv[0]) ** 2
+    st[f"{prefix}_sq_v"] += (r.v - uv[1]) ** 2
+    st[f"{prefix}_n_px"] += 1
+    st[f"{prefix}_sq_x"] += (math.remainder(r.pan - pan, 2 * math.pi) * math.cos(tilt)) ** 2
+    st[f"{prefix}_sq_y"] += (r.tilt - tilt) ** 2
 
 
 def main() -> None:
@@ -294,6 +294,8 @@ def main() -> None:
     ap.add_argument("--time-decode", action="store_true",
                     help="also decode each first window without pair decoding; print both medians (s per view)")
     args = ap.parse_args()
+    if args.pairs and args.groups:  # their statistics index the motes of one kind of crowd per view
+        ap.error("--pairs and --groups are separate experiments: give one of them")
     tot: dict[str, float] = {}
     times: dict[str, list[float]] = {"t_off": [], "t_on": []}
     t0 = time.perf_counter()

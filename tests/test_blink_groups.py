@@ -12,35 +12,16 @@ from fgloc.camera.blink_decoder import decode_view
 from fgloc.camera.blink_groups import decode_group
 from fgloc.camera.blink_pairs import PairConfig
 from fgloc.camera.intrinsics import CameraIntrinsics
-from fgloc.core.model import CameraPose
-from fgloc.drivers.blink_frames import BlinkRenderConfig, close_groups, motes_with_codes, points_at_pixels, render_view
-from fgloc.drivers.rendered_camera import LedScene, RenderedCamera, add_spot
-from fgloc.survey.field_plans import frames_for
+from fgloc.drivers.blink_frames import close_groups
 
 BOOK = code_book(100)
 INTR = CameraIntrinsics.from_fov(320, 240, 50.0)
 TOL_PX = 0.25  #: stated tolerance of a group-decoded centroid (1.2 px LEDs, 1500 DN, 2 DN noise)
 LABEL_PX = 1.0  #: any reading farther than this from the mote its code names is a mislabel
 NOISE = 2.0 * math.sqrt(2.0)  #: per-pixel noise of a frame difference of the synthetic stacks (DN)
+from tests.test_blink_pairs import _stack, render_pixels  # noqa: E402  (the same synthetic samples)
+
 GROUPS3 = PairConfig(max_group=3)
-
-
-def _stack(words: list[tuple[int, int]], uv: list[tuple[float, float]], seed: int = 0,
-           n: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Synthetic samples (41 x 41 px, textured background, 2 DN noise) of LEDs with
-    ``words`` (book index, rotation), exactly aligned with the samples."""
-    L = BOOK.length
-    n = n or frames_for(L)
-    rng = np.random.default_rng(seed)
-    bg = 60.0 + 20.0 * rng.random((41, 41))
-    stack = np.zeros((n, 41, 41), np.float32)
-    for s in range(n):
-        img = bg * (1.0 + 0.02 * rng.standard_normal())
-        for (w, r), (u, v) in zip(words, uv):
-            if bits_of(rotate(BOOK.words[w], r, L), L)[s % L]:
-                add_spot(img, u, v, 1500.0, 1.2)
-        stack[s] = img + 2.0 * rng.standard_normal(img.shape)
-    return stack, np.ones(n, bool), np.arange(n) % L
 
 
 def _exclusive(words: list[tuple[int, int]]) -> list[int]:
@@ -117,16 +98,7 @@ def _rendered(seed: int, n_groups: int, singles: int, size: int = 3, glints: int
     pan, tilt = rng.uniform(-1.0, 1.0), rng.uniform(-0.5, 0.2)
     uv = close_groups(n_groups, size, 320, 240, rng, clear_px=12.0)
     uv = np.vstack([uv, np.column_stack([rng.uniform(20, 300, singles), rng.uniform(20, 220, singles)])])
-    ids = rng.choice(100, len(uv), replace=False)
-    pts = points_at_pixels(INTR, pan, tilt, uv, rng.uniform(3.0, 20.0, len(uv)))
-    cfg = BlinkRenderConfig(glints=glints, duplicate_rate=0.01)
-    pos = {f"m{k}": pts[k] for k in range(len(ids))}
-    motes = motes_with_codes(pos, {f"m{k}": BOOK.bits(int(i)) for k, i in enumerate(ids)},
-                             round(1 / cfg.frame_rate_hz, 5), rng)
-    statics = points_at_pixels(INTR, pan, tilt, np.array([[60.0, 60.0], [250.0, 180.0]]), 30.0)
-    cam = RenderedCamera(CameraPose(np.zeros(3), np.eye(3)), LedScene(positions={}))
-    frames = render_view(cam, INTR, pan, tilt, motes, frames_for(BOOK.length), rng, cfg, statics)
-    return frames, uv, ids, pan, tilt, 1 / cfg.frame_rate_hz
+    return render_pixels(rng, pan, tilt, uv, glints)
 
 
 def test_rendered_groups_labelled_and_off_by_default() -> None:

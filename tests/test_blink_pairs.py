@@ -155,6 +155,14 @@ def _rendered(seed: int, n_pairs: int, singles: int, glints: int = 10, extra: in
     if triple:
         uv = np.vstack([uv, centres[:1] + [0.0, 1.8]])
     uv = np.vstack([uv, np.column_stack([rng.uniform(20, 300, singles), rng.uniform(20, 220, singles)])])
+    return render_pixels(rng, pan, tilt, uv, glints, extra)
+
+
+def render_pixels(rng: np.random.Generator, pan: float, tilt: float, uv: np.ndarray, glints: int,
+                  extra: int = 0) -> tuple[list, np.ndarray, np.ndarray, float, float, float]:
+    """One rendered view at (pan, tilt): motes with random book IDs at pixels ``uv`` (3-20 units
+    away), two static lights, ``glints`` glints, 1 % repeated frames; 3L + 2 + ``extra`` frames.
+    Returns (frames, uv, ids, pan, tilt, frame period)."""
     ids = rng.choice(100, len(uv), replace=False)
     pts = points_at_pixels(INTR, pan, tilt, uv, rng.uniform(3.0, 20.0, len(uv)))
     cfg = BlinkRenderConfig(glints=glints, duplicate_rate=0.01)

@@ -36,7 +36,17 @@ from dataclasses import dataclass
 import numpy as np
 
 from fgloc.camera.blink_codes import CodeBook
-from fgloc.camera.blink_pairs import PairConfig, _centroid, _fold, _rotation_table, _spread
+from fgloc.camera.blink_pairs import (
+    PairConfig,
+    _background_free,
+    _centroid,
+    _fold,
+    _rotation_table,
+    _spread,
+    count_and_singles,
+    cut_aperture,
+    exclusive_centroids,
+)
 
 
 @dataclass(frozen=True)
@@ -71,23 +81,10 @@ def _levels(f: np.ndarray, n: int) -> np.ndarray:
     return c
 
 
-def _background_free(big: np.ndarray, valid: np.ndarray, ring: np.ndarray,
-                     core: np.ndarray, n_levels: int) -> tuple[np.ndarray, np.ndarray]:
-    """As :func:`fgloc.camera.blink_pairs._background_free`, the dark samples found among
-    ``n_levels`` levels (off, one LED, ...)."""
-    ref = np.median(big[valid][:, ring], axis=0)
-    usable = ref > 5.0
-    if usable.sum() >= 8:
-        gain = np.median(big[:, ring][:, usable] / ref[usable][None, :], axis=1)
-    else:
-        gain = np.ones(big.shape[0])
-    gain[~valid] = 1.0
-    first = (big[:, core] - np.median(big[:, ring], axis=1)[:, None]).sum(axis=1)
-    c = _levels(first[valid], n_levels)
-    dark = np.flatnonzero(valid & (first < 0.5 * (c[0] + c[1])))
-    bg = (big[dark] / gain[dark, None, None]).mean(axis=0)
-    sub = big - gain[:, None, None] * bg[None]
-    return sub, sub[:, core].sum(axis=1)
+def _off_and_one(f: np.ndarray) -> tuple[float, float]:
+    """The off and one-LED levels among four (off, one, two, three LEDs)."""
+    c = _levels(f, 4)
+    return float(c[0]), float(c[1])
 
 
 def _three_sides(cents: np.ndarray, cfg: PairConfig) -> tuple[np.ndarray | None, str]:
@@ -157,16 +154,11 @@ def decode_group(
         raise ValueError("group decoding needs a rotation-free book")
     cfg = config or PairConfig()
     r = cfg.group_radius_px
-    h, w = stack.shape[1:]
-    cu, cv = int(round(u)), int(round(v))
-    pad = r + 4
-    if not (pad <= cu < w - pad and pad <= cv < h - pad):
+    cut = cut_aperture(stack, u, v, r)
+    if cut is None:
         return _refuse("too close to the image border")
-    big = stack[:, cv - pad: cv + pad + 1, cu - pad: cu + pad + 1]
-    yy, xx = np.mgrid[-pad: pad + 1, -pad: pad + 1]
-    cheb = np.maximum(abs(yy), abs(xx))
-    ring, core = cheb > r + 1, cheb <= r
-    big, flux = _background_free(big, valid, ring, core, 4)
+    big, pad, ring, core, (cu, cv) = cut
+    big, flux = _background_free(big, valid, ring, core, _off_and_one)
     noise = float(noise_sigma) * math.sqrt(core.sum() * 2.0)
     for top in (3, 2):  # three LEDs lit together in some sample, or never
         c = _levels(flux[valid], top + 1)
@@ -184,21 +176,12 @@ def decode_group(
     above = int(np.count_nonzero(valid & (flux > c[3] + cfg.level_band * step)))
     if above > 1:
         return _refuse(f"{above} samples brighter than three LEDs")
-    count = np.full(flux.size, -1, np.int8)
-    for k in range(4):
-        count[valid & (np.abs(flux - c[k]) <= cfg.level_band * step)] = k
     length = book.length
-    cword, why = _fold(count, positions, length)
-    if cword is None:
-        return _refuse(why)
-    off = count == 0
-    if int(off.sum()) < cfg.min_exclusive:
-        return _refuse(f"{int(off.sum())} all-off samples")
-    dark = big[off].mean(axis=0)
-    singles = np.flatnonzero(count == 1)
-    cents = [_centroid(big[i] - dark, pad, pad, r) for i in singles.tolist()]
-    if any(x is None for x in cents):
-        return _refuse("one-LED sample without a centroid")
+    counted = count_and_singles(big, flux, valid, positions, tuple(float(x) for x in c[:4]), step, cfg, length,
+                                pad, r, "all-off")
+    if isinstance(counted, str):
+        return _refuse(counted)
+    count, cword, dark, singles, cents = counted
     side, why = _three_sides(np.array(cents, float), cfg)
     if side is None:
         return _refuse(why)
@@ -237,23 +220,10 @@ def decode_group(
     excl = tuple(int(o.size) for o in only)
     if min(excl) < cfg.min_exclusive:
         return _refuse(f"exclusive samples {' / '.join(map(str, excl))}: fewer than {cfg.min_exclusive}", excl)
-    uv: list[tuple[float, float]] = []
-    sig: list[float] = []
-    for sel in only:
-        img = big[sel].mean(axis=0) - dark
-        first = _centroid(img, pad, pad, r)
-        cc = _centroid(img, *first) if first is not None else None
-        if cc is None:
-            return _refuse("exclusive centroid at the aperture edge", excl)
-        per = [_centroid(big[i] - dark, *cc) for i in sel.tolist()]
-        if any(p is None for p in per):
-            return _refuse("exclusive sample without a centroid", excl)
-        pu = np.array([p[0] for p in per if p is not None])
-        pv = np.array([p[1] for p in per if p is not None])
-        if _spread(pu, pv) > cfg.max_centroid_spread_px:
-            return _refuse(f"exclusive centroids vary ({_spread(pu, pv):.2f} px): not one LED", excl)
-        uv.append(cc)
-        sig.append(float(np.hypot(np.std(pu), np.std(pv)) / math.sqrt(pu.size)))
+    found = exclusive_centroids(big, dark, only, pad, r, cfg.max_centroid_spread_px)
+    if isinstance(found, str):
+        return _refuse(found, excl)
+    uv, sig = found
     pts = np.array(uv)
     for subset in ((0, 1), (0, 2), (1, 2), (0, 1, 2)):  # LEDs lit together: these, not a fourth
         on = np.ones(flux.size, bool) & read & (count == len(subset))

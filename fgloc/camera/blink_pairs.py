@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import functools
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -191,14 +192,16 @@ def _refuse(why: str, exclusive: tuple[int, int] = (0, 0)) -> PairResult:
     return PairResult(None, None, (math.nan, math.nan), exclusive, why)
 
 
-def _background_free(big: np.ndarray, valid: np.ndarray, ring: np.ndarray,
-                     core: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _background_free(big: np.ndarray, valid: np.ndarray, ring: np.ndarray, core: np.ndarray,
+                     off_and_one: Callable[[np.ndarray], tuple[float, float]] | None = None,
+                     ) -> tuple[np.ndarray, np.ndarray]:
     """Patch stack ``big`` (N, h, w) minus its static background, and each sample's flux in
     ``core``. The background is the per-pixel mean of the darkest third of the samples
     (by a first flux in ``core`` minus the ``ring`` median), each sample scaled by its
     ambient gain (median ratio of its ``ring`` pixels to their median over the samples):
     over an aperture of ~100 px a textured background moves with the ambient light by
-    as much as an LED, so it is measured, not assumed flat."""
+    as much as an LED, so it is measured, not assumed flat. ``off_and_one`` gives the off and
+    the one-LED level of the first fluxes (default: of three levels, off / one / two LEDs)."""
     ref = np.median(big[valid][:, ring], axis=0)
     usable = ref > 5.0
     if usable.sum() >= 8:
@@ -207,7 +210,7 @@ def _background_free(big: np.ndarray, valid: np.ndarray, ring: np.ndarray,
         gain = np.ones(big.shape[0])
     gain[~valid] = 1.0
     first = (big[:, core] - np.median(big[:, ring], axis=1)[:, None]).sum(axis=1)
-    c0, c1, _ = _three_levels(first[valid])
+    c0, c1 = off_and_one(first[valid]) if off_and_one is not None else _three_levels(first[valid])[:2]
     dark = np.flatnonzero(valid & (first < 0.5 * (c0 + c1)))
     bg = (big[dark] / gain[dark, None, None]).mean(axis=0)
     sub = big - gain[:, None, None] * bg[None]
@@ -232,6 +235,72 @@ def _spread(pu: np.ndarray, pv: np.ndarray) -> float:
     """Robust 2-D spread (1.4826 x MAD per axis, combined) of points (pu, pv), px."""
     return float(np.hypot(1.4826 * np.median(np.abs(pu - np.median(pu))),
                           1.4826 * np.median(np.abs(pv - np.median(pv)))))
+
+
+def cut_aperture(stack: np.ndarray, u: float, v: float, r: int
+                 ) -> tuple[np.ndarray, int, np.ndarray, np.ndarray, tuple[int, int]] | None:
+    """Every sample's (2 pad + 1)^2 window (pad = r + 4) around pixel (u, v), with its
+    background ring (Chebyshev distance > r + 1) and flux core (<= r) masks and the window's
+    centre pixel (cu, cv); None when the window leaves the image."""
+    h, w = stack.shape[1:]
+    cu, cv = int(round(u)), int(round(v))
+    pad = r + 4
+    if not (pad <= cu < w - pad and pad <= cv < h - pad):
+        return None
+    big = stack[:, cv - pad: cv + pad + 1, cu - pad: cu + pad + 1]
+    yy, xx = np.mgrid[-pad: pad + 1, -pad: pad + 1]
+    cheb = np.maximum(abs(yy), abs(xx))
+    return big, pad, cheb > r + 1, cheb <= r, (cu, cv)
+
+
+def count_and_singles(big: np.ndarray, flux: np.ndarray, valid: np.ndarray, positions: np.ndarray,
+                      levels: tuple[float, ...], step: float, cfg: PairConfig, length: int, pad: int, r: int,
+                      off_name: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, list] | str:
+    """Each delivered sample's lit-LED count (the level within ``cfg.level_band`` steps; -1
+    none), the folded count word, the mean all-off image, the one-LED samples and their
+    centroids on it; a refusal reason instead (fold failed, too few all-off samples, a
+    one-LED sample without a centroid)."""
+    count = np.full(flux.size, -1, np.int8)
+    for k, lev in enumerate(levels):
+        count[valid & (np.abs(flux - lev) <= cfg.level_band * step)] = k
+    cword, why = _fold(count, positions, length)
+    if cword is None:
+        return why
+    off = count == 0
+    if int(off.sum()) < cfg.min_exclusive:
+        return f"{int(off.sum())} {off_name} samples"
+    dark = big[off].mean(axis=0)
+    singles = np.flatnonzero(count == 1)
+    cents = [_centroid(big[i] - dark, pad, pad, r) for i in singles.tolist()]
+    if any(c is None for c in cents):
+        return "one-LED sample without a centroid"
+    return count, cword, dark, singles, cents
+
+
+def exclusive_centroids(big: np.ndarray, dark: np.ndarray, only: list[np.ndarray], pad: int, r: int,
+                        max_spread_px: float) -> tuple[list[tuple[float, float]], list[float]] | str:
+    """Each LED's centroid (array coordinates of the aperture ``big``) on the mean of its
+    exclusive samples ``only[k]`` minus the dark mean, and its standard error from the
+    per-sample centroids (px). A refusal reason instead when a centroid falls at the aperture
+    edge or the per-sample centroids spread more than ``max_spread_px`` (not one LED)."""
+    uv: list[tuple[float, float]] = []
+    sig: list[float] = []
+    for sel in only:
+        img = big[sel].mean(axis=0) - dark
+        first = _centroid(img, pad, pad, r)
+        c = _centroid(img, *first) if first is not None else None
+        if c is None:
+            return "exclusive centroid at the aperture edge"
+        per = [_centroid(big[i] - dark, *c) for i in sel.tolist()]
+        if any(p is None for p in per):
+            return "exclusive sample without a centroid"
+        pu = np.array([p[0] for p in per if p is not None])
+        pv = np.array([p[1] for p in per if p is not None])
+        if _spread(pu, pv) > max_spread_px:
+            return f"exclusive centroids vary ({_spread(pu, pv):.2f} px): not one LED"
+        uv.append(c)
+        sig.append(float(np.hypot(np.std(pu), np.std(pv)) / math.sqrt(pu.size)))
+    return uv, sig
 
 
 def _sides(cents: np.ndarray, cfg: PairConfig) -> tuple[np.ndarray | None, str]:
@@ -276,15 +345,10 @@ def decode_pair(
     a frame difference (DN), as :func:`fgloc.camera.led_detection.detect_led` reports it."""
     cfg = config or PairConfig()
     r = cfg.radius_px
-    h, w = stack.shape[1:]
-    cu, cv = int(round(u)), int(round(v))
-    pad = r + 4
-    if not (pad <= cu < w - pad and pad <= cv < h - pad):
+    cut = cut_aperture(stack, u, v, r)
+    if cut is None:
         return _refuse("too close to the image border")
-    big = stack[:, cv - pad: cv + pad + 1, cu - pad: cu + pad + 1]
-    yy, xx = np.mgrid[-pad: pad + 1, -pad: pad + 1]
-    cheb = np.maximum(abs(yy), abs(xx))
-    ring, core = cheb > r + 1, cheb <= r
+    big, pad, ring, core, (cu, cv) = cut
     big, flux = _background_free(big, valid, ring, core)
     noise = float(noise_sigma) * math.sqrt(core.sum() * 2.0)
     f = flux[valid]
@@ -300,21 +364,11 @@ def decode_pair(
     above = int(np.count_nonzero(valid & (flux > c2 + cfg.level_band * step)))
     if above > 1:
         return _refuse(f"{above} samples brighter than two LEDs")
-    count = np.full(flux.size, -1, np.int8)
-    for k, lev in enumerate((c0, c1, c2)):
-        count[valid & (np.abs(flux - lev) <= cfg.level_band * step)] = k
     length = book.length
-    cword, why = _fold(count, positions, length)
-    if cword is None:
-        return _refuse(why)
-    off = count == 0
-    if int(off.sum()) < cfg.min_exclusive:
-        return _refuse(f"{int(off.sum())} both-off samples")
-    dark = big[off].mean(axis=0)
-    singles = np.flatnonzero(count == 1)
-    cents = [_centroid(big[i] - dark, pad, pad, r) for i in singles.tolist()]
-    if any(c is None for c in cents):
-        return _refuse("one-LED sample without a centroid")
+    counted = count_and_singles(big, flux, valid, positions, (c0, c1, c2), step, cfg, length, pad, r, "both-off")
+    if isinstance(counted, str):
+        return _refuse(counted)
+    count, cword, dark, singles, cents = counted
     side, why_sides = _sides(np.array(cents, float), cfg)
     bits, _, _ = _rotation_table(length, book.words)
     if side is not None:  # each LED's own word, from the samples that show it alone
@@ -353,23 +407,10 @@ def decode_pair(
     excl = (int(only[0].size), int(only[1].size))
     if min(excl) < cfg.min_exclusive:
         return _refuse(f"exclusive samples {excl[0]} / {excl[1]}: fewer than {cfg.min_exclusive}", excl)
-    uv: list[tuple[float, float]] = []
-    sig: list[float] = []
-    for sel in only:
-        img = big[sel].mean(axis=0) - dark
-        first = _centroid(img, pad, pad, r)
-        c = _centroid(img, *first) if first is not None else None
-        if c is None:
-            return _refuse("exclusive centroid at the aperture edge", excl)
-        per = [_centroid(big[i] - dark, *c) for i in sel.tolist()]
-        if any(p is None for p in per):
-            return _refuse("exclusive sample without a centroid", excl)
-        pu = np.array([p[0] for p in per if p is not None])
-        pv = np.array([p[1] for p in per if p is not None])
-        if _spread(pu, pv) > cfg.max_centroid_spread_px:
-            return _refuse(f"exclusive centroids vary ({_spread(pu, pv):.2f} px): not one LED", excl)
-        uv.append(c)
-        sig.append(float(np.hypot(np.std(pu), np.std(pv)) / math.sqrt(pu.size)))
+    found = exclusive_centroids(big, dark, only, pad, r, cfg.max_centroid_spread_px)
+    if isinstance(found, str):
+        return _refuse(found, excl)
+    uv, sig = found
     if both.any():
         cb = _centroid(big[both].mean(axis=0) - dark, pad, pad, r)
         mid = (0.5 * (uv[0][0] + uv[1][0]), 0.5 * (uv[0][1] + uv[1][1]))

@@ -475,26 +475,7 @@ def pair_decoding(intr: CameraIntrinsics, pan_tilt: np.ndarray, separation_px: f
     edges = conflict_pairs(pt, intr, separation_px, field_rows)
     degree = np.bincount(edges.ravel(), minlength=n) if edges.size else np.zeros(n, int)
     pairs = edges[(degree[edges[:, 0]] == 1) & (degree[edges[:, 1]] == 1)] if edges.size else edges
-    resolved = np.zeros(n, bool)
-    third = np.full(len(pairs), np.inf)
-    if len(pairs):
-        wide = conflict_pairs(pt, intr, 3.0 * separation_px, field_rows)  # neighbours up to 12 px
-        adj: dict[int, set[int]] = {}
-        for x, y in wide.tolist():
-            adj.setdefault(x, set()).add(y)
-            adj.setdefault(y, set()).add(x)
-        fy = intr.fy / (2.0 if field_rows else 1.0)
-        for k, (a, b) in enumerate(pairs.tolist()):
-            for m in (adj.get(a, set()) | adj.get(b, set())) - {a, b}:
-                for s in (a, b):
-                    dp = math.remainder(pt[m, 0] - pt[s, 0], 2 * math.pi) * math.cos(0.5 * (pt[m, 1] + pt[s, 1]))
-                    third[k] = min(third[k], math.hypot(dp * intr.fx, (pt[m, 1] - pt[s, 1]) * fy))
-        if isinstance(rate, (int, float)):
-            p = np.full(len(pairs), float(rate))
-        else:
-            p = np.array([next((r for b, r in rate if t < b), rate[-1][1]) for t in third])
-        hit = rng.random(len(pairs)) < p
-        resolved[pairs[hit].ravel()] = True
+    resolved, third = _draw_resolved(pairs, pt, intr, separation_px, rate, rng, field_rows)
     return PairDecoding(pairs, resolved, third)
 
 
@@ -537,24 +518,36 @@ def group_decoding(intr: CameraIntrinsics, pan_tilt: np.ndarray, separation_px: 
     for i in {int(v) for v in edges.ravel().tolist()}:
         members.setdefault(root(i), []).append(i)
     groups = np.array(sorted(sorted(m) for m in members.values() if len(m) == 3), np.int64).reshape(-1, 3)
-    resolved = np.zeros(n, bool)
-    fourth = np.full(len(groups), np.inf)
-    if len(groups):
-        wide = conflict_pairs(pt, intr, 3.0 * separation_px, field_rows)  # neighbours up to 12 px
-        adj: dict[int, set[int]] = {}
-        for x, y in wide.tolist():
-            adj.setdefault(x, set()).add(y)
-            adj.setdefault(y, set()).add(x)
-        fy = intr.fy / (2.0 if field_rows else 1.0)
-        for k, g in enumerate(groups.tolist()):
-            for m in set().union(*(adj.get(s, set()) for s in g)) - set(g):
-                for s in g:
-                    dp = math.remainder(pt[m, 0] - pt[s, 0], 2 * math.pi) * math.cos(0.5 * (pt[m, 1] + pt[s, 1]))
-                    fourth[k] = min(fourth[k], math.hypot(dp * intr.fx, (pt[m, 1] - pt[s, 1]) * fy))
-        if isinstance(rate, (int, float)):
-            p = np.full(len(groups), float(rate))
-        else:
-            p = np.array([next((r for b, r in rate if t < b), rate[-1][1]) for t in fourth])
-        hit = rng.random(len(groups)) < p
-        resolved[groups[hit].ravel()] = True
+    resolved, fourth = _draw_resolved(groups, pt, intr, separation_px, rate, rng, field_rows)
     return GroupDecoding(groups, resolved, fourth)
+
+
+def _draw_resolved(groups: np.ndarray, pt: np.ndarray, intr: CameraIntrinsics, separation_px: float,
+                   rate: float | Sequence[tuple[float, float]], rng: np.random.Generator,
+                   field_rows: bool) -> tuple[np.ndarray, np.ndarray]:
+    """For crowded groups (G, k) of motes: each group's distance (px) to the nearest other mote
+    within 3 x ``separation_px`` of any of its LEDs (inf beyond), and which motes are resolved
+    when each group is drawn (in order, one ``rng.random`` each) with its ``rate`` (a number,
+    or the rate of the first table bound above that distance)."""
+    resolved = np.zeros(len(pt), bool)
+    nearest = np.full(len(groups), np.inf)
+    if not len(groups):
+        return resolved, nearest
+    wide = conflict_pairs(pt, intr, 3.0 * separation_px, field_rows)  # neighbours up to 12 px
+    adj: dict[int, set[int]] = {}
+    for x, y in wide.tolist():
+        adj.setdefault(x, set()).add(y)
+        adj.setdefault(y, set()).add(x)
+    fy = intr.fy / (2.0 if field_rows else 1.0)
+    for k, g in enumerate(groups.tolist()):
+        for m in set().union(*(adj.get(s, set()) for s in g)) - set(g):
+            for s in g:
+                dp = math.remainder(pt[m, 0] - pt[s, 0], 2 * math.pi) * math.cos(0.5 * (pt[m, 1] + pt[s, 1]))
+                nearest[k] = min(nearest[k], math.hypot(dp * intr.fx, (pt[m, 1] - pt[s, 1]) * fy))
+    if isinstance(rate, (int, float)):
+        p = np.full(len(groups), float(rate))
+    else:
+        p = np.array([next((r for b, r in rate if t < b), rate[-1][1]) for t in nearest])
+    hit = rng.random(len(groups)) < p
+    resolved[groups[hit].ravel()] = True
+    return resolved, nearest
