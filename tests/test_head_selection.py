@@ -17,6 +17,14 @@ def test_weighted_chi2_with_unit_weights_is_chi_square() -> None:
         assert weighted_chi2_sf(q, np.ones(k)) == pytest.approx(0.05, abs=0.002)
 
 
+def test_chunked_null_draws_equal_one_draw() -> None:
+    from fgloc.solve.head_selection import _null_draws
+
+    w = np.array([0.9, 0.3, 0.01])
+    z = np.random.default_rng(7).standard_normal((50_001, 3))
+    np.testing.assert_allclose(_null_draws(w, 50_001, 7, chunk=20_000), (z * z) @ w, rtol=1e-12)
+
+
 def test_null_weights_are_lambda_over_one_plus_lambda() -> None:
     a = np.random.default_rng(1).standard_normal((5, 3))
     info = a.T @ a

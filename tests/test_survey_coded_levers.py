@@ -114,7 +114,8 @@ def test_continued_retry_resumes_without_duplicates(tmp_path):
 @pytest.mark.parametrize(("coded", "problem"), [({"retry": "again"}, "coded.retry"), ({"separate": 3}, "coded.separate"),
                                                 ("radio", "coded: expected an object"),
                                                 ({"levels": [1.0, 0.5]}, "coded.levels"),
-                                                ({"fallback": "everywhere"}, "coded.fallback")])
+                                                ({"fallback": "everywhere"}, "coded.fallback"),
+                                                ({"retyr": "continue"}, "coded.retyr: unknown lever")])
 def test_bad_coded_settings_are_one_line_and_exit_2(tmp_path, capsys, coded, problem):
     data = coded_rig(4, width=160)
     data["coded"] = coded

@@ -67,9 +67,16 @@ def null_weights(whitened_information: FloatArray) -> FloatArray:
     return np.sort(lam / (1.0 + lam))[::-1]
 
 
-def _null_draws(weights: FloatArray, draws: int, seed: int) -> FloatArray:
-    z = np.random.default_rng(seed).standard_normal((draws, len(weights)))
-    out: FloatArray = (z * z) @ np.asarray(weights, dtype=float)
+def _null_draws(weights: FloatArray, draws: int, seed: int, chunk: int = 20_000) -> FloatArray:
+    """``draws`` seeded samples of sum_i w_i z_i^2, drawn in chunks of rows so that memory stays
+    ~chunk x len(weights) doubles (a Generator's consecutive draws continue one stream: the
+    samples equal those of one (draws, k) draw)."""
+    rng = np.random.default_rng(seed)
+    w = np.asarray(weights, dtype=float)
+    out = np.empty(draws)
+    for start in range(0, draws, chunk):
+        z = rng.standard_normal((min(chunk, draws - start), len(w)))
+        out[start:start + len(z)] = (z * z) @ w
     return out
 
 

@@ -56,8 +56,13 @@ def coded_settings(rig: RigConfig, overrides: Mapping[str, str] | None = None) -
     if not isinstance(raw, dict):
         raise FglocError(f"{rig.path}: coded: expected an object, got {raw!r}")
     out = CodedSettings()
-    for key in sorted(set(overrides or {}) - set(CHOICES)):
-        raise FglocError(f"--coded: {key}: unknown lever (expected one of {', '.join(CHOICES)})")
+    unknown_flags = sorted(set(overrides or {}) - set(CHOICES))
+    if unknown_flags:
+        raise FglocError(f"--coded: {unknown_flags[0]}: unknown lever (expected one of {', '.join(CHOICES)})")
+    unknown_keys = sorted(set(raw) - set(CHOICES) - {"levels"})
+    if unknown_keys:  # a misspelled lever would otherwise be silently left at its default
+        raise FglocError(f"{rig.path}: coded.{unknown_keys[0]}: unknown lever "
+                         f"(expected one of {', '.join(CHOICES)}, levels)")
     for key, allowed in CHOICES.items():
         flag = (overrides or {}).get(key)
         value: Any = flag if flag is not None else raw.get(key, getattr(out, key))
