@@ -9,7 +9,11 @@ frames one camera records with its head still, by :func:`fgloc.drivers.blink_fra
   (the period of the last start command that covered its address), LED on for a 1 bit;
 * it is drawn along the pair's **apparent** bearing (``scene.apparent``: truth plus the
   pair's fixed N(0, sigma) error), exactly where the sequential survey's frames put its LED,
-  so both modes read the same scene; occluded pairs are not drawn;
+  so both modes read the same scene; occluded pairs are not drawn; a camera whose head has
+  errors (rig.json ``simulation.head_errors`` / ``head_zoom_levers``) shows each mote where its
+  imperfect head at the view's encoder readings shows it (``SimScene.led_directions``: the
+  head's errors and the lever arm of its zoom now), so off-centre readings carry the head
+  errors the view model of :mod:`fgloc.core.head_model` predicts;
 * each mote has its own crystal error (N(0, 50 ppm)) and start phase, seeded by the rig
   seed and the node, so motes drift against the camera and against each other;
 * the background is the camera's texture (:class:`~fgloc.drivers.rendered_camera.RenderedCamera`,
@@ -82,12 +86,19 @@ class SceneBlinks:
             for i, cid in enumerate(scene.camera_ids)
         }
 
-    def motes(self, camera_id: str) -> list[BlinkingMote]:
-        """The motes blinking now that ``camera_id`` can see, at their apparent bearings."""
+    def motes(self, camera_id: str, pan: float | None = None, tilt: float | None = None) -> list[BlinkingMote]:
+        """The motes blinking now that ``camera_id`` can see, at their apparent bearings.
+
+        With the head's encoder readings (``pan``, ``tilt``, radians) and a camera whose head has
+        errors (``scene.has_head_errors``), each mote is placed where the imperfect head at those
+        readings shows it to an ideal head (``scene.led_directions``: its errors and its zoom's
+        lever arm, the node's range included), so off-centre motes move as the head model of a
+        view predicts (:func:`fgloc.core.head_model.head_view_pan_tilt`). Ideal heads (or no
+        readings) draw the apparent bearings exactly as before."""
         i = self.scene.camera_ids.index(camera_id)
         cam = self.scene.cameras[i]
         periods = bit_periods(list(self.packets()))
-        out = []
+        shown: list[tuple[str, int, int, int, int]] = []  # node, node index, address, length, word
         for address, (length, word) in sorted(self.field.lit().items()):  # paused motes stay dark
             node = self.node_of.get(address)
             if node is None or address not in periods:
@@ -95,7 +106,15 @@ class SceneBlinks:
             j = self.scene.node_ids.index(node)
             if not self.scene.visible[i, j] or node in self.scene.dead:
                 continue
-            d = pan_tilt_bearing(*self.scene.apparent[i, j])
+            shown.append((node, j, address, length, word))
+        imperfect = pan is not None and tilt is not None and self.scene.has_head_errors(i)
+        seen = np.zeros((0, 3))
+        if imperfect and shown and pan is not None and tilt is not None:
+            seen = self.scene.led_directions(i, [s[1] for s in shown], float(pan), float(tilt))
+            seen = seen / np.linalg.norm(seen, axis=1, keepdims=True)
+        out = []
+        for k, (node, j, address, length, word) in enumerate(shown):
+            d = seen[k] if imperfect else pan_tilt_bearing(*self.scene.apparent[i, j])
             position = np.asarray(cam.position, float) + np.asarray(cam.rotation, float) @ d  # base direction d
             rng = np.random.default_rng(_seed(self.seed, node, "crystal"))
             ppm, t0 = rng.normal(0.0, PPM_SD), -rng.uniform(0.0, 1.0)
@@ -124,5 +143,5 @@ class SceneBlinks:
                              glint_flux=(0.5 * config.glint_flux[0], 0.5 * config.glint_flux[1]))
         rng = np.random.default_rng(_seed(self.seed, camera_id, key, "blink-video"))
         statics = self.scene.lights if len(self.scene.lights) else None
-        return render_view(self.cameras[camera_id], intr, pan, tilt, self.motes(camera_id), n_frames, rng,
+        return render_view(self.cameras[camera_id], intr, pan, tilt, self.motes(camera_id, pan, tilt), n_frames, rng,
                            config, statics=statics, t_start=t_start)
