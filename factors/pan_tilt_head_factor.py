@@ -13,6 +13,11 @@ Error (2-vector, radians, measured minus predicted, pan wrapped)::
 
     q = R^T (x - c);  (pan, tilt)_pred = head_pan_tilt(q, params)
 
+or, for an **off-centre** reading (a coded survey's, composed at its view's encoder readings
+``(view_pan, view_tilt)``, ``Observation.view_angles``),
+``head_view_pan_tilt(q, params, view_pan, view_tilt)``: what the ideal pixel composition
+reads where the imperfect head at the view's readings shows the LED.
+
 Jacobians are analytic: ``de/dq = -D_q`` and ``de/dparams = -D_p`` from
 :func:`fgloc.core.head_model.head_pan_tilt`, chained with ``dq/dxi = [skew(q) | -I]``
 (GTSAM's right perturbation, rotation first) and ``dq/dx = R^T``.
@@ -30,21 +35,51 @@ import gtsam
 import numpy as np
 
 from fgloc.core.geometry import FloatArray, pan_tilt_residual, skew
-from fgloc.core.head_model import DEFAULT_PRIOR_SIGMAS, head_pan_tilt, local_index
+from fgloc.core.head_model import DEFAULT_PRIOR_SIGMAS, HEAD_DIM, head_pan_tilt, head_view_pan_tilt, local_index
+
+
+def predicted_readings(
+    q: FloatArray, params: FloatArray, view: FloatArray | None = None
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """Head-model (pan, tilt) of base-frame points ``q`` (M, 3) with ``params`` (M, 7) and their
+    Jacobians (M, 2, 3), (M, 2, 7): centred readings by :func:`head_pan_tilt`, rows whose
+    ``view`` (M, 2) radians is finite off-centre at that view by :func:`head_view_pan_tilt`."""
+    q = np.asarray(q, dtype=float)
+    params = np.broadcast_to(np.asarray(params, dtype=float), q.shape[:-1] + (HEAD_DIM,))
+    off = np.zeros(q.shape[:-1], dtype=bool) if view is None else np.isfinite(np.asarray(view)[..., 0])
+    if not off.any():
+        pan, tilt, d_q, d_p = head_pan_tilt(q, params)
+        assert d_q is not None and d_p is not None
+        return pan, tilt, d_q, d_p
+    assert view is not None
+    pan, tilt = np.zeros(q.shape[:-1]), np.zeros(q.shape[:-1])
+    d_q, d_p = np.zeros(q.shape[:-1] + (2, 3)), np.zeros(q.shape[:-1] + (2, HEAD_DIM))
+    for rows, fn in ((~off, None), (off, head_view_pan_tilt)):
+        if not rows.any():
+            continue
+        out = head_pan_tilt(q[rows], params[rows]) if fn is None else fn(q[rows], params[rows], view[rows, 0],
+                                                                         view[rows, 1])
+        pan[rows], tilt[rows], d_q[rows], d_p[rows] = out
+    return pan, tilt, d_q, d_p
 
 
 def head_pan_tilt_error(
-    rotation: FloatArray, position: FloatArray, point: FloatArray, params: FloatArray, pan: FloatArray, tilt: FloatArray
+    rotation: FloatArray, position: FloatArray, point: FloatArray, params: FloatArray, pan: FloatArray, tilt: FloatArray,
+    view: FloatArray | None = None,
 ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
     """Errors and Jacobians of readings, batched over a leading axis M (or unbatched).
 
-    ``rotation`` (..., 3, 3), ``position`` / ``point`` (..., 3), ``params`` (..., 7).
-    Returns ``e`` (..., 2), ``H_pose`` (..., 2, 6), ``H_point`` (..., 2, 3) and
-    ``H_params`` (..., 2, 7) over the full 7-vector.
+    ``rotation`` (..., 3, 3), ``position`` / ``point`` (..., 3), ``params`` (..., 7);
+    ``view`` (M, 2) radians, batched only: each reading's view angles, NaN for a centred
+    reading (None: every reading centred). Returns ``e`` (..., 2), ``H_pose`` (..., 2, 6),
+    ``H_point`` (..., 2, 3) and ``H_params`` (..., 2, 7) over the full 7-vector.
     """
     q = np.einsum("...ji,...j->...i", rotation, point - position)
-    pred_pan, pred_tilt, d_q, d_p = head_pan_tilt(q, params)
-    assert d_q is not None and d_p is not None
+    if view is None:
+        pred_pan, pred_tilt, d_q, d_p = head_pan_tilt(q, params)
+        assert d_q is not None and d_p is not None
+    else:
+        pred_pan, pred_tilt, d_q, d_p = predicted_readings(q, params, view)
     e = pan_tilt_residual(pan, tilt, pred_pan, pred_tilt)
     d = -d_q
     h_pose = np.concatenate([d @ skew(q), -d], axis=-1)
@@ -84,6 +119,8 @@ class HeadFactorSet:
         fixed: (M, 7) each reading's parameter values used where not active (e.g. zeros).
         pan, tilt: (M,) readings in radians; noise_models: (M,) 2-D noise models.
         zoom_group: (M,) each reading's zoom group (None: all 0, one zoom).
+        view: (M, 2) radians, each reading's view angles (``Observation.view_angles``) for an
+            off-centre reading, NaN for a centred one (None: every reading centred).
     """
 
     def __init__(
@@ -98,6 +135,7 @@ class HeadFactorSet:
         noise_models: list[gtsam.noiseModel.Base],
         planar: bool,
         zoom_group: np.ndarray | None = None,
+        view: FloatArray | None = None,
     ) -> None:
         self.camera_keys = np.asarray(camera_keys, dtype=np.int64)
         self.node_keys = np.asarray(node_keys, dtype=np.int64)
@@ -109,6 +147,7 @@ class HeadFactorSet:
         self.planar = planar
         self.zoom_group = (np.zeros(len(self.pan), dtype=np.int64) if zoom_group is None
                            else np.asarray(zoom_group, dtype=np.int64))
+        self.view = None if view is None or not np.isfinite(view).any() else np.asarray(view, dtype=float).reshape(-1, 2)
         self.inv_sigmas = np.array([1.0 / np.asarray(nm.sigmas(), dtype=float) for nm in noise_models]).reshape(-1, 2)
         self._values: gtsam.Values | None = None
         self._errors = np.empty((0, 2))
@@ -138,7 +177,8 @@ class HeadFactorSet:
             points = np.array([values.atPoint3(int(k)) for k in self.node_keys[rows]]).reshape(-1, 3)
         params = self._params(values)[rows]
         e, h_pose, h_point, h_par = head_pan_tilt_error(
-            m[:, :3, :3], m[:, :3, 3], points, params, self.pan[rows], self.tilt[rows]
+            m[:, :3, :3], m[:, :3, 3], points, params, self.pan[rows], self.tilt[rows],
+            None if self.view is None else self.view[rows],
         )
         if self.planar:
             h_point = np.ascontiguousarray(h_point[:, :, :2])

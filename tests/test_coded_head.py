@@ -4,14 +4,18 @@ from its view (:func:`fgloc.core.head_model.head_view_pan_tilt`)."""
 
 from __future__ import annotations
 
+import json
 import math
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from fgloc.core.geometry import bearing_pan_tilt, pan_tilt_bearing
 from fgloc.core.head_model import head_pan_tilt
 from fgloc.drivers.imperfect_head import head_at_zoom, ideal_equivalent_directions
+from fgloc.files.journal import read_journal
+from fgloc.files.survey_result import read_survey
 from fgloc.survey.session import run_survey
 from tests.test_head_rig import CAM0_ERRORS
 from tests.test_survey_coded import coded_rig, opened, parsed, view_records
@@ -53,13 +57,21 @@ def reading_errors(scene, records: list[dict]) -> dict[int, np.ndarray]:
     return {i: np.degrees(np.array(v)) for i, v in out.items()}
 
 
-def test_blink_video_draws_the_head_errors_of_each_view(tmp_path: Path) -> None:
-    """Every coded reading of an imperfect head agrees with the view model within the decoder's
-    noise (0.01 degree class at 320 px), while the centred model is off by ten times more."""
+@pytest.fixture(scope="module")
+def head_survey(tmp_path_factory: pytest.TempPathFactory):
+    """One coded survey of a 30-node rig whose heads have errors (cam0: issue 17's typical sizes)."""
+    out = tmp_path_factory.mktemp("coded-head")
     rig = head_coded_rig(30, head_errors={"cam0": CAM0_ERRORS, "cam1": "typical"})
     rig_opened, sim = opened(rig)
-    run_survey(rig, tmp_path / "c", opened=rig_opened)
-    err = reading_errors(sim.scene, view_records(tmp_path / "c" / "journal.jsonl"))
+    run_survey(rig, out / "c", opened=rig_opened)
+    return rig, sim.scene, out / "c"
+
+
+def test_blink_video_draws_the_head_errors_of_each_view(head_survey) -> None:  # type: ignore[no-untyped-def]
+    """Every coded reading of an imperfect head agrees with the view model within the decoder's
+    noise (0.01 degree class at 320 px), while the centred model is off by ten times more."""
+    _, scene, out = head_survey
+    err = reading_errors(scene, view_records(out / "journal.jsonl"))
     for i, e in err.items():
         assert len(e) >= 15
         view_rms = np.sqrt(np.mean(e[:, :2] ** 2, axis=0))
@@ -68,6 +80,23 @@ def test_blink_video_draws_the_head_errors_of_each_view(tmp_path: Path) -> None:
         centred_rms = float(np.sqrt(np.mean(e[:, 2:] ** 2)))
         assert centred_rms > 8 * float(np.sqrt(np.mean(e[:, :2] ** 2))), (i, centred_rms, view_rms)
     assert float(np.sqrt(np.mean(err[0][:, 2:] ** 2))) > 0.05  # cam0: tilt index 0.3 degree and more
+
+
+def test_survey_json_records_each_coded_reading_s_view_angles(head_survey) -> None:  # type: ignore[no-untyped-def]
+    """survey.json gives every reading decoded in a view that view's read-back encoder angles
+    (``view_pan``, ``view_tilt``); the sequential fallback's centred readings have none."""
+    _, _, out = head_survey
+    survey = read_survey(out / "survey.json")
+    state = read_journal(out / "journal.jsonl")
+    want = {(r["camera"], o["node"], o["pan"], o["tilt"]): tuple(r["head"])
+            for r in view_records(out / "journal.jsonl") for o in r["readings"]}
+    got = {(o.camera, o.node, o.pan, o.tilt): o.view_angles for o in survey.observations if o.view_angles}
+    assert got and got == want
+    centred = [o for o in survey.observations if o.view_angles is None]
+    assert len(centred) == sum(o.view is None for o in state.observations.values())
+    assert all(o.view_tilt is None and o.view_pan is None for o in centred)
+    raw = json.loads((out / "survey.json").read_text())["observations"]
+    assert sum("view_pan" in o and "view_tilt" in o for o in raw) == len(want)
 
 
 def test_ideal_heads_render_bit_identically(tmp_path: Path) -> None:
@@ -99,3 +128,150 @@ def test_ideal_heads_render_bit_identically(tmp_path: Path) -> None:
                            blinks.config, statics=None, t_start=0.0)  # type: ignore[attr-defined]
         assert len(want) == len(frames) and all(
             ta == tb and np.array_equal(fa, fb) for (ta, fa), (tb, fb) in zip(want, frames))
+
+
+# -- survey.json: the view angles of off-centre readings -----------------------------------------
+
+def _survey_dict() -> dict:
+    return {"format": "fgloc-survey", "version": 1, "nodes": "planar", "gauge": {"origin": "c0", "baseline": "c1"},
+            "sigma": 0.002, "cameras": [{"id": "c0"}, {"id": "c1"}], "node_ids": ["n0", "n1"],
+            "observations": [
+                {"camera": "c0", "node": "n0", "pan": 0.4, "tilt": -0.3},
+                {"camera": "c0", "node": "n1", "pan": 0.5, "tilt": -0.2, "view_pan": 0.45, "view_tilt": -0.25},
+                {"camera": "c1", "node": "n1", "pan": 2.0, "tilt": -0.2, "sigma": 0.003, "view": "c1/v0",
+                 "view_pan": 2.1, "view_tilt": -0.1}],
+            "views": {"c1/v0": {"camera": "c1", "sigma": 0.001, "pan": 2.1}}}
+
+
+def test_view_angles_round_trip_and_old_readers_see_the_same_readings(tmp_path: Path) -> None:
+    from fgloc.files.survey_result import survey_to_json, write_survey
+
+    path = tmp_path / "s.json"
+    path.write_text(json.dumps(_survey_dict()))
+    s = read_survey(path)
+    assert [o.view_angles for o in s.observations] == [None, (0.45, -0.25), (2.1, -0.1)]
+    assert s.observations[2].view_sigma == 0.001 and s.observations[0].view_pan is None
+    write_survey(s, tmp_path / "back.json")
+    back = read_survey(tmp_path / "back.json")
+    assert back.observations == s.observations
+    data = survey_to_json(s)
+    assert "view_pan" not in data["observations"][0] and data["observations"][1]["view_tilt"] == -0.25
+    # a reader that ignores the optional fields reads the same (camera, node, pan, tilt, sigma)
+    plain = _survey_dict()
+    for o in plain["observations"]:
+        o.pop("view_pan", None)
+        o.pop("view_tilt", None)
+    path.write_text(json.dumps(plain))
+    old = read_survey(path)
+    assert [(o.camera, o.node, o.pan, o.tilt, o.sigma) for o in old.observations] == [
+        (o.camera, o.node, o.pan, o.tilt, o.sigma) for o in s.observations]
+    assert old.observations[2].view_pan == 2.1 and old.observations[2].view_tilt is None  # the views block's pan
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda o: o.pop("view_tilt"), "observations[1]: 'view_tilt' is a dependency of 'view_pan'"),
+    (lambda o: o.pop("view_pan"), "observations[1]: 'view_pan' is a dependency of 'view_tilt'"),
+    (lambda o: o.update(view_tilt=2.0), "observations[1].view_tilt: must lie in"),
+    (lambda o: o.update(view_pan="x"), "observations[1].view_pan: expected a number"),
+])
+def test_bad_view_angles_are_one_line(tmp_path: Path, edit, message: str) -> None:  # type: ignore[no-untyped-def]
+    from fgloc.core.errors import FglocError
+
+    data = _survey_dict()
+    edit(data["observations"][1])
+    path = tmp_path / "s.json"
+    path.write_text(json.dumps(data))
+    with pytest.raises(FglocError) as err:
+        read_survey(path)
+    assert message in str(err.value) and "\n" not in str(err.value), str(err.value)
+
+
+# -- the view model: off-centre readings through an imperfect head -------------------------------
+
+def _random_heads(rng: np.random.Generator, n: int, scale: float = 1.0) -> np.ndarray:
+    from fgloc.core.head_model import DEFAULT_PRIOR_SIGMAS
+
+    return scale * rng.normal(size=(n, 7)) * DEFAULT_PRIOR_SIGMAS * np.array([3, 3, 3, 3, 3, 20, 20])
+
+
+def _off_centre_case(seed: int, n: int = 30) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Points, heads, and views up to 26 (pan) / 17 (tilt) degrees off the ideal bearing."""
+    rng = np.random.default_rng(seed)
+    pan = rng.uniform(-3.0, 3.0, n)
+    tilt = rng.uniform(-1.2, 0.6, n)
+    q = pan_tilt_bearing(pan, tilt) * rng.uniform(0.2, 2.0, n)[:, None]
+    view = np.column_stack([pan + rng.uniform(-0.45, 0.45, n), np.clip(tilt + rng.uniform(-0.3, 0.3, n), -1.5, 1.5)])
+    return q, _random_heads(rng, n, float(seed % 2)), view[:, 0], view[:, 1]  # even seeds: ideal heads
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_view_model_is_what_the_simulated_head_shows(seed: int) -> None:
+    """The reading equals the bearing of ``M^T (q - o)`` of the simulator's head
+    (drivers/imperfect_head.py), an independent implementation of the kinematics."""
+    from fgloc.core.head_model import head_view_pan_tilt
+
+    q, p, vp, vt = _off_centre_case(seed)
+    pan, tilt, _, _ = head_view_pan_tilt(q, p, vp, vt, jacobians=False)
+    for k in range(len(q)):
+        want = bearing_pan_tilt(ideal_equivalent_directions(p[k], vp[k], vt[k], q[k:k + 1])[0])
+        assert abs(_wrap(float(pan[k]) - float(want[0]))) < 1e-12 and abs(float(tilt[k]) - float(want[1])) < 1e-12
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_view_model_jacobians_match_central_differences(seed: int) -> None:
+    from fgloc.core.head_model import HEAD_DIM, head_view_pan_tilt
+
+    q, p, vp, vt = _off_centre_case(seed)
+
+    def f(q: np.ndarray, p: np.ndarray) -> np.ndarray:
+        pan, tilt, _, _ = head_view_pan_tilt(q, p, vp, vt, jacobians=False)
+        return np.stack([pan, tilt], axis=-1)
+
+    _, _, d_q, d_p = head_view_pan_tilt(q, p, vp, vt)
+    h = 1e-7
+    num_q = np.stack([(f(q + h * e, p) - f(q - h * e, p)) / (2 * h) for e in np.eye(3)], axis=-1)
+    num_p = np.stack([(f(q, p + h * e) - f(q, p - h * e)) / (2 * h) for e in np.eye(HEAD_DIM)], axis=-1)
+    scale = np.linalg.norm(q, axis=1)[:, None, None]  # d/dq scales as 1 / range
+    np.testing.assert_allclose(d_q * scale, num_q * scale, atol=1e-6)
+    np.testing.assert_allclose(d_p, num_p, atol=1e-6)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_a_centred_reading_is_the_centred_model(seed: int) -> None:
+    """At the view that centres the point (``head_pan_tilt``) the off-centre reading is that
+    view's readings: the view model reduces to the centred one (lever arms included)."""
+    from fgloc.core.head_model import head_view_pan_tilt
+
+    q, p, _, _ = _off_centre_case(seed)
+    p = p + (seed % 2 == 0) * _random_heads(np.random.default_rng(seed + 100), len(q))  # non-ideal heads too
+    cp, ct, _, _ = head_pan_tilt(q, p, jacobians=False)
+    vp, vt, _, _ = head_view_pan_tilt(q, p, cp, ct, jacobians=False)
+    np.testing.assert_allclose(np.vectorize(_wrap)(vp - cp), 0.0, atol=1e-12)
+    np.testing.assert_allclose(vt, ct, atol=1e-12)
+    # off-centre it is not: a view 10 degrees away reads differently from the centred model
+    op, ot, _, _ = head_view_pan_tilt(q, p, cp + 0.17, ct - 0.1, jacobians=False)
+    assert np.max(np.abs(np.vectorize(_wrap)(op - cp)) + np.abs(ot - ct)) > 1e-4
+
+
+@pytest.mark.parametrize("planar", [True, False])
+@pytest.mark.parametrize("seed", range(3))
+def test_factor_jacobians_with_view_angles_match_gtsam_numerical(planar: bool, seed: int) -> None:
+    import gtsam
+    from gtsam.symbol_shorthand import C, H, L
+
+    from fgloc.factors.pan_tilt_head_factor import HeadFactorSet
+    from fgloc.testing import assert_head_factor_jacobians
+
+    rng = np.random.default_rng(seed)
+    pose = gtsam.Pose3(gtsam.Rot3.Expmap(rng.normal(size=3) * 0.3), np.array([0.0, 0.0, 0.4]))
+    point = np.array([rng.uniform(0.3, 1.0), rng.uniform(-0.5, 0.5), 0.0 if planar else rng.uniform(0, 0.3)])
+    node = point[:2].copy() if planar else point
+    active = (0, 1, 2, 3, 4, 5, 6)
+    params = _random_heads(rng, 1)[0]
+    pan, tilt = (float(a) for a in bearing_pan_tilt(pose.transformTo(point)))
+    view = np.array([[pan + rng.uniform(-0.4, 0.4), tilt + rng.uniform(-0.25, 0.25)]])
+    heads = HeadFactorSet(np.array([C(0)]), np.array([L(0)]), np.array([H(0)]), {H(0): active}, np.zeros((1, 7)),
+                          np.array([pan + 0.01]), np.array([tilt - 0.01]),
+                          [gtsam.noiseModel.Isotropic.Sigma(2, 0.01)], planar, view=view)
+    assert heads.view is not None
+    assert_head_factor_jacobians(heads, (C(0), L(0), H(0)), pose, node, params.copy(), 0.01)

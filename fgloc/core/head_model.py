@@ -296,3 +296,65 @@ def head_pan_tilt(
     d_p[..., 1, 4] += theta
     d_p[..., 1, 0] += 1.0
     return pan, tilt, d_q, d_p
+
+
+def head_view_pan_tilt(
+    q: ArrayLike, params: ArrayLike, view_pan: ArrayLike, view_tilt: ArrayLike, jacobians: bool = True
+) -> tuple[FloatArray, FloatArray, FloatArray | None, FloatArray | None]:
+    """The (pan, tilt) an **off-centre** reading gives for base-frame point(s) ``q`` when a head
+    with ``params`` stands at encoder readings (``view_pan``, ``view_tilt``) radians.
+
+    A coded survey reads the head once per view and composes each LED's pixel with those
+    encoder angles through the *ideal* head (:func:`fgloc.camera.pixel_angles.pixel_to_pan_tilt`).
+    The real head at those readings has head frame ``H = Rz(phi) Rx(tau) Ry(-theta)``
+    (``phi = view_pan / (1 + k_p)``, ``theta = (view_tilt - i_t) / (1 + k_t)``), camera frame
+    ``H Rz(gamma)`` and optical centre ``o = H l``; the ideal head at the same readings
+    (frame ``K = Rz(view_pan) Ry(-view_tilt)``) shows ``q`` along
+    ``e = K Rz(-gamma) (H^T q - l)`` (:func:`fgloc.drivers.imperfect_head.ideal_equivalent_directions`),
+    and the reading is ``e``'s bearing (pan wrapped to (-pi, pi]). When ``q`` is centred in
+    the view (the view's readings are :func:`head_pan_tilt` of ``q``) the reading is the view's
+    readings: the centred model is this one at the view that centres the point.
+
+    Shapes as :func:`head_pan_tilt` (``view_pan``, ``view_tilt`` broadcast against ``q``'s
+    leading axes); returns ``pan``, ``tilt`` and when asked ``d(pan, tilt)/dq`` (..., 2, 3) and
+    ``d(pan, tilt)/dparams`` (..., 2, 7), analytic, the view's readings held fixed.
+    """
+    q = np.asarray(q, dtype=float)
+    p = np.broadcast_to(np.asarray(params, dtype=float), q.shape[:-1] + (HEAD_DIM,))
+    pan0 = np.broadcast_to(np.asarray(view_pan, dtype=float), q.shape[:-1])
+    tilt0 = np.broadcast_to(np.asarray(view_tilt, dtype=float), q.shape[:-1])
+    kp, kt = 1.0 + p[..., 3], 1.0 + p[..., 4]
+    phi = pan0 / kp
+    theta = (tilt0 - p[..., 0]) / kt
+    gamma, tau = p[..., 1], p[..., 2]
+    rz, rx, ry = _rot(2, -phi), _rot(0, -tau), _rot(1, theta)
+    a = _mv(rz, q)
+    b = _mv(rx, a)
+    m = _mv(ry, b)  # H^T q
+    r = m.copy()
+    r[..., 1] -= p[..., 5]
+    r[..., 2] -= p[..., 6]
+    k = _rot(2, pan0) @ _rot(1, -tilt0)  # the ideal head's frame at the view's readings
+    k_g = k @ _rot(2, -gamma)  # K Rz(-gamma)
+    e = _mv(k_g, r)
+    x, y, z = e[..., 0], e[..., 1], e[..., 2]
+    rho2 = x * x + y * y
+    pan = wrap_angle(np.arctan2(y, x))
+    tilt = np.arctan2(z, np.sqrt(rho2))
+    if not jacobians:
+        return pan, tilt, None, None
+    rho, n2 = np.sqrt(rho2), rho2 + z * z
+    d_b = np.zeros(np.shape(x) + (2, 3))  # d(pan, tilt)/de
+    d_b[..., 0, 0], d_b[..., 0, 1] = -y / rho2, x / rho2
+    d_b[..., 1, 0], d_b[..., 1, 1], d_b[..., 1, 2] = -x * z / (n2 * rho), -y * z / (n2 * rho), rho / n2
+    d_q = d_b @ k_g @ ry @ rx @ rz
+    de_dp = np.zeros(np.shape(x) + (3, HEAD_DIM))
+    dm_dtheta = np.cross(_Y, m)
+    de_dp[..., 0] = _mv(k_g, dm_dtheta) * (-1.0 / kt)[..., None]
+    de_dp[..., 1] = -np.cross(k[..., :, 2], e)  # d/dgamma K Rz(-gamma) r = -K (z x Rz(-gamma) r) = -(K z) x e
+    de_dp[..., 2] = _mv(k_g, _mv(ry, -np.cross(_X, b)))
+    de_dp[..., 3] = _mv(k_g, _mv(ry @ rx, -np.cross(_Z, a))) * (-phi / kp)[..., None]
+    de_dp[..., 4] = _mv(k_g, dm_dtheta) * (-theta / kt)[..., None]
+    de_dp[..., 5] = -k_g[..., :, 1]
+    de_dp[..., 6] = -k_g[..., :, 2]
+    return pan, tilt, d_q, d_b @ de_dp

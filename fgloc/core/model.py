@@ -71,6 +71,14 @@ class Observation:
     ``zoom`` (optional, fraction 0 widest ... 1 optical tele) is the zoom the reading was
     taken at; readings without it share the survey's one zoom. The head model gives each
     zoom a camera used its own lever arm (:mod:`fgloc.core.head_model`).
+
+    ``view_tilt`` (radians, optional) with ``view_pan``: the head's encoder readings of the
+    view the reading was composed at, when it was taken **off-centre** (a coded survey's LED
+    pixel composed with the view's angles by the ideal pixel -> pan-tilt composition). The
+    head model then predicts the reading from the view
+    (:func:`fgloc.core.head_model.head_view_pan_tilt`) instead of as a centred one
+    (:func:`~fgloc.core.head_model.head_pan_tilt`); a reading without them (or a sequential,
+    centred one) is centred. :attr:`view_angles` tells whether a reading has both.
     """
 
     camera: str
@@ -84,6 +92,12 @@ class Observation:
     view_pan: float | None = None
     sigma_axes: tuple[float, float] | None = None
     zoom: float | None = None
+    view_tilt: float | None = None
+
+    @property
+    def view_angles(self) -> tuple[float, float] | None:
+        """(pan, tilt) radians of the view an off-centre reading was composed at, None when not recorded."""
+        return None if self.view_pan is None or self.view_tilt is None else (self.view_pan, self.view_tilt)
 
 
 @dataclass(frozen=True)

@@ -117,6 +117,7 @@ class JournalObservation:
     view_sigma: float | None = None
     view_pan: float | None = None  #: radians, the head pan the view was read at (with ``view_sigma``)
     zoom: float | None = None  #: coded surveys: zoom of the view's recording (fraction of the optical range)
+    view_tilt: float | None = None  #: coded surveys: radians, the head tilt the view was read at (off-centre reading)
 
     @property
     def key(self) -> ObservationKey:
@@ -129,7 +130,8 @@ class JournalObservation:
         return Observation(camera=self.camera, node=self.node, pan=self.pan, tilt=self.tilt, sigma=self.sigma,
                            view=f"{self.camera}/{self.view}" if shared else None,
                            view_sigma=self.view_sigma if shared else None,
-                           view_pan=self.view_pan if shared else None, zoom=self.zoom)
+                           view_pan=self.view_pan if shared or self.view_tilt is not None else None, zoom=self.zoom,
+                           view_tilt=self.view_tilt)
 
 
 @dataclass
@@ -294,13 +296,20 @@ class _Replay:
             return
         self.state.views[key] = rec
         for r in rec["readings"]:
-            self.state.add_observation(view_observation(camera, str(rec["view"]), r, _head_pan(rec), _zoom(rec)))
+            self.state.add_observation(view_observation(camera, str(rec["view"]), r, _head_pan(rec), _zoom(rec),
+                                                        _head_tilt(rec)))
 
 
 def _head_pan(record: dict[str, Any]) -> float | None:
     """The read-back head pan (radians) of a ``view`` record, None without one."""
     head = record.get("head")
     return float(head[0]) if isinstance(head, list) and head else None
+
+
+def _head_tilt(record: dict[str, Any]) -> float | None:
+    """The read-back head tilt (radians) of a ``view`` record, None without one."""
+    head = record.get("head")
+    return float(head[1]) if isinstance(head, list) and len(head) > 1 else None
 
 
 def _zoom(record: dict[str, Any]) -> float | None:
@@ -310,15 +319,19 @@ def _zoom(record: dict[str, Any]) -> float | None:
 
 
 def view_observation(camera: str, view: str, reading: dict[str, Any],
-                     head_pan: float | None = None, zoom: float | None = None) -> JournalObservation:
+                     head_pan: float | None = None, zoom: float | None = None,
+                     head_tilt: float | None = None) -> JournalObservation:
     """The observation a ``view`` record's reading stands for (the reading keeps its view id;
     with a ``view_sigma`` also that shared sigma and the view's read-back ``head_pan``; the
-    recording's ``zoom``, the head model's zoom group of the reading)."""
+    recording's ``zoom``, the head model's zoom group of the reading; with ``head_tilt`` the
+    view's read-back angles (``view_pan``, ``view_tilt``) the off-centre reading was composed at)."""
     sigma, shared = reading.get("sigma"), reading.get("view_sigma")
+    angles = head_pan is not None and head_tilt is not None
     return JournalObservation(reading["node"], camera, int(reading["index"]), float(reading["pan"]),
                               float(reading["tilt"]), None if sigma is None else float(sigma), view,
                               None if shared is None else float(shared),
-                              None if shared is None or head_pan is None else float(head_pan), zoom)
+                              None if (shared is None and not angles) or head_pan is None else float(head_pan), zoom,
+                              float(head_tilt) if angles and head_tilt is not None else None)
 
 
 def _header(rec: dict, path: str, line: int) -> JournalHeader:

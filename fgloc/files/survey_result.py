@@ -75,7 +75,8 @@ def _plain_observation(o: Any) -> bool:
     tilt: Any = o.get("tilt")
     return (_is_id(o.get("camera")) and _is_id(o.get("node")) and is_number(o.get("pan"))
             and is_number(tilt) and -_TILT_LIMIT <= tilt <= _TILT_LIMIT and "sigma" not in o and "subset" not in o
-            and "view" not in o and "sigma_axes" not in o and _plain_zoom(o.get("zoom", 0)))
+            and "view" not in o and "sigma_axes" not in o and "view_pan" not in o and "view_tilt" not in o
+            and _plain_zoom(o.get("zoom", 0)))
 
 
 def _plain_zoom(z: Any) -> bool:
@@ -201,9 +202,10 @@ def read_survey(path: str | os.PathLike[str]) -> Survey:
         observations.append(Observation(camera=o["camera"], node=o["node"], pan=float(o["pan"]), tilt=float(o["tilt"]),
                                         sigma=None if sigma is None else float(sigma), subset=o.get("subset"),
                                         view=o.get("view"), view_sigma=None if view is None else float(view["sigma"]),
-                                        view_pan=None if view is None or "pan" not in view else float(view["pan"]),
+                                        view_pan=_view_pan(o, view),
                                         sigma_axes=None if axes is None else (float(axes[0]), float(axes[1])),
-                                        zoom=None if o.get("zoom") is None else float(o["zoom"])))
+                                        zoom=None if o.get("zoom") is None else float(o["zoom"]),
+                                        view_tilt=None if o.get("view_tilt") is None else float(o["view_tilt"])))
 
     truth = None
     if "truth" in data:
@@ -217,6 +219,14 @@ def read_survey(path: str | os.PathLike[str]) -> Survey:
         observations=observations,
         truth=truth,
     )
+
+
+def _view_pan(o: dict, view: dict | None) -> float | None:
+    """An observation's view pan: its own ``view_pan`` (an off-centre reading's view angles), else
+    its view's ``pan`` (the ``views`` block), else None."""
+    if o.get("view_pan") is not None:
+        return float(o["view_pan"])
+    return None if view is None or "pan" not in view else float(view["pan"])
 
 
 def _observation_view(o: dict, i: int, views: dict[str, dict], sigma: float, path: str) -> dict | None:
@@ -268,6 +278,7 @@ def survey_to_json(survey: Survey) -> dict:
             | ({} if o.view is None or o.view_sigma is None else {"view": o.view})
             | ({} if o.sigma_axes is None else {"sigma_axes": list(o.sigma_axes)})
             | ({} if o.zoom is None else {"zoom": o.zoom})
+            | ({} if o.view_angles is None else {"view_pan": o.view_angles[0], "view_tilt": o.view_angles[1]})
             for o in survey.observations
         ],
     }

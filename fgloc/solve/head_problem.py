@@ -5,7 +5,9 @@ The extended problem is the reference graph of :func:`fgloc.solve.joint.build_pr
 factor (:mod:`fgloc.factors.pan_tilt_head_factor`), one head-calibration Vector per camera
 (key ``h<i>``, :data:`head_key`) holding the parameters chosen for it (its extended vector:
 one lever arm per zoom, :func:`fgloc.core.head_model.zoom_groups`), and a zero-mean datasheet
-prior on each. Solved and judged in :mod:`fgloc.solve.self_calibration`.
+prior on each. Solved and judged in :mod:`fgloc.solve.self_calibration`. Off-centre readings
+(``Observation.view_angles``: a coded survey's) are predicted from their view
+(:func:`fgloc.core.head_model.head_view_pan_tilt`), centred ones by ``head_pan_tilt``.
 """
 
 from __future__ import annotations
@@ -110,6 +112,7 @@ def build_self_calibration_problem(
         pt.camera_keys, pt.node_keys, obs_head,
         {head_keys[c]: tuple(sorted(active[c])) for c in head_keys}, fixed, pt.pan, pt.tilt,
         [noise[float(s)] for s in sigma], planar=pt.planar, zoom_group=obs_group,
+        view=view_angles(survey, base.observation_index),
     )
     graph = gtsam.NonlinearFactorGraph()
     for f in heads.factors:
@@ -125,6 +128,15 @@ def build_self_calibration_problem(
         pan_tilt=pt, observation_index=base.observation_index, unlocalized=dict(base.unlocalized),
         heads=heads, head_keys=head_keys, active={c: tuple(sorted(active[c])) for c in head_keys}, zooms=zooms,
     )
+
+
+def view_angles(survey: Survey, rows: np.ndarray) -> FloatArray | None:
+    """(len(rows), 2) radians: the view angles of the off-centre readings ``survey.observations[rows]``
+    (``Observation.view_angles``), NaN for centred ones; None when no reading has them."""
+    obs = [survey.observations[int(i)] for i in rows]
+    if not any(o.view_angles is not None for o in obs):
+        return None
+    return np.array([o.view_angles or (np.nan, np.nan) for o in obs], dtype=float).reshape(-1, 2)
 
 
 def node_rms_bound(problem: SelfCalibrationProblem) -> float:

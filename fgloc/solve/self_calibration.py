@@ -71,7 +71,7 @@ __all__ = [
     "ADMIT_ORDER", "FAST_PATH_PAN_LIMIT", "LR_ALPHA", "MIN_ZOOM_READINGS", "RANK_TOL", "CameraHeadEstimate",
     "HeadCalibrationReport", "HeadInformation", "HeadModel", "SelfCalibratedSolve", "SelfCalibrationError",
     "SelfCalibrationProblem", "build_self_calibration_problem", "chi2_quantile", "determinable_from_information",
-    "determinable_subset", "fast_path_is_safe", "head_information", "head_key", "head_observability",
+    "determinable_subset", "fast_path_is_safe", "has_off_centre", "head_information", "head_key", "head_observability",
     "observability_from_information", "solve_self_calibrated", "solve_with_head_model", "whitened_head_information",
 ]
 
@@ -238,8 +238,9 @@ def solve_self_calibrated(
     +-180 degree pan seam (a seeded 40-node, 3-camera survey of
     ``tests/test_head_calibration.py``: cost 147 against the reference graph's 81), and
     the head model's forward solve, not the graph, dominates the time
-    (``scripts/bench_head_model.py``)."""
-    if options.eliminate_nodes and fast_path:
+    (``scripts/bench_head_model.py``). Off-centre readings (:func:`has_off_centre`) always
+    take the reference graph: the fast path models centred readings only."""
+    if options.eliminate_nodes and fast_path and not has_off_centre(survey, exclude):
         from fgloc.solve.eliminated_heads import solve_self_calibrated_eliminated
 
         fast: SelfCalibratedSolve = solve_self_calibrated_eliminated(survey, start, active, options, exclude,
@@ -315,11 +316,18 @@ FAST_PATH_PAN_LIMIT = math.radians(175.0)
 
 def fast_path_is_safe(survey: Survey, exclude: frozenset[int] = frozenset()) -> bool:
     """True when no reading kept (``exclude``: indices into ``survey.observations``) lies
-    beyond :data:`FAST_PATH_PAN_LIMIT` in |pan|."""
+    beyond :data:`FAST_PATH_PAN_LIMIT` in |pan| and none is off-centre (carries view angles,
+    ``Observation.view_angles``: the node-eliminated fast path models centred readings only,
+    the reference graph predicts off-centre ones from their view)."""
     pan = np.asarray(survey.observation_table.pan)
     keep = np.ones(len(pan), dtype=bool)
     keep[[i for i in exclude if 0 <= i < len(pan)]] = False
-    return bool(np.all(np.abs(pan[keep]) <= FAST_PATH_PAN_LIMIT))
+    return bool(np.all(np.abs(pan[keep]) <= FAST_PATH_PAN_LIMIT)) and not has_off_centre(survey, exclude)
+
+
+def has_off_centre(survey: Survey, exclude: frozenset[int] = frozenset()) -> bool:
+    """True when a reading kept (not in ``exclude``) carries its view's angles (off-centre)."""
+    return any(o.view_angles is not None for i, o in enumerate(survey.observations) if i not in exclude)
 
 
 def solve_with_head_model(

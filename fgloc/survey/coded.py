@@ -339,7 +339,8 @@ class CodedSurvey:
             runner.state.views[(record["camera"], record["view"], record["attempt"])] = {"type": "view"} | record
             for r in record["readings"]:
                 runner.state.add_observation(view_observation(record["camera"], record["view"], r,
-                                                              float(record["head"][0]), record.get("zoom")))
+                                                              float(record["head"][0]), record.get("zoom"),
+                                                              float(record["head"][1])))
         s = self.stats
         s.recordings += 1
         s.second_recordings += record["attempt"] > 0
