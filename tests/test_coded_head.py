@@ -275,3 +275,61 @@ def test_factor_jacobians_with_view_angles_match_gtsam_numerical(planar: bool, s
                           [gtsam.noiseModel.Isotropic.Sigma(2, 0.01)], planar, view=view)
     assert heads.view is not None
     assert_head_factor_jacobians(heads, (C(0), L(0), H(0)), pose, node, params.copy(), 0.01)
+
+
+# -- the self-calibrated solve on off-centre readings ---------------------------------------------
+
+@pytest.fixture(scope="module")
+def off_centre():
+    """A seeded paper scene (two cameras 0.3 above the floor, 100 nodes) read off-centre as a coded
+    survey reads it (views 26 x 18 degrees apart, 0.03 degree noise), heads of the typical sizes."""
+    from fgloc.sim.coded_head import off_centre_survey
+    from fgloc.sim.head_errors import typical_head_errors
+    from fgloc.sim.scenes import PaperScenario, paper_scenario
+
+    base = paper_scenario(PaperScenario(heights=(0.3, 0.3), seed=3))
+    heads = typical_head_errors(base.camera_ids, np.random.default_rng(5))
+    survey = off_centre_survey(base, heads, np.random.default_rng(5), math.radians(0.03),
+                               (math.radians(13.0), math.radians(9.0)))
+    return survey, heads
+
+
+def _scores(survey, result, report, heads) -> tuple[float, float]:  # type: ignore[no-untyped-def]
+    """(joint NEES of the head parameters of all cameras, node RMS error)."""
+    nees = sum(float((e.values - heads[c]) @ np.linalg.solve(e.covariance, e.values - heads[c]))
+               for c, e in report.cameras.items())
+    rms = math.sqrt(np.mean([np.sum((result.nodes[n].position[:2] - survey.truth.nodes[n][:2]) ** 2)
+                             for n in result.nodes]))
+    return nees, rms
+
+
+def test_full_head_model_on_off_centre_readings_is_consistent_and_the_centred_one_biased(off_centre) -> None:  # type: ignore[no-untyped-def]
+    """``--head-model full`` with the view angles recovers the heads within their covariance
+    (joint NEES of 14 parameters below the chi-square 99.9 % point); the same readings taken as
+    centred give head estimates far outside theirs and nodes several times worse."""
+    from fgloc.sim.coded_head import centred_view
+    from fgloc.solve.self_calibration import HeadModel, solve_with_head_model
+
+    survey, heads = off_centre
+    assert all(o.view_angles is not None for o in survey.observations)
+    view = solve_with_head_model(survey, HeadModel.FULL, fast_path=False)
+    centred = solve_with_head_model(centred_view(survey), HeadModel.FULL, fast_path=False)
+    nees_v, rms_v = _scores(survey, *view, heads)
+    nees_c, rms_c = _scores(survey, *centred, heads)
+    chi2_999_14 = 36.12
+    assert nees_v < chi2_999_14 and not view[0].flagged, nees_v
+    assert nees_c > 10 * chi2_999_14 and rms_c > 3 * rms_v, (nees_c, rms_c, rms_v)
+
+
+def test_off_centre_readings_never_take_the_node_eliminated_fast_path(off_centre) -> None:  # type: ignore[no-untyped-def]
+    """The fast path models centred readings only: with view angles it is never chosen, and
+    asking for it gives the reference graph's result."""
+    from fgloc.solve.self_calibration import HeadModel, fast_path_is_safe, has_off_centre, solve_with_head_model
+
+    survey, _ = off_centre
+    assert has_off_centre(survey) and not fast_path_is_safe(survey)
+    assert not has_off_centre(survey, frozenset(range(len(survey.observations))))
+    forced, _ = solve_with_head_model(survey, HeadModel.FULL, fast_path=True)
+    reference, _ = solve_with_head_model(survey, HeadModel.FULL, fast_path=False)
+    for n, e in reference.nodes.items():
+        np.testing.assert_array_equal(forced.nodes[n].position, e.position)
