@@ -333,3 +333,28 @@ def test_off_centre_readings_never_take_the_node_eliminated_fast_path(off_centre
     reference, _ = solve_with_head_model(survey, HeadModel.FULL, fast_path=False)
     for n, e in reference.nodes.items():
         np.testing.assert_array_equal(forced.nodes[n].position, e.position)
+
+
+def test_few_wide_views_can_leave_the_head_undetermined_and_full_says_why() -> None:
+    """Off-centre readings see a head only through each view's orientation: a camera with a
+    handful of wide views can leave angular parameters undetermined. ``full`` refuses in one
+    line naming the views; ``auto`` estimates the determinable subset."""
+    from fgloc.core.errors import FglocError
+    from fgloc.core.model import NodeMode
+    from fgloc.sim.coded_head import off_centre_survey
+    from fgloc.sim.head_errors import sample_head_errors
+    from fgloc.sim.scenes import RandomScene, random_scene
+    from fgloc.solve.self_calibration import HeadModel, solve_with_head_model
+
+    base = random_scene(RandomScene(n_cameras=3, n_nodes=100, mode=NodeMode.PLANAR, visibility=1.0,
+                                    ceiling_share=0.0, height_range=(0.3, 0.6), seed=3))
+    heads = sample_head_errors(base.camera_ids, np.random.default_rng(2000))
+    survey = off_centre_survey(base, heads, np.random.default_rng(0), math.radians(0.03))
+    with pytest.raises(FglocError) as err:
+        solve_with_head_model(survey, HeadModel.FULL)
+    assert "cannot determine" in str(err.value) and "off-centre readings come from" in str(err.value)
+    assert "\n" not in str(err.value)
+    assert "camera cam2" in str(err.value) and "from 3 views" in str(err.value)
+    _, report = solve_with_head_model(survey, HeadModel.AUTO)
+    estimated = {c: e.estimated for c, e in report.cameras.items()}
+    assert 0 < len(estimated["cam2"]) < 7 and len(estimated["cam0"]) == len(estimated["cam1"]) == 7, estimated

@@ -420,6 +420,10 @@ def _thin_note(survey: Survey, cid: str, bad: list[str]) -> str:
         if len(zooms[cid]) > 1 and n < MIN_ZOOM_READINGS and parameter_names(zooms[cid])[SHARED_DIM + 2 * g] in bad:
             notes.append(f"{'no zoom given' if z is None else f'zoom {z:g}'} has {n} readings, "
                          f"a lever arm needs {MIN_ZOOM_READINGS}")
+    views = {o.view_angles for o in survey.observations if o.camera == cid and o.view_angles is not None}
+    if views and any(b in HEAD_PARAMETERS[:SHARED_DIM] for b in bad):
+        notes.append(f"its off-centre readings come from {len(views)} views, and they see the head only "
+                     "through each view's orientation")
     return "".join(f"; {n}" for n in notes)
 
 
