@@ -101,6 +101,9 @@ def summarize(runs: list[dict], key: str, dim: int, cameras: list[str]) -> dict:
         "rms": rms, "crb_extended": float(np.sqrt(np.mean(crb**2))), "rms_over_crb": rms / float(np.sqrt(np.mean(crb**2))),
         "anees_nodes": float(nodes[:, 1].sum() / (dim * nodes[:, 2].sum())),
         "anees_joint_nodes": float(nodes[:, 3].sum() / nodes[:, 4].sum()),
+        "joint_nodes_bounds_95": [float(v) for v in chi2.ppf([0.025, 0.975], nodes[:, 4].sum()) / nodes[:, 4].sum()],
+        "runs_joint_nodes_outside_95": float(np.mean((nodes[:, 3] < chi2.ppf(0.025, nodes[:, 4]))
+                                                     | (nodes[:, 3] > chi2.ppf(0.975, nodes[:, 4])))),
         "anees_head": float(hn.sum() / hd.sum()),
         "head_bounds_95": [float(v) for v in chi2.ppf([0.025, 0.975], hd.sum()) / hd.sum()],
         "runs_head_nees_outside_95": float(np.mean((hn < chi2.ppf(0.025, hd)) | (hn > chi2.ppf(0.975, hd)))),
