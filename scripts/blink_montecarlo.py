@@ -255,7 +255,7 @@ def _run_candidates(args: argparse.Namespace) -> None:
     near = None if args.candidates == "book" else int(args.candidates)
     book = code_book(args.book)
     k = args.frames if args.frames is not None else frames_for(book.length)
-    rule = CandidateRule(max_unread=args.max_unread)
+    rule = CandidateRule(max_unread=args.max_unread, book_margin=args.book_margin)
     tot: dict[str, float] = {}
     t0 = time.perf_counter()
     for s in range(args.trials):
@@ -272,7 +272,7 @@ def _run_candidates(args: argparse.Namespace) -> None:
             f"{tot['strays'] / args.trials:g} lit non-candidates/view")
     print(f"  candidates: {what}; {tot['candidates'] / args.trials:.1f} per view, "
           f"{tot['in_range'] / d:.2f} in range of each lit mote; rule {rule.max_errors} errors, margin "
-          f"{rule.margin}, {rule.max_unread} unread bits")
+          f"{rule.margin}, {rule.max_unread} unread bits, book margin {rule.book_margin}")
     print(f"{k} samples/view, {tot['erased'] / tot['samples']:.1%} erased: decodes {d:.0f}: correct "
           f"{tot['correct']:.0f} ({tot['correct'] / d:.2%}), mislabelled {tot['mislabelled']:.0f} "
           f"(non-candidates labelled {tot['stray_labelled']:.0f} of {tot['strays']:.0f}), "
@@ -420,12 +420,18 @@ def main() -> None:
     ap.add_argument("--radius", type=float, default=8.0, help="with --candidates: candidate radius (px)")
     ap.add_argument("--max-unread", type=int, default=CandidateRule().max_unread,
                     help="with --candidates: bit positions allowed without a clean sample")
+    ap.add_argument("--book-margin", type=int, default=CandidateRule().book_margin,
+                    help="with --candidates: every other book word at least this many mismatches more (0: off)")
     args = ap.parse_args()
     if args.candidates:
         if args.candidates != "book" and not (args.candidates.isdigit() and int(args.candidates) >= 1):
             ap.error(f"--candidates: a count >= 1 or 'book' ({args.candidates})")
         if args.pairs or args.groups or args.sync or args.slide or args.extend:
             ap.error("--candidates: a round view of single class motes (no --pairs/--groups/--sync/--slide/--extend)")
+        try:
+            CandidateRule(max_unread=args.max_unread, book_margin=args.book_margin)
+        except ValueError as exc:
+            ap.error(f"--max-unread/--book-margin: {exc}")
         _run_candidates(args)
         return
     if args.pairs and args.groups:  # their statistics index the motes of one kind of crowd per view

@@ -88,24 +88,61 @@ def test_clean_rotated_word_labels_exactly_and_other_words_keep_the_book_distanc
 def test_erasure_budget_and_errors() -> None:
     idx = [2, 50]
     table = rotation_bits(BOOK, idx)
+    tight = CandidateRule(max_unread=1, book_margin=0)
     clean = np.array([bits_of(BOOK.words[2], L)[i % L] for i in range(L + 2)], np.int8)
     one = clean.copy()
     one[5] = -1  # bit 5 read once only: one unread position
-    assert label_samples(one, np.arange(L + 2) % L, L, table, CandidateRule())[0] == 0
+    assert label_samples(one, np.arange(L + 2) % L, L, table, tight)[0] == 0
     two = one.copy()
     two[9] = -1
-    row, why = label_samples(two, np.arange(L + 2) % L, L, table, CandidateRule())
+    row, why = label_samples(two, np.arange(L + 2) % L, L, table, tight)
     assert row is None and "never read cleanly" in why
-    assert label_samples(two, np.arange(L + 2) % L, L, table, CandidateRule(max_unread=2))[0] == 0
+    assert label_samples(two, np.arange(L + 2) % L, L, table, CandidateRule(max_unread=2, book_margin=0))[0] == 0
     wrong = clean.copy()
     wrong[3] ^= 1
     row, why = label_samples(wrong, np.arange(L + 2) % L, L, table, CandidateRule())
     assert row is None and "matches no candidate" in why
 
 
+def _close_words() -> tuple[int, int, int, int, list[int]]:
+    """Two book words a, b and rotations ra, rb at the book distance 3, and the differing positions."""
+    for a in range(len(BOOK)):
+        for b in range(len(BOOK)):
+            if a == b:
+                continue
+            for rb in range(L):
+                wa, wb = BOOK.words[a], rotate(BOOK.words[b], rb, L)
+                if hamming(wa, wb) == 3:
+                    diff = [p for p in range(L) if bits_of(wa, L)[p] != bits_of(wb, L)[p]]
+                    return a, b, 0, rb, diff
+    raise AssertionError("the book has no pair at distance 3")
+
+
+def test_book_margin_refuses_a_non_candidate_that_unread_bits_and_one_error_would_turn_into_a_candidate() -> None:
+    a, b, _, rb, diff = _close_words()
+    bits_b = bits_of(rotate(BOOK.words[b], rb, L), L)
+    samples = np.array([bits_b[i % L] for i in range(L)], np.int8)  # mote b (no candidate) lit, L samples
+    samples[diff[0]] = -1
+    samples[diff[1]] = -1  # two of the three differing bits unread
+    samples[diff[2]] ^= 1  # and one wrong sample: every clean sample now agrees with candidate a
+    pos = np.arange(L) % L
+    table = rotation_bits(BOOK, [a])
+    others = rotation_bits(BOOK, [k for k in range(len(BOOK)) if k != a])
+    assert candidate_distances(samples, pos, table)[0][0] == 0
+    unguarded = CandidateRule(max_unread=2, book_margin=0)
+    assert label_samples(samples, pos, L, table, unguarded, others)[0] == 0  # the mislabel rule 4 prevents
+    row, why = label_samples(samples, pos, L, table, CandidateRule(), others)
+    assert row is None and "book margin" in why
+    # the other book words' distances on these samples, brute force: b is one sample away
+    d_others = candidate_distances(samples, pos, others)[0]
+    assert int(d_others.min()) == 1
+    assert min(_brute_distance(samples, BOOK.words[k], L) for k in range(len(BOOK)) if k != a) == 1
+
+
 def test_rule_refuses_unsafe_budgets() -> None:
     with pytest.raises(ValueError):
-        CandidateRule(max_errors=1, max_unread=2)
+        CandidateRule(max_errors=1, max_unread=2, book_margin=0)
+    CandidateRule(max_errors=1, max_unread=2)  # with the book margin the guard does not rest on the budget
     with pytest.raises(ValueError):
         CandidateRule(margin=0)
 
@@ -174,7 +211,9 @@ def test_drops_are_erasures_within_the_budget() -> None:
     res = decode_candidates(frames, period, BOOK, cands, INTR, pan, tilt)
     assert {r.index for r in res.readings} <= set(ids)
     assert res.erased > 0
-    loose = decode_candidates(frames, period, BOOK, cands, INTR, pan, tilt, CandidateRule(max_unread=2))
+    tight = decode_candidates(frames, period, BOOK, cands, INTR, pan, tilt, CandidateRule(max_unread=1))
+    assert {r.index for r in tight.readings} <= {r.index for r in res.readings}
+    loose = decode_candidates(frames, period, BOOK, cands, INTR, pan, tilt, CandidateRule(max_unread=5))
     assert {r.index for r in res.readings} <= {r.index for r in loose.readings} <= set(ids)
 
 

@@ -23,18 +23,23 @@ blob). For a candidate word ``w`` and rotation ``r`` the *mismatches* are
 (every clean sample counts, so a bit read twice must agree twice), and ``d(w) = min_r
 d(w, r)`` (:func:`candidate_distances`). The blob is labelled with candidate ``c`` only if
 
-1. at most ``max_unread`` of the ``L`` bit positions have no clean sample (erasure budget:
-   drops, repeated frames, samples between the levels);
+1. at most ``max_unread`` (default 3) of the ``L`` bit positions have no clean sample
+   (erasure budget: drops, repeated frames, samples between the levels);
 2. ``d(c) <= max_errors`` (default 0: every clean sample agrees with one rotation of ``c``);
-3. every other candidate in range has ``d >= d(c) + margin`` (default 2) at every rotation.
+3. every other candidate in range has ``d >= d(c) + margin`` (default 2) at every rotation;
+4. every other word of the book (the non-candidates, and candidates out of range) has
+   ``d >= d(c) + book_margin`` (default 2) at every rotation, on the same clean samples.
 
-Otherwise it is refused with the reason, never guessed. ``max_errors + max_unread`` must
-stay below the book distance 3: any other book word (a mote that missed the pause, not a
-candidate) differs from every rotation of ``c`` in >= 3 of the ``L`` positions, so in
->= ``3 - max_unread`` read positions, and is labelled only if ``>= 3 - max_unread -
-max_errors`` of its samples are wrong (defaults: 2 wrong samples, where the blind decoder
-needs 3). Rotation is free (motes are not synchronized); a candidate's word is primitive,
-so its rotations differ, but any rotation labels the same ID.
+Otherwise it is refused with the reason, never guessed. Rule 4 is the guard against a lit
+mote that is no candidate (one that missed the pause): if the blob is book word ``x`` read
+with ``e`` wrong samples, ``d(x) <= e``, so labelling it ``c`` needs ``e >= d(c) +
+book_margin``: with the defaults two wrong samples, whatever the unread positions hide
+(the blind decoder needs three, on a full word). Unread positions only cost labels whose
+word some other book word matches there. With ``book_margin = 0`` (rule 4 off) the guard
+comes from the book distance 3 alone: another word differs from every rotation of ``c``
+in >= 3 positions, so in >= ``3 - max_unread`` read ones, and ``max_errors + max_unread``
+must then stay below 3. Rotation is free (motes are not synchronized); a candidate's word
+is primitive, so its rotations differ, but any rotation labels the same ID.
 
 **Output** (:class:`CandidateDecode`). Readings as the blind decoder's
 (:meth:`~fgloc.camera.blink_decoder.BlobSamples.reading`: centroid over the clean on
@@ -48,6 +53,7 @@ Rotation-free books only. Pixels: OpenCV convention; angles radians.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections import Counter
 from collections.abc import Sequence
@@ -90,14 +96,15 @@ class CandidateRule:
 
     max_errors: int = 0  #: mismatching clean samples the label may have
     margin: int = 2  #: every other candidate in range at least this many mismatches more
-    max_unread: int = 1  #: bit positions (of L) allowed without a clean sample
+    max_unread: int = 3  #: bit positions (of L) allowed without a clean sample
+    book_margin: int = 2  #: every other book word at least this many mismatches more (0: not checked)
     decoder: DecoderConfig = field(default_factory=DecoderConfig)  #: levels and one-LED tests
 
     def __post_init__(self) -> None:
-        if self.max_errors < 0 or self.max_unread < 0 or self.margin < 1:
-            raise ValueError(f"rule: errors {self.max_errors}, unread {self.max_unread} >= 0, margin "
-                             f"{self.margin} >= 1")
-        if self.max_errors + self.max_unread >= MIN_DISTANCE:
+        if self.max_errors < 0 or self.max_unread < 0 or self.margin < 1 or self.book_margin < 0:
+            raise ValueError(f"rule: errors {self.max_errors}, unread {self.max_unread}, book margin "
+                             f"{self.book_margin} >= 0, margin {self.margin} >= 1")
+        if self.book_margin == 0 and self.max_errors + self.max_unread >= MIN_DISTANCE:
             raise ValueError(f"rule: max_errors + max_unread ({self.max_errors} + {self.max_unread}) must stay "
                              f"below the book distance {MIN_DISTANCE}: another book word could be labelled unread")
 
@@ -118,11 +125,17 @@ class CandidateDecode:
 def rotation_bits(book: CodeBook, indices: Sequence[int]) -> np.ndarray:
     """(C, L, L) int8: ``[c, r, p]`` = bit ``p`` (transmission order) of word ``indices[c]``
     rotated left by ``r`` (:func:`fgloc.camera.blink_codes.rotate`)."""
-    L = book.length
-    out = np.zeros((len(indices), L, L), np.int8)
-    for c, k in enumerate(indices):
-        for r in range(L):
-            out[c, r] = bits_of(rotate(book.words[k], r, L), L)
+    return _book_rotation_bits(book.length, book.words)[np.asarray(list(indices), dtype=np.int64)]
+
+
+@functools.lru_cache(maxsize=8)
+def _book_rotation_bits(length: int, words: tuple[int, ...]) -> np.ndarray:
+    """:func:`rotation_bits` of every word of a book (cached per book)."""
+    out = np.zeros((len(words), length, length), np.int8)
+    for c, w in enumerate(words):
+        for r in range(length):
+            out[c, r] = bits_of(rotate(w, r, length), length)
+    out.setflags(write=False)
     return out
 
 
@@ -139,9 +152,10 @@ def candidate_distances(samples: np.ndarray, positions: np.ndarray, table: np.nd
 
 
 def label_samples(samples: np.ndarray, positions: np.ndarray, length: int, table: np.ndarray,
-                  rule: CandidateRule) -> tuple[int | None, str]:
+                  rule: CandidateRule, others: np.ndarray | None = None) -> tuple[int | None, str]:
     """The rule of the module docstring for one blob: (row of ``table`` labelled, "") or
-    (None, why). ``table``: the candidates in range (:func:`rotation_bits`)."""
+    (None, why). ``table``: the candidates in range (:func:`rotation_bits`); ``others``: the
+    rest of the book (rule 4; None or ``book_margin`` 0: not checked)."""
     clean = np.asarray(samples) >= 0
     unread = length - len(set(np.asarray(positions)[clean].tolist()))
     if unread > rule.max_unread:
@@ -156,6 +170,11 @@ def label_samples(samples: np.ndarray, positions: np.ndarray, length: int, table
     if len(order) > 1 and d[order[1]] < d[best] + rule.margin:
         return None, (f"two candidates within the margin ({int(d[best])} and {int(d[order[1]])} mismatches,"
                       f" margin {rule.margin})")
+    if rule.book_margin and others is not None and len(others):
+        d_other, _ = candidate_distances(samples, positions, others)
+        if int(d_other.min()) < d[best] + rule.book_margin:
+            return None, (f"another book word within the book margin ({int(d_other.min())} mismatches against "
+                          f"{int(d[best])}, margin {rule.book_margin})")
     return best, ""
 
 
@@ -184,6 +203,7 @@ def decode_candidates(
     refused: list[RefusedBlob] = [RefusedBlob(b.u, b.v, "ambiguous", f"unresolved blob: {b.reason}")
                                   for b in det.rejected if "elongation" in b.reason]
     table = rotation_bits(book, idx)
+    every = _book_rotation_bits(book.length, book.words) if rule.book_margin else None
     seen: set[int] = set()
     labelled: list[DecodedReading] = []
     for blob in det.candidates:
@@ -196,7 +216,8 @@ def decode_candidates(
         if isinstance(got, RefusedBlob):
             refused.append(got)
             continue
-        row, why = label_samples(got.bits, positions, book.length, table[near], rule)
+        others = None if every is None else every[np.setdiff1d(np.arange(len(book)), [idx[k] for k in near])]
+        row, why = label_samples(got.bits, positions, book.length, table[near], rule, others)
         if row is None:
             refused.append(RefusedBlob(blob.u, blob.v, "rejected", why))
             continue
