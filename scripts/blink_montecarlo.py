@@ -28,6 +28,16 @@ both its motes are read within 2 px; mislabels are counted over all readings as 
 
     OPENBLAS_NUM_THREADS=1 .venv/bin/python scripts/blink_montecarlo.py --trials 250 [--fields] [--sync] [--slide 1]
         [--pairs 40 [--time-decode]] [--groups 20]
+    OPENBLAS_NUM_THREADS=1 .venv/bin/python scripts/blink_montecarlo.py --candidates 3|book --frames 18 --motes 20 [--fields]
+
+``--candidates M``: radio-separation round views (:func:`candidate_trial`): ``--motes`` lit
+class motes (none within 4 px of another), each decoded by
+:func:`fgloc.camera.blink_candidates.decode_candidates` against the class: itself predicted
+``--predict-px`` (sd) from its pixel plus 0..M-1 dark class members predicted within its
+``--radius`` (1..M candidates in range), and ``--strays`` lit motes that are no candidate
+(they missed the pause) near it, which must be refused; ``--candidates book``: the whole
+book, no prediction, no strays (the control). Mislabelled as above (a stray labelled as a
+candidate is one); missed is the isolated miss rate (every lit mote is isolated).
 """
 
 from __future__ import annotations
@@ -39,7 +49,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from fgloc.camera.blink_codes import code_book, sync_code_book
+from fgloc.camera.blink_candidates import Candidate, CandidateRule, decode_candidates
+from fgloc.camera.blink_codes import CodeBook, code_book, sync_code_book
 from fgloc.camera.blink_decoder import DecodedReading, SyncTiming, decode_view, decode_windows  # noqa: E402
 from fgloc.camera.blink_pairs import PairConfig
 from fgloc.camera.intrinsics import CameraIntrinsics
@@ -88,28 +99,10 @@ def trial(seed: int, n_motes: int, book_size: int, glints: int, fields: bool = F
     dist = rng.uniform(3.0, 30.0, n_motes)
     pts = pan_tilt_bearing(pans, tilts) * dist[:, None]
     ids = rng.choice(book_size, size=n_motes, replace=False)
-    pos = {f"n{int(i)}": pts[k] for k, i in enumerate(ids)}
-    codes = {f"n{int(i)}": book.bits(int(i)) for i in ids}
-    cfg = BlinkRenderConfig(glints=glints, duplicate_rate=0.01)
-    if fields:  # twice the rate; each field collects the light of every second row: half the flux
-        cfg = replace(cfg, frame_rate_hz=2.0 * cfg.frame_rate_hz, led_flux=0.5 * cfg.led_flux,
-                      static_flux=0.5 * cfg.static_flux,
-                      glint_flux=(0.5 * cfg.glint_flux[0], 0.5 * cfg.glint_flux[1]))
-    period = round(1.0 / cfg.frame_rate_hz, 5)  # what the motes are told (10 us resolution)
-    t_start = 0.0
-    timing: SyncTiming | None = None
-    if sync:
-        t_start = float(rng.uniform(0.0, resync_s))  # since the last synchronized (re)start, epoch 0
-        motes = motes_synchronized(pos, codes, period, rng)
-        timing = SyncTiming(0.0, period, cfg.exposure_s)
-    else:
-        motes = motes_with_codes(pos, codes, period, rng)
-    spp, stt = pixel_to_pan_tilt(intr, rng.uniform(20, 620, (3, 2)) * [1, intr.height / intr.width], head_pan, head_tilt)
-    statics = pan_tilt_bearing(spp, stt) * 20.0
-    cam = RenderedCamera(CameraPose(np.zeros(3), np.eye(3)), LedScene(positions={}))
     k0 = frames if frames is not None else frames_for(book.length)
     ext = max(extend, slide * book.length)
-    stack = render_view(cam, intr, head_pan, head_tilt, motes, k0 + ext, rng, cfg, statics, t_start)
+    stack, cfg, t_start, timing = _render(rng, intr, head_pan, head_tilt, pts, ids, book, glints, fields, sync,
+                                          resync_s, k0 + ext)
     truth = {int(i): uv[k] for k, i in enumerate(ids)}
     dmin = np.sqrt(((uv[:, None, :] - uv[None, :, :]) ** 2).sum(-1)) + np.diag(np.full(n_motes, np.inf))
     isolated = dmin.min(axis=1) >= 4.0  # no other mote within 4 px: the field plan's criterion
@@ -160,6 +153,132 @@ def trial(seed: int, n_motes: int, book_size: int, glints: int, fields: bool = F
                     prefix + "n_err": 2 * len(ex), prefix + "sq_x": float(np.sum(np.square(ex))),
                     prefix + "sq_y": float(np.sum(np.square(ey))), prefix + "n_xy": len(ex)})
     return out
+
+
+def _render(rng: np.random.Generator, intr: CameraIntrinsics, head_pan: float, head_tilt: float, pts: np.ndarray,
+            ids: np.ndarray, book: CodeBook, glints: int, fields: bool, sync: bool, resync_s: float,
+            n_frames: int) -> tuple[list[tuple[float, np.ndarray]], BlinkRenderConfig, float, SyncTiming | None]:
+    """Render one view of the motes ``ids`` (book indices) at ``pts`` (base frame) with the
+    disturbances of the module docstring: (frames, render config, recording start s, sync timing)."""
+    pos = {f"n{int(i)}": pts[k] for k, i in enumerate(ids)}
+    codes = {f"n{int(i)}": book.bits(int(i)) for i in ids}
+    cfg = BlinkRenderConfig(glints=glints, duplicate_rate=0.01)
+    if fields:  # twice the rate; each field collects the light of every second row: half the flux
+        cfg = replace(cfg, frame_rate_hz=2.0 * cfg.frame_rate_hz, led_flux=0.5 * cfg.led_flux,
+                      static_flux=0.5 * cfg.static_flux,
+                      glint_flux=(0.5 * cfg.glint_flux[0], 0.5 * cfg.glint_flux[1]))
+    period = round(1.0 / cfg.frame_rate_hz, 5)  # what the motes are told (10 us resolution)
+    t_start = 0.0
+    timing: SyncTiming | None = None
+    if sync:
+        t_start = float(rng.uniform(0.0, resync_s))  # since the last synchronized (re)start, epoch 0
+        motes = motes_synchronized(pos, codes, period, rng)
+        timing = SyncTiming(0.0, period, cfg.exposure_s)
+    else:
+        motes = motes_with_codes(pos, codes, period, rng)
+    spp, stt = pixel_to_pan_tilt(intr, rng.uniform(20, 620, (3, 2)) * [1, intr.height / intr.width], head_pan, head_tilt)
+    statics = pan_tilt_bearing(spp, stt) * 20.0
+    cam = RenderedCamera(CameraPose(np.zeros(3), np.eye(3)), LedScene(positions={}))
+    return render_view(cam, intr, head_pan, head_tilt, motes, n_frames, rng, cfg, statics, t_start), cfg, t_start, timing
+
+
+def candidate_trial(seed: int, n_lit: int, book_size: int, glints: int, fields: bool, frames: int,
+                    near: int | None, strays: int, predict_px: float, radius_px: float,
+                    rule: CandidateRule) -> dict[str, float]:
+    """One round view decoded against candidates (:mod:`fgloc.camera.blink_candidates`).
+    ``n_lit`` class motes (no two within 4 px: a colour class has no conflict) at random
+    pixels, each a candidate predicted ``N(0, predict_px)`` px from its true pixel with radius
+    ``radius_px``, plus ``U{0..near-1}`` dark decoys per lit mote (other class members
+    predicted uniformly within 0.8 x radius of its prediction: 1..``near`` candidates in
+    range of each blob); ``strays`` lit motes that are no candidate (they missed the pause)
+    4 px to the radius from a lit mote. ``near`` None: the whole book, no prediction, no
+    strays (the control). ``frames`` samples recorded; disturbances as :func:`trial`."""
+    rng = np.random.default_rng(seed)
+    intr = CameraIntrinsics.from_fov(640, 480, 65.0)
+    if fields:
+        intr = field_intrinsics(intr)
+    book = code_book(book_size)
+    head_pan, head_tilt = rng.uniform(-math.pi, math.pi), rng.uniform(-0.6, 0.2)
+    strays = strays if near is not None else 0
+    uv = np.zeros((0, 2))
+    while len(uv) < n_lit:
+        p = np.array([rng.uniform(15, intr.width - 15), rng.uniform(15, intr.height - 15)])
+        if not len(uv) or np.min(np.hypot(*(uv - p).T)) >= 4.0:
+            uv = np.vstack([uv, p])
+    while len(uv) < n_lit + strays:
+        a, r = rng.uniform(0, 2 * math.pi), rng.uniform(4.0, radius_px)
+        p = uv[int(rng.integers(n_lit))] + r * np.array([math.cos(a), math.sin(a)])
+        if 15 <= p[0] <= intr.width - 15 and 15 <= p[1] <= intr.height - 15 and np.min(np.hypot(*(uv - p).T)) >= 4.0:
+            uv = np.vstack([uv, p])
+    n = len(uv)
+    pans, tilts = pixel_to_pan_tilt(intr, uv, head_pan, head_tilt)
+    pts = pan_tilt_bearing(pans, tilts) * rng.uniform(3.0, 30.0, n)[:, None]
+    order = rng.permutation(book_size)
+    ids = order[:n]
+    stack, cfg, t_start, _ = _render(rng, intr, head_pan, head_tilt, pts, ids, book, glints, fields, False, 10.0,
+                                     frames)
+    if near is None:
+        cands = [Candidate(i) for i in range(book_size)]
+        in_range = float(book_size * n_lit)
+    else:
+        cands, spare = [], iter(order[n:].tolist())
+        in_range = 0.0
+        for k in range(n_lit):
+            pu, pv = uv[k] + rng.normal(0.0, predict_px, 2)
+            cands.append(Candidate(int(ids[k]), float(pu), float(pv), radius_px))
+            for _ in range(int(rng.integers(near))):
+                a, r = rng.uniform(0, 2 * math.pi), 0.8 * radius_px * math.sqrt(rng.uniform())
+                cands.append(Candidate(next(spare), float(pu + r * math.cos(a)), float(pv + r * math.sin(a)),
+                                       radius_px))
+        for k in range(n_lit):
+            in_range += sum(c.near(*uv[k]) for c in cands)
+    res = decode_candidates(stack, 1.0 / cfg.frame_rate_hz, book, cands, intr, head_pan, head_tilt, rule)
+    truth = {int(i): uv[k] for k, i in enumerate(ids[:n_lit])}
+    # clear: no lit non-candidate within 8 px (outside the decoder's aperture and annulus)
+    clear = {int(ids[k]) for k in range(n_lit) if not strays or np.min(np.hypot(*(uv[n_lit:] - uv[k]).T)) > 8.0}
+    correct = mislabelled = stray = clear_found = 0
+    for rd in res.readings:
+        t = truth.get(rd.index)
+        if t is not None and math.hypot(rd.u - t[0], rd.v - t[1]) <= 2.0:
+            correct += 1
+            clear_found += rd.index in clear
+        else:
+            mislabelled += 1
+            stray += any(math.hypot(rd.u - q[0], rd.v - q[1]) <= 2.0 for q in uv[n_lit:])
+    return {"decodes": n_lit, "clear": len(clear), "clear_missed": len(clear) - clear_found, "correct": correct, "mislabelled": mislabelled, "stray_labelled": stray,
+            "strays": strays, "candidates": len(cands), "in_range": in_range, "erased": res.erased,
+            "samples": res.samples, "refused": len(res.refused)}
+
+
+def _run_candidates(args: argparse.Namespace) -> None:
+    """The ``--candidates`` experiment: trials, then one summary line per row."""
+    near = None if args.candidates == "book" else int(args.candidates)
+    book = code_book(args.book)
+    k = args.frames if args.frames is not None else frames_for(book.length)
+    rule = CandidateRule(max_unread=args.max_unread, book_margin=args.book_margin)
+    tot: dict[str, float] = {}
+    t0 = time.perf_counter()
+    for s in range(args.trials):
+        for key, v in candidate_trial(args.seed + s, args.motes, args.book, args.glints, args.fields, k, near,
+                                      args.strays, args.predict_px, args.radius, rule).items():
+            tot[key] = tot.get(key, 0.0) + v
+    d = tot["decodes"]
+    miss = d - tot["correct"] - tot["mislabelled"]
+    print(f"{'fields 640 x 240 at 59.94 Hz' if args.fields else 'frames 640 x 480 at 29.97 Hz'}: candidate decoding,"
+          f" {args.trials} views x {args.motes} lit class motes (book {args.book}, L = {book.length}), "
+          f"{args.glints} glints/view, {time.perf_counter() - t0:.0f} s")
+    what = ("whole book, no prediction" if near is None else
+            f"1..{near} candidates within {args.radius:g} px of each blob (prediction sd {args.predict_px:g} px), "
+            f"{tot['strays'] / args.trials:g} lit non-candidates/view")
+    print(f"  candidates: {what}; {tot['candidates'] / args.trials:.1f} per view, "
+          f"{tot['in_range'] / d:.2f} in range of each lit mote; rule {rule.max_errors} errors, margin "
+          f"{rule.margin}, {rule.max_unread} unread bits, book margin {rule.book_margin}")
+    print(f"{k} samples/view, {tot['erased'] / tot['samples']:.1%} erased: decodes {d:.0f}: correct "
+          f"{tot['correct']:.0f} ({tot['correct'] / d:.2%}), mislabelled {tot['mislabelled']:.0f} "
+          f"(non-candidates labelled {tot['stray_labelled']:.0f} of {tot['strays']:.0f}), "
+          f"missed {miss:.0f} ({miss / d:.2%}; all lit motes are isolated)")
+    print(f"  lit motes with no lit non-candidate within 8 px {tot['clear']:.0f}: missed {tot['clear_missed']:.0f} "
+          f"({tot['clear_missed'] / max(tot['clear'], 1):.2%})")
 
 
 SEP_BINS = (0.0, 1.0, 2.0, 3.0, 4.0)  #: pair separation bins (px) of the resolved-share table
@@ -293,7 +412,28 @@ def main() -> None:
                     help="crowded groups of three per view, decoded with group decoding on (max_group=3)")
     ap.add_argument("--time-decode", action="store_true",
                     help="also decode each first window without pair decoding; print both medians (s per view)")
+    ap.add_argument("--candidates", default="", metavar="M|book",
+                    help="round views decoded against candidates (blink_candidates): 1..M candidates in range of "
+                    "each lit mote plus the rest of the class, or 'book' (the whole book, the control)")
+    ap.add_argument("--strays", type=int, default=2, help="with --candidates: lit non-candidate motes per view")
+    ap.add_argument("--predict-px", type=float, default=1.5, help="with --candidates: prediction error sd (px)")
+    ap.add_argument("--radius", type=float, default=8.0, help="with --candidates: candidate radius (px)")
+    ap.add_argument("--max-unread", type=int, default=CandidateRule().max_unread,
+                    help="with --candidates: bit positions allowed without a clean sample")
+    ap.add_argument("--book-margin", type=int, default=CandidateRule().book_margin,
+                    help="with --candidates: every other book word at least this many mismatches more (0: off)")
     args = ap.parse_args()
+    if args.candidates:
+        if args.candidates != "book" and not (args.candidates.isdigit() and int(args.candidates) >= 1):
+            ap.error(f"--candidates: a count >= 1 or 'book' ({args.candidates})")
+        if args.pairs or args.groups or args.sync or args.slide or args.extend:
+            ap.error("--candidates: a round view of single class motes (no --pairs/--groups/--sync/--slide/--extend)")
+        try:
+            CandidateRule(max_unread=args.max_unread, book_margin=args.book_margin)
+        except ValueError as exc:
+            ap.error(f"--max-unread/--book-margin: {exc}")
+        _run_candidates(args)
+        return
     if args.pairs and args.groups:  # their statistics index the motes of one kind of crowd per view
         ap.error("--pairs and --groups are separate experiments: give one of them")
     tot: dict[str, float] = {}

@@ -40,6 +40,13 @@ mote): the same for crowded groups of exactly three motes and the group decoder
 (:mod:`fgloc.camera.blink_groups`, :func:`fgloc.survey.field_plans.group_decoding`; its own
 seeded draws, so the pair draws do not change).
 
+``--round-frames K' --round-miss-rate Q`` (short rounds, with ``--separate radio|best``): each
+radio-round view records K' samples (as few as L + 2) and labels its blobs against the
+class's candidates (:mod:`fgloc.camera.blink_candidates`: in a round only that class is
+lit, with known IDs and predicted directions); round views are retried, continuing by one
+code length, at the candidate miss rate Q measured by ``scripts/blink_montecarlo.py
+--candidates``. Off by default: every figure without it is unchanged.
+
 ``--old`` prices the previous plan (rotation-free book, burst retries of wide views only,
 separate tiles on the fixed ladder, zoom-out). The sequential column is the same in
 every variant.
@@ -115,6 +122,11 @@ class Variant:
     pair_rate: float | tuple[tuple[float, float], ...] = 0.0
     #: group decoding: the same for crowded groups of exactly three (blink_montecarlo.py --groups); 0: off
     group_rate: float | tuple[tuple[float, float], ...] = 0.0
+    #: short rounds: radio-round views record this many samples, labelled against the class's
+    #: candidates (blink_candidates); 0: off (a round view records K like a wide view)
+    round_frames: tuple[int, int] = (0, 0)  #: (a, b): a L + b samples; (0, 0): off
+    #: isolated miss rate of a short-round view (blink_montecarlo.py --candidates); None: the wide rate
+    round_miss_rate: float | None = None
 
 
 _SEQUENTIAL: dict[tuple[int, int, int, RigTiming], SequentialTime] = {}
@@ -172,6 +184,7 @@ def run(n_motes: int, n_cams: int, timing: RigTiming, miss_rate: float, seed: in
         needed = {c: (np.ones(n_motes, bool) if needed[c] is None else needed[c]) & ~groups[c].resolved  # type: ignore[operator]
                   for c in cams}
     extend = variant.extend * book.length
+    round_k = variant.round_frames[0] * book.length + variant.round_frames[1]
     retry_frames = book.length if variant.continuous_retry else None
 
     def zoom_refine(c: str, need_c: np.ndarray | None) -> tuple[list[RefinePass], int, float, int]:
@@ -209,9 +222,10 @@ def run(n_motes: int, n_cams: int, timing: RigTiming, miss_rate: float, seed: in
         refine_retry /= max(n_refine, 1)
         radio_retry, n_round = 0.0, 0
         if sep is not None:
+            q_round = miss_rate if variant.round_miss_rate is None else variant.round_miss_rate
             for c, rs in sep.rounds.items():
                 for rr in rs:
-                    radio_retry += sum(1.0 - (1.0 - miss_rate) ** m for m in rr.view_targets)
+                    radio_retry += sum(1.0 - (1.0 - q_round) ** m for m in rr.view_targets)
                     n_round += len(rr.views)
             radio_retry /= max(n_round, 1)
         coded = coded_survey_time(
@@ -220,7 +234,8 @@ def run(n_motes: int, n_cams: int, timing: RigTiming, miss_rate: float, seed: in
             refine_retry_fraction=refine_retry if variant.retry_refinement else 0.0, zoom_out=variant.zoom_out,
             resync_s=RESYNC_S if variant.sync else None, radio_rounds=sep.rounds if sep else None,
             pause_broadcasts=sep.pause_broadcasts if sep else 3,
-            radio_retry_fraction=radio_retry if variant.retry_refinement else 0.0)
+            radio_retry_fraction=radio_retry if variant.retry_refinement else 0.0,
+            round_frames=round_k or None)
         return {"coded": coded, "unresolved": unresolved, "refine_retry": refine_retry, "radio_cams": radio_cams,
                 "classes": sep.classes if sep else 0, "round_views": n_round, "radio_retry": radio_retry}
 
@@ -246,6 +261,7 @@ def run(n_motes: int, n_cams: int, timing: RigTiming, miss_rate: float, seed: in
         "unresolved": chosen["unresolved"], "radio_cams": ",".join(chosen["radio_cams"]) or "-",  # type: ignore
         "classes": chosen["classes"], "round_views": chosen["round_views"],  # type: ignore[dict-item]
         "radio_retry": chosen["radio_retry"],  # type: ignore[dict-item]
+        "round_K": round_k if chosen["radio_cams"] else 0,  # type: ignore[dict-item]
         "rate": coded_timing.camera.frame_rate_hz, "phases": coded.time.phases,  # type: ignore[dict-item]
         "seq_phases": seq.time.phases,  # type: ignore[dict-item]
         "pairs": sum(len(p.pairs) for p in pairs.values()),
@@ -256,6 +272,23 @@ def run(n_motes: int, n_cams: int, timing: RigTiming, miss_rate: float, seed: in
         "groups_fourth8": sum(int((g.fourth_px < 8.0).sum()) for g in groups.values()),
         "crowded": sum(int((~(neighbour_px(pts[c], intr, fields) >= SEPARATION_PX)).sum()) for c in cams),
     }
+
+
+def round_frames_of(text: str) -> tuple[int, int]:
+    """``"18"`` -> (0, 18); ``"L+2"`` -> (1, 2); ``"2L+2"`` -> (2, 2): samples a L + b of a
+    short-round view. ValueError unless at least one code length (a >= 1) or 8 samples."""
+    t = text.replace(" ", "").upper()
+    if "L" in t:
+        a_txt, _, b_txt = t.partition("L")
+        a = int(a_txt) if a_txt else 1
+        b = int(b_txt) if b_txt else 0
+        if a < 1 or b < 0:
+            raise ValueError("a L + b needs a >= 1, b >= 0")
+        return a, b
+    k = int(t)
+    if k < 8:
+        raise ValueError("at least one code length (8 samples or more)")
+    return 0, k
 
 
 def main() -> None:
@@ -283,6 +316,13 @@ def main() -> None:
                     help="crowded groups of exactly three motes are resolved by the group decoder in the wide view "
                     "with this measured rate (scripts/blink_montecarlo.py --groups), or per bound on the distance to "
                     "the nearest fourth mote (px); default off")
+    ap.add_argument("--round-frames", default="", metavar="K'",
+                    help="short rounds: each radio-round view records K' samples, labelled against the class's "
+                    "candidates (fgloc.camera.blink_candidates): a count or a L + b in code lengths L (e.g. L+2, 2L+2); "
+                    "default off")
+    ap.add_argument("--round-miss-rate", type=float, default=None, metavar="Q",
+                    help="with --round-frames: isolated miss rate of a short-round view (scripts/blink_montecarlo.py "
+                    "--candidates); default: --miss-rate")
     ap.add_argument("--need", type=int, default=0,
                     help="refine a mote only where fewer than this many other cameras resolve it (0: always)")
     ap.add_argument("--old", action="store_true", help="the previous plan: rotation-free book, burst retries of "
@@ -297,7 +337,14 @@ def main() -> None:
                       extend=args.extend, continuous_retry=not args.burst_retry,
                       retry_refinement=not args.no_refine_retry, zoom_out=args.zoom_out, need=args.need,
                       share_tiles=not args.separate_tiles, pick_ladder=not args.fixed_ladder,
-                      separate=args.separate)
+                      separate=args.separate, round_miss_rate=args.round_miss_rate)
+    if args.round_frames:
+        try:
+            variant = replace(variant, round_frames=round_frames_of(args.round_frames))
+        except ValueError as exc:
+            ap.error(f"--round-frames: {exc} ({args.round_frames})")
+    if args.round_miss_rate is not None and not (args.round_frames and 0.0 <= args.round_miss_rate < 1.0):
+        ap.error(f"--round-miss-rate: needs --round-frames and a rate in [0, 1) ({args.round_miss_rate})")
     if args.pair_decode:
         try:
             table = pair_rate_table(args.pair_decode)
@@ -326,6 +373,9 @@ def main() -> None:
               f"{r['round_views']} ({r['radio_retry']:.2f}) |")
         print(f"|   | sequential phases: {r['seq_desc']} (not found {r['missing']}) |||||||||||")
         print(f"|   | coded phases: {r['coded_desc']} |||||||||||")
+        if r["round_K"]:
+            print(f"|   | short rounds: {r['round_K']} samples per round view, candidate miss rate "
+                  f"{variant.round_miss_rate if variant.round_miss_rate is not None else args.miss_rate} |||||||||||")
         if variant.pair_rate:
             print(f"|   | pair decoding: {r['pairs']} crowded pairs of exactly two over the cameras "
                   f"({r['pairs_third8']} with a third mote within 8 px), {r['pairs_resolved']} resolved; "

@@ -61,7 +61,7 @@ from fgloc.camera.blink_codes import CodeBook, word_of
 from fgloc.camera.blink_groups import decode_group
 from fgloc.camera.blink_pairs import PairConfig, decode_pair
 from fgloc.camera.intrinsics import CameraIntrinsics
-from fgloc.camera.led_detection import DetectorConfig, detect_led, to_gray
+from fgloc.camera.led_detection import DetectorConfig, LedDetection, detect_led, to_gray
 from fgloc.camera.pixel_angles import pixel_to_pan_tilt
 
 
@@ -184,6 +184,86 @@ def _two_means(x: np.ndarray) -> tuple[float, float]:
     return lo, hi
 
 
+@dataclass(frozen=True)
+class BlobSamples:
+    """One blob read as one LED (:func:`read_blob`): its per-sample bits and on-frame centroids."""
+
+    u: float  #: detected blob centre (px)
+    v: float
+    bits: np.ndarray  #: (N,) int8 per sample: 1 on, 0 off, -1 erased (dropped, repeated or between levels)
+    us: np.ndarray  #: centroid u (px) of each clean on sample
+    vs: np.ndarray  #: centroid v (px) of each clean on sample
+    sigma_px: float  #: the detector's centroid sigma of the blob (px)
+
+    def reading(self, index: int, intr: CameraIntrinsics, head_pan: float, head_tilt: float) -> DecodedReading:
+        """The blob labelled as book word ``index``: centroid = mean over the clean on samples,
+        its sigma (scatter or detector sigma over sqrt(on samples), the larger), and
+        (pan, tilt) by :func:`fgloc.camera.pixel_angles.pixel_to_pan_tilt`."""
+        us, vs = self.us, self.vs
+        u, v = float(np.mean(us)), float(np.mean(vs))
+        sig = float(np.hypot(np.std(us), np.std(vs)) / math.sqrt(max(us.size, 1)))
+        sig = max(sig, self.sigma_px / math.sqrt(max(us.size, 1)))
+        p_, t_ = pixel_to_pan_tilt(intr, np.array([u, v]), head_pan, head_tilt)
+        return DecodedReading(index, u, v, sig, float(p_), float(t_), int(us.size))
+
+
+def read_blob(stack: np.ndarray, valid: np.ndarray, cand: LedDetection, noise_sigma: float,
+              cfg: DecoderConfig) -> BlobSamples | RefusedBlob:
+    """Steps 3 and 5 of the module docstring for one detected blob: its flux per sample, the
+    off/on split and the LED tests (amplitude, dark off level, enough on samples, lit frames
+    alike), and each sample's bit; a :class:`RefusedBlob` when it is no single LED.
+    ``stack``/``valid`` as :func:`sample_stack`; ``noise_sigma`` the detector's pixel noise."""
+    n = int(valid.size)
+    h, w = stack.shape[1:]
+    cu, cv = int(round(cand.u)), int(round(cand.v))
+    r = 3
+    if not (r + 4 <= cu < w - r - 4 and r + 4 <= cv < h - r - 4):
+        return RefusedBlob(cand.u, cand.v, "rejected", "too close to the image border")
+    big = stack[:, cv - r - 4: cv + r + 5, cu - r - 4: cu + r + 5]
+    yy, xx = np.mgrid[-r - 4: r + 5, -r - 4: r + 5]
+    ring = (np.maximum(abs(yy), abs(xx)) > r + 1)
+    core = (np.maximum(abs(yy), abs(xx)) <= r)
+    bgk = np.median(big[:, ring], axis=1)
+    win = big[:, core] - bgk[:, None]
+    flux = win.sum(axis=1)
+    noise = noise_sigma * math.sqrt(core.sum() * 2.0)
+    f = flux[valid]
+    off, on = _two_means(f)
+    amp = on - off
+    why = None
+    if amp < cfg.min_snr * noise:
+        why = f"on-off amplitude {amp:.0f} < {cfg.min_snr} x {noise:.1f}"
+    elif abs(off) > cfg.max_off_level * amp + 4.0 * noise:
+        why = f"never dark (off level {off:.0f} of amplitude {amp:.0f}): a flickering light"
+    if why is not None:
+        return RefusedBlob(cand.u, cand.v, "rejected", why)
+    bits = np.full(n, -1, dtype=np.int8)
+    is_on = valid & (np.abs(flux - on) <= cfg.level_band * amp)
+    is_off = valid & (np.abs(flux - off) <= cfg.level_band * amp)
+    bits[is_on] = 1
+    bits[is_off] = 0
+    on_f = flux[is_on]
+    lit = valid & (flux > off + cfg.level_band * amp)  # any frame with light, partial ones too
+    if on_f.size < cfg.min_on_samples:
+        return RefusedBlob(cand.u, cand.v, "rejected", f"only {on_f.size} on samples")
+    ys, xs = np.mgrid[-r:r + 1, -r:r + 1]
+    wts = np.clip(big[lit][:, 4:-4, 4:-4] - bgk[lit][:, None, None], 0.0, None)
+    tot = np.maximum(wts.sum(axis=(1, 2)), 1e-9)
+    us_all = (wts * xs).sum(axis=(1, 2)) / tot + cu
+    vs_all = (wts * ys).sum(axis=(1, 2)) / tot + cv
+    cspread = float(np.hypot(1.4826 * np.median(np.abs(us_all - np.median(us_all))),
+                             1.4826 * np.median(np.abs(vs_all - np.median(vs_all)))))
+    bright = flux[lit] >= off + 0.6 * amp  # centroids of bright frames are precise: one outlier counts
+    dev = np.hypot(us_all - np.median(us_all), vs_all - np.median(vs_all))
+    cmax = float(np.max(dev[bright])) if bright.any() else 0.0
+    spread = 1.4826 * float(np.median(np.abs(on_f - np.median(on_f)))) / amp
+    if spread > cfg.max_on_spread or cspread > cfg.max_centroid_spread_px or cmax > 3 * cfg.max_centroid_spread_px:
+        return RefusedBlob(cand.u, cand.v, "ambiguous",
+                           f"lit frames vary (flux spread {spread:.2f}, centroid spread {cspread:.2f} px,"
+                           f" max {cmax:.2f} px): LEDs closer than the detector separates")
+    return BlobSamples(cand.u, cand.v, bits, us_all[is_on[lit]], vs_all[is_on[lit]], float(cand.sigma_px))
+
+
 def decode_view(
     frames: Sequence[tuple[float, np.ndarray]], period: float, book: CodeBook, intr: CameraIntrinsics,
     head_pan: float, head_tilt: float, config: DecoderConfig | None = None, sync: SyncTiming | None = None,
@@ -206,59 +286,12 @@ def decode_view(
     refused: list[RefusedBlob] = [RefusedBlob(b.u, b.v, "ambiguous", f"unresolved blob: {b.reason}")
                                   for b in det.rejected if "elongation" in b.reason]
     decoded: list[tuple[DecodedReading, int]] = []
-    h, w = stack.shape[1:]
     for cand in det.candidates:
-        cu, cv = int(round(cand.u)), int(round(cand.v))
-        r = 3
-        if not (r + 4 <= cu < w - r - 4 and r + 4 <= cv < h - r - 4):
-            refused.append(RefusedBlob(cand.u, cand.v, "rejected", "too close to the image border"))
+        got = read_blob(stack, valid, cand, float(det.noise_sigma), cfg)
+        if isinstance(got, RefusedBlob):
+            refused.append(got)
             continue
-        big = stack[:, cv - r - 4: cv + r + 5, cu - r - 4: cu + r + 5]
-        yy, xx = np.mgrid[-r - 4: r + 5, -r - 4: r + 5]
-        ring = (np.maximum(abs(yy), abs(xx)) > r + 1)
-        core = (np.maximum(abs(yy), abs(xx)) <= r)
-        bgk = np.median(big[:, ring], axis=1)
-        win = big[:, core] - bgk[:, None]
-        flux = win.sum(axis=1)
-        noise = float(det.noise_sigma) * math.sqrt(core.sum() * 2.0)
-        f = flux[valid]
-        off, on = _two_means(f)
-        amp = on - off
-        why = None
-        if amp < cfg.min_snr * noise:
-            why = f"on-off amplitude {amp:.0f} < {cfg.min_snr} x {noise:.1f}"
-        elif abs(off) > cfg.max_off_level * amp + 4.0 * noise:
-            why = f"never dark (off level {off:.0f} of amplitude {amp:.0f}): a flickering light"
-        if why is not None:
-            refused.append(RefusedBlob(cand.u, cand.v, "rejected", why))
-            continue
-        bits = np.full(n, -1, dtype=np.int8)
-        is_on = valid & (np.abs(flux - on) <= cfg.level_band * amp)
-        is_off = valid & (np.abs(flux - off) <= cfg.level_band * amp)
-        bits[is_on] = 1
-        bits[is_off] = 0
-        on_f = flux[is_on]
-        lit = valid & (flux > off + cfg.level_band * amp)  # any frame with light, partial ones too
-        if on_f.size < cfg.min_on_samples:
-            refused.append(RefusedBlob(cand.u, cand.v, "rejected", f"only {on_f.size} on samples"))
-            continue
-        ys, xs = np.mgrid[-r:r + 1, -r:r + 1]
-        wts = np.clip(big[lit][:, 4:-4, 4:-4] - bgk[lit][:, None, None], 0.0, None)
-        tot = np.maximum(wts.sum(axis=(1, 2)), 1e-9)
-        us_all = (wts * xs).sum(axis=(1, 2)) / tot + cu
-        vs_all = (wts * ys).sum(axis=(1, 2)) / tot + cv
-        cspread = float(np.hypot(1.4826 * np.median(np.abs(us_all - np.median(us_all))),
-                                 1.4826 * np.median(np.abs(vs_all - np.median(vs_all)))))
-        bright = flux[lit] >= off + 0.6 * amp  # centroids of bright frames are precise: one outlier counts
-        dev = np.hypot(us_all - np.median(us_all), vs_all - np.median(vs_all))
-        cmax = float(np.max(dev[bright])) if bright.any() else 0.0
-        spread = 1.4826 * float(np.median(np.abs(on_f - np.median(on_f)))) / amp
-        if spread > cfg.max_on_spread or cspread > cfg.max_centroid_spread_px or cmax > 3 * cfg.max_centroid_spread_px:
-            refused.append(RefusedBlob(cand.u, cand.v, "ambiguous",
-                                       f"lit frames vary (flux spread {spread:.2f}, centroid spread {cspread:.2f} px,"
-                                       f" max {cmax:.2f} px): LEDs closer than the detector separates"))
-            continue
-        us, vs = us_all[is_on[lit]], vs_all[is_on[lit]]
+        bits = got.bits
         length = book.length
         word_bits = np.full(length, -1, dtype=np.int8)
         conflict = False
@@ -280,11 +313,7 @@ def decode_view(
         if hit is None:
             refused.append(RefusedBlob(cand.u, cand.v, "rejected", "word is no rotation of a book code"))
             continue
-        u, v = float(np.mean(us)), float(np.mean(vs))
-        sig = float(np.hypot(np.std(us), np.std(vs)) / math.sqrt(max(us.size, 1)))
-        sig = max(sig, cand.sigma_px / math.sqrt(max(us.size, 1)))
-        p_, t_ = pixel_to_pan_tilt(intr, np.array([u, v]), head_pan, head_tilt)
-        decoded.append((DecodedReading(hit[0], u, v, sig, float(p_), float(t_), int(us.size)), hit[0]))
+        decoded.append((got.reading(hit[0], intr, head_pan, head_tilt), hit[0]))
     if pairs is not None and sync is None:
         refused, extra = _pair_readings(stack, valid, positions, book, float(det.noise_sigma), refused,
                                         [rd for rd, _ in decoded], intr, head_pan, head_tilt, pairs)

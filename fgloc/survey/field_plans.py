@@ -19,13 +19,11 @@ separate at the survey zoom are recorded again in refinement passes at the lowes
 that separates them (:func:`fgloc.survey.view_planner.plan_refinement`,
 :func:`refinement_ops`), retried with ``refine_retry_fraction``.
 
-**Radio separation** (optional, :func:`radio_separation`, ``radio_rounds`` of
-:func:`coded_survey_time`): instead of zooming, crowded motes are separated in time. The
-conflict graph (two motes too close in some camera's wide view) is coloured; per colour
-class one pause-by-bitmap update (``drivers/tinyos/blink.py`` ``BlinkPause``) darkens the
-other classes' conflicting motes and each camera re-records, at the wide zoom, the views
-holding its conflicting motes of that class (:func:`radio_round_time`). Motes beside a
-static light still go to zoom refinement.
+**Radio separation** (optional, ``radio_rounds`` of :func:`coded_survey_time`; planned
+and priced in :mod:`fgloc.survey.field_plan_radio`, whose names this module re-exports):
+instead of zooming, crowded motes are separated in time, one colour class lit per round;
+with ``round_frames`` (short rounds) each round view records fewer samples, decoded
+against the class's candidates.
 
 **Pair decoding** (optional, :func:`pair_decoding`): a crowded group of exactly two
 motes in a camera's wide view is labelled by the pair decoder
@@ -48,7 +46,6 @@ import numpy as np
 from fgloc.camera.intrinsics import CameraIntrinsics
 from fgloc.camera.led_search import LedLocator, PinholePixelModel, SearchConfig, Spot
 from fgloc.core.geometry import FloatArray
-from fgloc.drivers.tinyos.blink import PAUSE_MAX_BYTES
 from fgloc.survey.clock import (
     ZERO,
     FieldTime,
@@ -64,14 +61,13 @@ from fgloc.survey.clock import (
     price,
     sum_times,
 )
-from fgloc.survey.view_planner import (
-    RadioRound,
-    RefinePass,
-    colour_conflicts,
-    conflict_pairs,
-    neighbour_px,
-    plan_radio_rounds,
+from fgloc.survey.field_plan_radio import (  # noqa: F401  (RadioSeparation, radio_separation: re-exported)
+    RadioSeparation,
+    coded_view_ops,
+    radio_round_time,
+    radio_separation,
 )
+from fgloc.survey.view_planner import RadioRound, RefinePass, conflict_pairs
 
 
 class ClockedHead:
@@ -184,28 +180,6 @@ class CodedTime:
     refinements: int  #: refinement views (all cameras)
 
 
-def coded_view_ops(views: Sequence[tuple[float, float]], frames_per_view: int, retry_fraction: float,
-                   start: tuple[float, float] = (0.0, 0.0), extend_frames: int = 0,
-                   retry_frames: int | None = None) -> list[Op]:
-    """Clock operations of one camera visiting ``views`` in order and recording each.
-
-    Each view records ``frames_per_view + extend_frames`` frames in one burst (the
-    extension: more sliding windows of the same recording). ``retry_fraction`` of the
-    views (rounded) are retried without moving: by default a new burst of
-    ``frames_per_view`` frames; with ``retry_frames`` the recording just goes on for
-    that many frames (continuous, :class:`Frames` ``continuous``)."""
-    ops: list[Op] = []
-    pan, tilt = start
-    for p, t in views:
-        ops += [Slew(math.remainder(p - pan, 2 * math.pi), t - tilt), Settle(), PositionRead(),
-                Frames(frames_per_view + extend_frames)]
-        pan, tilt = p, t
-    extra = round(retry_fraction * len(views))
-    retry = Frames(frames_per_view, "frames") if retry_frames is None else Frames(retry_frames, "frames", True)
-    ops += [retry] * extra
-    return ops
-
-
 def coded_survey_time(
     views: dict[str, list[tuple[float, float]]], n_motes: int, frames_per_view: int, timing: RigTiming,
     retry_fraction: float = 0.0, refine: dict[str, list[RefinePass]] | None = None,
@@ -213,7 +187,7 @@ def coded_survey_time(
     extend_frames: int = 0, retry_frames: int | None = None, refine_retry_fraction: float = 0.0,
     zoom_out: bool = True, resync_s: float | None = None,
     radio_rounds: dict[str, list[RadioRound]] | None = None, pause_broadcasts: int = 3,
-    radio_retry_fraction: float = 0.0,
+    radio_retry_fraction: float = 0.0, round_frames: int | None = None,
 ) -> CodedTime:
     """Price the coded survey (see the module docstring). ``refine[camera]`` are its refinement
     passes (ascending zoom): zoom in to each pass's level, record its views, and after the
@@ -231,12 +205,14 @@ def coded_survey_time(
     per pause update, ``radio_retry_fraction`` of round views retried) between the wide
     pass and the refinement. Every camera finishes its wide pass before the first pause,
     each round waits for the slowest camera, and one resume update precedes the
-    refinement (see :func:`_coded_with_rounds`)."""
+    refinement (see :func:`_coded_with_rounds`). ``round_frames``: short rounds, each round
+    view records that many samples (:func:`radio_round_time`; None: as a wide view)."""
     refine = refine or {}
     if radio_rounds and any(rr.views for rs in radio_rounds.values() for rr in rs):
         return _coded_with_rounds(views, n_motes, frames_per_view, timing, retry_fraction, refine, broadcast_start,
                                   start_broadcasts, restarts, extend_frames, retry_frames, refine_retry_fraction,
-                                  zoom_out, resync_s, radio_rounds, pause_broadcasts, radio_retry_fraction)
+                                  zoom_out, resync_s, radio_rounds, pause_broadcasts, radio_retry_fraction,
+                                  round_frames)
     lanes = []
     for cam, vs in views.items():
         ops = coded_view_ops(vs, frames_per_view, retry_fraction, vs[0] if vs else (0.0, 0.0), extend_frames,
@@ -255,51 +231,12 @@ def coded_survey_time(
                      frames_per_view, sum(len(rp.views) for ps in refine.values() for rp in ps))
 
 
-def radio_round_time(
-    rounds: dict[str, list[RadioRound]], start: dict[str, tuple[float, float]], frames_per_view: int,
-    timing: RigTiming, pause_broadcasts: int = 3, retry_fraction: float = 0.0, retry_frames: int | None = None,
-    extend_frames: int = 0,
-) -> tuple[FieldTime, dict[str, tuple[float, float]], int]:
-    """Price radio separation: for each colour class in turn, one pause update
-    (``pause_broadcasts`` broadcasts: the bitmap packets times their repeats) pauses every
-    other class's conflicting motes and resumes this class's; then every camera, at the
-    wide zoom, slews to its round's views (:class:`RadioRound`) and records each
-    (:func:`coded_view_ops`, phase 'separate'); the next round starts when the slowest
-    camera is done (barrier: a pause must not darken a mote another camera is still
-    recording). Rounds no camera records in are skipped. Retries: ``retry_fraction`` of
-    each camera's round views, rounded on the running count so the camera's total is
-    ``round(retry_fraction x its round views)``.
-    Returns the field time, each camera's head position after its last round, and the
-    number of pause updates sent."""
-    total = ZERO
-    here = dict(start)
-    seen = dict.fromkeys(rounds, 0)
-    updates = 0
-    for r in range(max((len(rs) for rs in rounds.values()), default=0)):
-        lanes = []
-        for cam, rs in rounds.items():
-            if r >= len(rs) or not rs[r].views:
-                continue
-            vs = rs[r].views
-            before = round(retry_fraction * seen[cam])
-            seen[cam] += len(vs)
-            ops = coded_view_ops(vs, frames_per_view, 0.0, here[cam], extend_frames)
-            retry = Frames(frames_per_view) if retry_frames is None else Frames(retry_frames, "frames", True)
-            ops += [retry] * (round(retry_fraction * seen[cam]) - before)
-            lanes.append(price([replace(o, phase="separate") for o in ops], timing))
-            here[cam] = vs[-1]
-        if lanes:
-            total = total + price([Radio(broadcast=pause_broadcasts)], timing) + parallel(lanes)
-            updates += 1
-    return total, here, updates
-
-
 def _coded_with_rounds(
     views: dict[str, list[tuple[float, float]]], n_motes: int, frames_per_view: int, timing: RigTiming,
     retry_fraction: float, refine: dict[str, list[RefinePass]], broadcast_start: bool, start_broadcasts: int,
     restarts: int, extend_frames: int, retry_frames: int | None, refine_retry_fraction: float, zoom_out: bool,
     resync_s: float | None, radio_rounds: dict[str, list[RadioRound]], pause_broadcasts: int,
-    radio_retry_fraction: float,
+    radio_retry_fraction: float, round_frames: int | None = None,
 ) -> CodedTime:
     """:func:`coded_survey_time` with radio separation: wide pass (parallel lanes), the rounds
     (:func:`radio_round_time`), one resume update if any refinement follows, then the
@@ -311,7 +248,7 @@ def _coded_with_rounds(
                                          extend_frames, retry_frames), timing))
         here[cam] = vs[-1] if vs else (0.0, 0.0)
     rounds, here, _ = radio_round_time(radio_rounds, here, frames_per_view, timing, pause_broadcasts,
-                                       radio_retry_fraction, retry_frames, extend_frames)
+                                       radio_retry_fraction, retry_frames, extend_frames, round_frames)
     ref = [price(refinement_ops(refine.get(cam, []), frames_per_view, here[cam], refine_retry_fraction,
                                 extend_frames, retry_frames, zoom_out), timing) for cam in views]
     resume = price([Radio(broadcast=pause_broadcasts)], timing) if any(r.total > 0 for r in ref) else ZERO
@@ -349,81 +286,6 @@ def frames_for(code_length: int, periods: int = 3) -> int:
     """Frames per view: ``periods`` code periods (default three: each bit read three times, so
     ~9 % erased samples from drops and repeats rarely erase a bit completely) plus two."""
     return periods * code_length + 2
-
-
-@dataclass
-class RadioSeparation:
-    """Plan of a radio separation (:func:`radio_separation`)."""
-
-    colour: np.ndarray  #: (N,) colour class per mote, -1: in no conflict of a radio camera
-    rounds: dict[str, list[RadioRound]]  #: per radio camera, one round per colour class
-    leftover: dict[str, np.ndarray]  #: per camera, crowded motes radio cannot separate (zoom refinement)
-    pause_broadcasts: int  #: broadcasts per pause update (bitmap packets x repeats)
-
-    @property
-    def classes(self) -> int:
-        return int(self.colour.max()) + 1 if self.colour.size else 0
-
-
-def radio_separation(
-    intr: CameraIntrinsics, pan_tilt: dict[str, np.ndarray], views: dict[str, list[tuple[float, float]]],
-    separation_px: float, radio_cameras: Sequence[str], field_rows: bool = False,
-    needed: dict[str, np.ndarray | None] | None = None, lamps: dict[str, np.ndarray] | None = None,
-    addresses: Sequence[int] | None = None, repeats: int = 3, margin_px: float = 12.0,
-) -> RadioSeparation:
-    """Separate crowded motes in time instead of by zoom.
-
-    For each camera of ``radio_cameras`` (``pan_tilt[camera]``: (N, 2) directions of the
-    same N motes for every camera; ``views[camera]``: its wide views), two motes closer
-    than ``separation_px`` at the wide zoom conflict (:func:`conflict_pairs`; with
-    ``needed[camera]`` only pairs with a mote needed from that camera). The union of
-    these conflicts is coloured (:func:`colour_conflicts`), and each camera re-records,
-    per colour class, the wide views that cover its conflicting motes of that class
-    (:func:`plan_radio_rounds`). A mote within ``separation_px`` of a static light
-    (``lamps[camera]``, (M, 2) directions) cannot be separated by pausing motes: it is
-    left to zoom refinement (``leftover``), as are all crowded motes of cameras not in
-    ``radio_cameras``. ``addresses`` (default 1..N) price the pause update: the bitmap
-    packets covering the conflicting motes' address range (``pause_packets`` of
-    ``drivers/tinyos/blink.py``, 192 addresses each), each sent ``repeats`` times."""
-    cams = list(pan_tilt)
-    n = len(next(iter(pan_tilt.values())))
-    needed = needed or {}
-    lamps = lamps or {}
-    pairs: list[np.ndarray] = []
-    mine: dict[str, np.ndarray] = {}
-    leftover: dict[str, np.ndarray] = {}
-    for c in cams:
-        pt = np.asarray(pan_tilt[c], dtype=float)
-        crowded = neighbour_px(pt, intr, field_rows) < separation_px
-        need = np.ones(n, bool) if needed.get(c) is None else np.asarray(needed[c], bool)
-        lamp_close = np.zeros(n, bool)
-        if c in lamps and len(lamps[c]):
-            both = np.vstack([pt, np.asarray(lamps[c], float)])
-            pl = conflict_pairs(both, intr, separation_px, field_rows)
-            pl = pl[(pl[:, 0] < n) & (pl[:, 1] >= n)]
-            lamp_close[pl[:, 0]] = True
-        if c not in radio_cameras:
-            leftover[c] = crowded & need
-            continue
-        pc = conflict_pairs(pt, intr, separation_px, field_rows)
-        pc = pc[need[pc[:, 0]] | need[pc[:, 1]]]
-        lit_by_lamp = lamp_close[pc[:, 0]] | lamp_close[pc[:, 1]]
-        zoom = np.zeros(n, bool)  # a pair with a mote beside a lamp: pausing motes does not help
-        zoom[pc[lit_by_lamp].ravel()] = True
-        pc = pc[~lit_by_lamp]
-        pairs.append(pc)
-        m = np.zeros(n, bool)
-        m[pc.ravel()] = True
-        mine[c] = m & need & ~zoom
-        leftover[c] = crowded & need & (zoom | lamp_close)
-    colour = colour_conflicts(n, np.vstack(pairs) if pairs else np.zeros((0, 2), int))
-    rounds = {c: plan_radio_rounds(intr, pan_tilt[c], views[c], colour, mine[c], margin_px,
-                                   views[c][-1] if views[c] else (0.0, 0.0)) for c in mine}
-    addr = np.arange(1, n + 1) if addresses is None else np.asarray(addresses, int)
-    involved = addr[colour >= 0]
-    span = int(involved.max()) - int(involved.min()) + 1 if involved.size else 0
-    packets = math.ceil(span / (8 * PAUSE_MAX_BYTES))
-    return RadioSeparation(colour, rounds, leftover, packets * repeats)
 
 
 @dataclass
