@@ -28,6 +28,12 @@ Choice of motes: :meth:`KnownMotes.best` picks them greedily by the information
 they add about the change (far motes, whose tilt depends little on their position,
 and motes whose prediction errors cancel), and reading each several times averages
 the reading noise down.
+
+Off-centre readings (a coded survey's, ``Observation.view_angles``) are compared through
+:func:`centred_equivalent_reading`: the reading moved by the difference between the
+model's centred prediction and its prediction at that view, so the residual is the
+reading minus what the calibrated head shows at that view (the tilt residual in units of
+the tilt-index change it measures).
 """
 
 from __future__ import annotations
@@ -38,9 +44,9 @@ from dataclasses import dataclass, field
 import gtsam
 import numpy as np
 
-from fgloc.core.geometry import FloatArray, pan_tilt_residual, rot_z
-from fgloc.core.head_model import HEAD_DIM, HeadCalibration, head_pan_tilt, reading_index
-from fgloc.core.model import CameraPose, Result, Survey
+from fgloc.core.geometry import FloatArray, pan_tilt_residual, rot_z, wrap_angle
+from fgloc.core.head_model import HEAD_DIM, HeadCalibration, head_pan_tilt, head_view_pan_tilt, reading_index
+from fgloc.core.model import CameraPose, Observation, Result, Survey
 from fgloc.init.start import InitialEstimate
 from fgloc.solve.self_calibration import HeadCalibrationReport, HeadModel, build_self_calibration_problem
 
@@ -167,6 +173,31 @@ def known_motes_from_survey(
     params = values.get(camera, np.zeros(HEAD_DIM))[list(reading_index(0))]
     pan, tilt, _, _ = head_pan_tilt(q, params, jacobians=False)
     return KnownMotes(ids, np.asarray(pan), np.asarray(tilt), cov[1::2, 1::2], cov[0::2, 0::2])
+
+
+def centred_equivalent_reading(observation: Observation, camera: CameraPose, position: FloatArray,
+                                params: FloatArray) -> tuple[float, float]:
+    """``observation``'s (pan, tilt) radians as the centred reading with the same residual under
+    head calibration ``params`` (7,): unchanged for a centred reading (no view angles); for an
+    off-centre one, the reading plus the model's centred prediction minus its prediction at
+    the reading's view (:func:`fgloc.core.head_model.head_view_pan_tilt`), with the mote at
+    ``position`` (world frame) seen by ``camera``, the tilt residual divided by the view
+    model's d tilt / d tilt index (about the cosine of the reading's pan off the view's centre;
+    1 for a centred reading). :class:`DriftMonitor` compares readings with centred predictions
+    and models a drift as shifting every tilt residual by the change, so this makes its
+    residual the reading minus the view model's, in tilt-index units. Radians."""
+    view = observation.view_angles
+    if view is None:
+        return observation.pan, observation.tilt
+    q = (np.asarray(camera.rotation, float).T @ (np.asarray(position, float) - np.asarray(camera.position, float)))
+    c_pan, c_tilt, _, _ = head_pan_tilt(q.reshape(1, 3), params, jacobians=False)
+    v_pan, v_tilt, _, d_p = head_view_pan_tilt(q.reshape(1, 3), params, view[0], view[1])
+    assert d_p is not None
+    # an off-centre reading moves by less than a tilt-index change (about its cosine off the
+    # view's centre in pan): the residual is scaled to the change it measures
+    gain = float(np.asarray(d_p).reshape(2, HEAD_DIM)[1, 0])
+    pan = float(wrap_angle(observation.pan + float(np.ravel(c_pan)[0]) - float(np.ravel(v_pan)[0])))
+    return pan, float(np.ravel(c_tilt)[0]) + (observation.tilt - float(np.ravel(v_tilt)[0])) / gain
 
 
 @dataclass(frozen=True)

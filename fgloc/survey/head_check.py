@@ -46,7 +46,7 @@ from fgloc.core.model import CameraPose, Result, Survey, Truth
 from fgloc.files.json_io import load_json, show_value, write_json_atomic
 from fgloc.files.rig_config import RigConfig
 from fgloc.files.survey_result import read_result
-from fgloc.solve.head_drift import DriftCheck, DriftMonitor, KnownMotes
+from fgloc.solve.head_drift import DriftCheck, DriftMonitor, KnownMotes, centred_equivalent_reading
 from fgloc.survey.session import OpenedRig, open_hardware, open_simulated, run_survey
 
 logger = logging.getLogger(__name__)
@@ -245,14 +245,18 @@ def monitor_readings(survey: Survey, result: Result, calibrations: dict[str, tup
                      sigma: float, alpha: float = 1e-3, calibration_uncertainty: bool = False) -> dict[str, CameraCheck]:
     """Feed every reading of ``survey`` (journal order) to its camera's drift monitor, a two-sided
     SPRT with false-alarm probability at most ``alpha`` over the whole sequence
-    (:class:`fgloc.solve.head_drift.DriftMonitor`)."""
+    (:class:`fgloc.solve.head_drift.DriftMonitor`). Off-centre readings (a coded rig's) are
+    compared with the calibrated head's prediction at their view
+    (:func:`fgloc.solve.head_drift.centred_equivalent_reading`)."""
     motes = sorted({o.node for o in survey.observations})
     monitors = {c: DriftMonitor(known_motes_for(result.cameras[c], calibrations[c][0], result, motes,
                                                 calibration_uncertainty), sigma, alpha=alpha)
                 for c in survey.camera_ids}
     checks = {c: CameraCheck(c) for c in survey.camera_ids}
     for o in survey.observations:
-        check = monitors[o.camera].add(o.node, o.pan, o.tilt)
+        pan, tilt = centred_equivalent_reading(o, result.cameras[o.camera], result.nodes[o.node].position,
+                                               calibrations[o.camera][0].values)
+        check = monitors[o.camera].add(o.node, pan, tilt)
         checks[o.camera].steps.append(CheckStep(o.node, check))
     for c, cc in checks.items():
         if cc.steps:
