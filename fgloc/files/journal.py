@@ -26,7 +26,8 @@ A journal is the primary record of a survey; ``survey.json`` is derived from it
 * ``view`` ``{camera, view, attempt, target, head, frames, erased, clock_s, readings,
   refused}`` (coded surveys, :mod:`fgloc.survey.coded`): one recording of one view and
   **every** reading decoded from it (``readings[]``: ``{node, index, pan, tilt[, sigma,
-  code, u, v]}``, the same identity as an ``observation``). The record is the commit of the
+  code, u, v, partner]}``, the same identity as an ``observation``; lever fields ``zoom``,
+  ``continued``, ``probe``, ``round``, ``lit``, docs/file-format.md). The record is the commit of the
   whole view: a kill during a view leaves no record of it, so a resumed survey records the
   view again and never holds half a view. Each reading keeps the view it came from
   (:attr:`JournalObservation.view`).
