@@ -54,7 +54,7 @@ PAIRS_MODES = ("off", "on")
 CHOICES = {"retry": RETRY_MODES, "separate": SEPARATE_MODES, "fallback": FALLBACK_MODES, "video": VIDEO_MODES,
            "probe": PROBE_MODES, "pairs": PAIRS_MODES}
 #: the defaults before the journal recorded the levers: a journal without recorded levers resumes with these
-LEGACY = {"retry": "burst", "separate": "zoom", "fallback": "blobs", "video": "frames", "probe": "off", "pairs": "off"}
+LEGACY: dict[str, Any] = {"retry": "burst", "separate": "zoom", "fallback": "blobs", "video": "frames", "probe": "off", "pairs": "off"}
 PREDICTED_RADIUS = math.radians(3.0)  #: a blob this close to a mote's predicted direction may hide it
 
 
@@ -108,7 +108,7 @@ def coded_settings(rig: RigConfig, overrides: Mapping[str, str] | None = None,
         explicit["levels"] = (f"{rig.path}: coded.levels", tuple(float(z) for z in levels))
     recorded = None if journal is None else journal.header.coded
     if recorded is not None:  # the levers the survey started with, whatever the defaults are now
-        base = CodedSettings(**{k: recorded[k] for k in CHOICES if k in recorded})
+        base = replace(CodedSettings(), **{k: recorded[k] for k in CHOICES if k in recorded})
         if "levels" in recorded:
             base = replace(base, levels=tuple(float(z) for z in recorded["levels"]))
         for key, (where, value) in explicit.items():
@@ -117,7 +117,7 @@ def coded_settings(rig: RigConfig, overrides: Mapping[str, str] | None = None,
                                  f"got {_show(value)} (a resume runs with the journal's levers: drop or "
                                  "match it, or survey into a new directory)")
         return base
-    base = CodedSettings(**LEGACY) if journal is not None else CodedSettings()
+    base = replace(CodedSettings(), **LEGACY) if journal is not None else CodedSettings()
     return replace(base, **{key: value for key, (_, value) in explicit.items()})
 
 
