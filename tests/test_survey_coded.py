@@ -53,6 +53,16 @@ def view_records(path: Path) -> list[dict]:
     return [r for r in map(json.loads, path.read_text().splitlines()) if r["type"] == "view"]
 
 
+def clean_cuts(records: list[dict]) -> set[int]:
+    """Record indices k such that a kill just before record k separates no recording from its
+    continuation (retry "continue"): a cut-off continuation is recorded again as a new burst,
+    which reads other frames than the uncut run did (its own test:
+    tests/test_survey_coded_levers.py::test_continued_retry_resumes_without_duplicates)."""
+    at = {(r["camera"], r["view"], r["attempt"]): k for k, r in enumerate(records) if r["type"] == "view"}
+    spans = [(at[(c, v, a - 1)], k) for (c, v, a), k in at.items() if a > 0 and records[k].get("continued")]
+    return {k for k in range(len(records) + 1) if not any(lo < k <= hi for lo, hi in spans)}
+
+
 def check_labels(rig, scene, state, max_error_deg: float) -> int:
     """Every reading decoded in a view lies nearest to the bearing of the node it names (among
     the nodes its camera can see) and within ``max_error_deg``; returns how many were decoded."""
@@ -132,7 +142,11 @@ def test_kill_mid_view_resumes_without_duplicates_or_re_recorded_views(tmp_path)
     views = [k for k, t in enumerate(kinds) if t == "view"]
     fallback = [k for k, t in enumerate(kinds) if t == "node_started"]
     assert len(views) >= 4 and fallback, kinds
-    refine = [k for k in views if records[k]["view"].startswith("r")]  # zoomed-in refinement views
+    # zoomed-in refinement views that start a recording: a cut just before a continuation (retry
+    # "continue", the default) resumes it as a new burst, which reads other frames (its own test:
+    # tests/test_survey_coded_levers.py::test_continued_retry_resumes_without_duplicates)
+    clean = clean_cuts(records)
+    refine = [k for k in views if records[k]["view"].startswith("r") and records[k]["attempt"] == 0 and k in clean]
     assert refine, "the scene should need refinement"
     cut_after = [refine[len(refine) // 2] - 1, views[-1], fallback[0]]  # the first cut: just before a refinement view
     states = resume_from_cuts(rig, data, [int(ends[k]) for k in cut_after], tmp_path)
@@ -397,11 +411,12 @@ def test_head_repeatability_is_seeded_and_resumes_without_duplicates(tmp_path):
     sd = np.std(err, axis=0) / math.radians(REPEATABILITY_DEG)
     assert np.all(np.abs(sd - 1.0) < 0.12) and abs(float(np.corrcoef(np.array(err).T)[0, 1])) < 0.15, sd
     data = (full / "journal.jsonl").read_bytes()
-    kinds = [json.loads(line)["type"] for line in data.splitlines()]
+    records = [json.loads(line) for line in data.splitlines()]
     ends = list(np.cumsum([len(line) + 1 for line in data.splitlines()]))
-    views = [k for k, t in enumerate(kinds) if t == "view"]
+    views = [k for k, r in enumerate(records) if r["type"] == "view"]
     assert len(views) >= 4
-    states = resume_from_cuts(rig, data, [int(ends[views[len(views) // 2] - 1]), int(ends[views[-1]])], tmp_path)
+    middle = [k for k in views[len(views) // 2:] if k in clean_cuts(records)][0]  # a kill just before a view
+    states = resume_from_cuts(rig, data, [int(ends[middle - 1]), int(ends[views[-1]])], tmp_path)
     for k, state in enumerate(states):
         keys = [(r["camera"], r["view"], r["attempt"]) for r in view_records(tmp_path / f"cut{k}" / "journal.jsonl")]
         assert len(keys) == len(set(keys)) == len(views) and state.duplicates_ignored == 0

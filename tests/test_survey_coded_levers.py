@@ -14,7 +14,7 @@ from fgloc.cli import main
 from fgloc.core.errors import FglocError
 from fgloc.files.journal import read_journal
 from fgloc.survey.clock import CameraTiming
-from fgloc.survey.coded_levers import coded_settings
+from fgloc.survey.coded_levers import LEGACY, coded_settings
 from fgloc.survey.session import run_survey
 from tests.test_survey_coded import check_labels, coded_rig, opened, parsed, view_records
 
@@ -22,8 +22,10 @@ PERIOD = CameraTiming().frame_period_s
 
 
 def lever_rig(n_nodes: int = 30, width: int = 320, **coded):
+    """A coded rig with the old defaults (:data:`LEGACY`: burst, zoom, blobs, frames, probe and
+    pairs off) written out, each lever test turning on its own lever against that baseline."""
     data = coded_rig(n_nodes, width)
-    data["coded"] = coded
+    data["coded"] = LEGACY | coded
     return data
 
 
@@ -80,8 +82,9 @@ def runner_book_length(rig) -> int:
 def test_continued_retry_resumes_without_duplicates(tmp_path):
     """A kill between a view's first recording and its continuation: the video is gone, so the
     resumed survey records that retry as a new burst (not continued); nothing is read twice,
-    every view is recorded once, every visible pair is read, and what was journaled stays."""
-    rig = parsed(lever_rig(12, width=160, retry="continue"))
+    every view is recorded once, every visible pair is read, and what was journaled stays.
+    Under the default levers (continue, predicted, probe, pairs)."""
+    rig = parsed(coded_rig(12, width=160))
     full = tmp_path / "full"
     run_survey(rig, full, opened=opened(rig)[0])
     data = (full / "journal.jsonl").read_bytes()
@@ -129,8 +132,9 @@ def test_bad_coded_settings_are_one_line_and_exit_2(tmp_path, capsys, coded, pro
 
 
 def test_coded_settings_defaults_and_rig_values():
-    s = coded_settings(parsed(coded_rig(4, width=160)))
-    assert (s.retry, s.separate) == ("burst", "zoom")
+    s = coded_settings(parsed(coded_rig(4, width=160)))  # a new survey: the measured fastest levers
+    assert (s.retry, s.separate, s.fallback, s.video, s.probe, s.pairs) == (
+        "continue", "zoom", "predicted", "frames", "on", "on")
     s = coded_settings(parsed(lever_rig(4, width=160, retry="continue", separate="radio")))
     assert (s.retry, s.separate) == ("continue", "radio")
     assert coded_settings(parsed(lever_rig(4, width=160, retry="continue")), {"retry": "burst"}).retry == "burst"

@@ -32,9 +32,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="identify motes one lit LED at a time (sequential) or many per view by blink codes "
                         "(coded); overrides rig.json's identification (default there: sequential)")
     p.add_argument("--coded", action="append", default=[], metavar="KEY=VALUE",
-                   help="a coded-survey lever, overriding rig.json's \"coded\" (repeatable): retry=burst|continue, "
-                        "separate=zoom|radio, fallback=blobs|predicted, video=frames|fields, probe=off|on, pairs=off|on "
-                        "(docs/blink-codes.md)")
+                   help="a coded-survey lever, overriding rig.json's \"coded\" (repeatable): retry=continue|burst, "
+                        "separate=zoom|radio, fallback=predicted|blobs, video=frames|fields, probe=on|off, pairs=on|off "
+                        "(default first; --resume runs with the levers the journal recorded; docs/blink-codes.md)")
     p.add_argument("--quiet", action="store_true", help="no progress bar (as fgloc -q survey, which also hides warnings)")
     p.set_defaults(run=run)
 

@@ -9,7 +9,8 @@ A journal is the primary record of a survey; ``survey.json`` is derived from it
   ``nodes`` mode, ``gauge``, ``sigma`` (radians), ``camera_ids``, ``node_ids``,
   ``rig_hash`` (sha256 of the rig configuration), free-form ``meta`` and, from
   surveys run by ``fgloc survey``, ``rig_meaning`` and ``rig_operational`` (the rig.json
-  fields that fix what the readings mean, and the others with URL user info redacted).
+  fields that fix what the readings mean, and the others with URL user info redacted);
+  from coded surveys, ``coded``: the levers the survey started with (a resume runs with them).
 * ``node_started`` ``{node}``: the node's LED is about to be lit.
 * ``observation`` ``{node, camera, index, pan, tilt[, sigma]}``: one reading in
   radians (spec convention). ``(node, camera, index)`` is its identity:
@@ -25,7 +26,8 @@ A journal is the primary record of a survey; ``survey.json`` is derived from it
 * ``view`` ``{camera, view, attempt, target, head, frames, erased, clock_s, readings,
   refused}`` (coded surveys, :mod:`fgloc.survey.coded`): one recording of one view and
   **every** reading decoded from it (``readings[]``: ``{node, index, pan, tilt[, sigma,
-  code, u, v]}``, the same identity as an ``observation``). The record is the commit of the
+  code, u, v, partner]}``, the same identity as an ``observation``; lever fields ``zoom``,
+  ``continued``, ``probe``, ``round``, ``lit``, docs/file-format.md). The record is the commit of the
   whole view: a kill during a view leaves no record of it, so a resumed survey records the
   view again and never holds half a view. Each reading keeps the view it came from
   (:attr:`JournalObservation.view`).
@@ -81,10 +83,14 @@ class JournalHeader:
     meta: dict[str, Any] = field(default_factory=dict)
     rig_meaning: dict[str, Any] | None = None
     rig_operational: dict[str, Any] | None = None
+    #: coded surveys: the levers the survey started with (``retry``, ``separate``, ``fallback``,
+    #: ``video``, ``probe``, ``pairs``, ``levels``; :mod:`fgloc.survey.coded_levers`); None in
+    #: sequential surveys and in journals written before levers were recorded
+    coded: dict[str, Any] | None = None
 
     def to_record(self) -> dict[str, Any]:
-        rig = {k: v for k, v in (("rig_meaning", self.rig_meaning), ("rig_operational", self.rig_operational))
-               if v is not None}
+        rig = {k: v for k, v in (("rig_meaning", self.rig_meaning), ("rig_operational", self.rig_operational),
+                                 ("coded", self.coded)) if v is not None}
         return {
             "type": "header",
             "format": JOURNAL_FORMAT,
@@ -364,7 +370,7 @@ def _header(rec: dict, path: str, line: int) -> JournalHeader:
     return JournalHeader(NodeMode(rec["nodes"]), Gauge(origin=rec["gauge"]["origin"], baseline=rec["gauge"]["baseline"]),
                          float(rec["sigma"]), list(rec["camera_ids"]), list(rec["node_ids"]),
                          str(rec.get("rig_hash", "")), dict(rec.get("meta") or {}), rec.get("rig_meaning"),
-                         rec.get("rig_operational"))
+                         rec.get("rig_operational"), rec.get("coded"))
 
 
 def _split_complete(data: bytes) -> tuple[list[bytes], int]:

@@ -36,12 +36,17 @@ instead of the node loop of :mod:`fgloc.survey.runner` (docs/survey.md, "Coded i
    ``node_done`` without lighting them.
 
 Levers (:class:`CodedSettings`, chosen by rig.json ``"coded"`` or ``fgloc survey --coded``,
-:mod:`fgloc.survey.coded_levers`; defaults: the procedure above): ``retry "continue"`` (a
-retry goes on recording L frames, decoded in sliding windows), ``probe "on"`` (a recording
-stops after L + 2 frames showing no blob), ``fallback "predicted"``
-(:mod:`fgloc.survey.coded_fallback`), ``separate "radio"`` (colour classes paused by bitmap
-between the wide pass and the refinement, :mod:`fgloc.survey.coded_separation`; every
-camera's wide pass, each round, then the refinement are barriers) and ``video "fields"``.
+:mod:`fgloc.survey.coded_levers`). A new survey's defaults are the measured fastest:
+``retry "continue"`` (a retry goes on recording L frames, decoded in sliding windows),
+``probe "on"`` (a recording stops after L + 2 frames showing no blob), ``fallback
+"predicted"`` (:mod:`fgloc.survey.coded_fallback`) and ``pairs "on"``; the procedure above
+is ``retry "burst"``, ``probe "off"``, ``fallback "blobs"``, ``pairs "off"``
+(:data:`~fgloc.survey.coded_levers.LEGACY`). Not by default: ``separate "radio"`` (colour
+classes paused by bitmap between the wide pass and the refinement,
+:mod:`fgloc.survey.coded_separation`; every camera's wide pass, each round, then the
+refinement are barriers) and ``video "fields"``. The journal's header records the levers a
+survey started with (``coded``); ``--resume`` runs with them
+(:func:`~fgloc.survey.coded_levers.coded_settings`).
 
 Crash safety: a view's readings are committed together, as one ``view`` journal record
 (:meth:`fgloc.files.journal.JournalWriter.view`); a kill during a view loses only that
@@ -137,7 +142,7 @@ class CodedSettings:
     #: how a view with curable refusals is recorded again: ``"continue"`` goes on recording L more
     #: frames without moving and decodes the whole recording in sliding windows
     #: (:func:`~fgloc.camera.blink_decoder.decode_windows`); ``"burst"`` records a new 3L + 2
-    retry: str = "burst"
+    retry: str = "continue"
     #: crowded motes: ``"zoom"`` refinement ladder only; ``"radio"`` first pauses colour classes by
     #: radio and records the wide views again (:mod:`fgloc.survey.coded_separation`), then zooms
     #: on what is left
@@ -146,17 +151,17 @@ class CodedSettings:
     #: unexplained; ``"predicted"`` first places the mote from the other cameras' readings
     #: (:func:`~fgloc.survey.coded_separation.predict_directions`) and looks only at the blobs
     #: within :data:`~fgloc.survey.coded_levers.PREDICTED_RADIUS` of where it must be (none there: not found, no search)
-    fallback: str = "blobs"
+    fallback: str = "predicted"
     #: ``"fields"``: record and decode interlaced video field by field (59.94 Hz, every second
     #: row; the motes' bit period one field), on rigs that record fields and heads with
     #: interlaced video; ``"frames"``: whole frames at 29.97 Hz
     video: str = "frames"
     #: ``"on"``: a recording starts with L + 2 frames and stops there when they show no blob (an
     #: empty view), else goes on to 3L + 2 (one continuous recording); ``"off"``: always 3L + 2
-    probe: str = "off"
+    probe: str = "on"
     #: ``"on"``: refused blobs are also tried as two LEDs and labelled by both code words when
     #: that is unique (:mod:`fgloc.camera.blink_pairs`; rotation-free books); ``"off"``: not
-    pairs: str = "off"
+    pairs: str = "on"
 
 
 @dataclass

@@ -1,8 +1,9 @@
 """The coded survey's levers (docs/blink-codes.md "Survey integration"): how they are chosen,
-and the predicted fallback.
+remembered by the journal, and the predicted fallback.
 
 rig.json ``"coded"`` (optional) and ``fgloc survey --coded KEY=VALUE`` choose them
-(:func:`coded_settings`; defaults: the survey as it was before the levers):
+(:func:`coded_settings`; a new survey's defaults are :class:`~fgloc.survey.coded.CodedSettings`'s,
+the measured fastest: continue, predicted, probe on, pairs on):
 
 * ``retry``: ``"burst"`` | ``"continue"`` (a retry goes on recording L frames, sliding windows);
 * ``separate``: ``"zoom"`` | ``"radio"`` (crowded motes paused by colour class first,
@@ -13,12 +14,21 @@ rig.json ``"coded"`` (optional) and ``fgloc survey --coded KEY=VALUE`` choose th
 * ``pairs``: ``"off"`` | ``"on"`` (refused blobs decoded as two LEDs, :mod:`fgloc.camera.blink_pairs`);
 * ``levels``: the refinement zoom ladder, ascending fractions of the optical range.
 
+**Resume rule.** A coded survey's journal header records the levers it started with
+(:func:`settings_record`, header ``coded``). A resume runs with the recorded levers; a rig.json
+value or ``--coded`` flag that names a lever with another value is refused in one line (the
+flag or file, the lever, both values), never mixed in. A journal without recorded levers
+(written before they were recorded, or started as a sequential survey) resumes with
+:data:`LEGACY` (the defaults before this rule) overridden by rig.json and the flags, exactly as
+it resumed before.
+
 Angles radians.
 """
 
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Mapping
 from dataclasses import replace
 from typing import TYPE_CHECKING, Any
@@ -27,6 +37,7 @@ import numpy as np
 
 from fgloc.core.errors import FglocError
 from fgloc.core.geometry import pan_tilt_bearing
+from fgloc.files.journal import JournalState
 from fgloc.files.rig_config import RigConfig
 from fgloc.survey.coded_views import distinct_directions
 
@@ -42,20 +53,34 @@ PROBE_MODES = ("off", "on")
 PAIRS_MODES = ("off", "on")
 CHOICES = {"retry": RETRY_MODES, "separate": SEPARATE_MODES, "fallback": FALLBACK_MODES, "video": VIDEO_MODES,
            "probe": PROBE_MODES, "pairs": PAIRS_MODES}
+#: the defaults before the journal recorded the levers: a journal without recorded levers resumes with these
+LEGACY: dict[str, Any] = {"retry": "burst", "separate": "zoom", "fallback": "blobs", "video": "frames", "probe": "off", "pairs": "off"}
 PREDICTED_RADIUS = math.radians(3.0)  #: a blob this close to a mote's predicted direction may hide it
 
 
-def coded_settings(rig: RigConfig, overrides: Mapping[str, str] | None = None) -> CodedSettings:
-    """The rig's coded-survey levers: rig.json ``"coded": {"retry": ..., "separate": ...,
-    "fallback": ..., "video": ..., "probe": ..., "pairs": ..., "levels": [zoom, ...]}`` (each optional; defaults of
-    :class:`~fgloc.survey.coded.CodedSettings`), each overridden by ``overrides`` (the CLI's
-    ``--coded KEY=VALUE``). One-line :class:`FglocError` naming the file or flag on a bad value."""
+def _show(value: Any) -> str:
+    return repr(list(value) if isinstance(value, tuple) else value)
+
+
+def settings_record(settings: CodedSettings) -> dict[str, Any]:
+    """The levers of ``settings`` as the journal header records them (JSON values)."""
+    return {key: getattr(settings, key) for key in CHOICES} | {"levels": [float(z) for z in settings.levels]}
+
+
+def coded_settings(rig: RigConfig, overrides: Mapping[str, str] | None = None,
+                   journal: JournalState | None = None, journal_path: str | os.PathLike[str] = "journal") -> CodedSettings:
+    """The coded-survey levers: rig.json ``"coded": {"retry": ..., "separate": ..., "fallback": ...,
+    "video": ..., "probe": ..., "pairs": ..., "levels": [zoom, ...]}`` (each optional), each
+    overridden by ``overrides`` (the CLI's ``--coded KEY=VALUE``), over the base levers:
+    :class:`~fgloc.survey.coded.CodedSettings`'s defaults for a new survey (``journal`` None);
+    for a resumed ``journal`` its header's recorded levers (a file or flag value that differs:
+    one-line :class:`FglocError`), or :data:`LEGACY` when it recorded none (module docstring,
+    "Resume rule"). One-line :class:`FglocError` naming the file or flag on a bad value."""
     from fgloc.survey.coded import CodedSettings
 
     raw = rig.raw.get("coded", {}) if isinstance(rig.raw, dict) else {}
     if not isinstance(raw, dict):
         raise FglocError(f"{rig.path}: coded: expected an object, got {raw!r}")
-    out = CodedSettings()
     unknown_flags = sorted(set(overrides or {}) - set(CHOICES))
     if unknown_flags:
         raise FglocError(f"--coded: {unknown_flags[0]}: unknown lever (expected one of {', '.join(CHOICES)})")
@@ -63,20 +88,37 @@ def coded_settings(rig: RigConfig, overrides: Mapping[str, str] | None = None) -
     if unknown_keys:  # a misspelled lever would otherwise be silently left at its default
         raise FglocError(f"{rig.path}: coded.{unknown_keys[0]}: unknown lever "
                          f"(expected one of {', '.join(CHOICES)}, levels)")
+    explicit: dict[str, tuple[str, Any]] = {}  # lever -> (where it was set, value)
     for key, allowed in CHOICES.items():
         flag = (overrides or {}).get(key)
-        value: Any = flag if flag is not None else raw.get(key, getattr(out, key))
+        if flag is None and key not in raw:
+            continue
+        where = f"--coded: {key}" if flag is not None else f"{rig.path}: coded.{key}"
+        value: Any = flag if flag is not None else raw[key]
         if value not in allowed:
-            where = f"--coded: {key}" if flag is not None else f"{rig.path}: coded.{key}"
             raise FglocError(f"{where}: expected one of {', '.join(allowed)}, got {value!r}")
-        out = replace(out, **{key: value})
-    levels = raw.get("levels", out.levels)
-    if not (isinstance(levels, (list, tuple)) and levels and all(
-            isinstance(z, (int, float)) and not isinstance(z, bool) and 0 < z <= 1 for z in levels)
-            and list(levels) == sorted(set(levels))):
-        raise FglocError(f"{rig.path}: coded.levels: expected ascending zooms in (0, 1] (fractions of the "
-                         f"optical range), got {levels!r}")
-    return replace(out, levels=tuple(float(z) for z in levels))
+        explicit[key] = (where, value)
+    if "levels" in raw:
+        levels = raw["levels"]
+        if not (isinstance(levels, (list, tuple)) and levels and all(
+                isinstance(z, (int, float)) and not isinstance(z, bool) and 0 < z <= 1 for z in levels)
+                and list(levels) == sorted(set(levels))):
+            raise FglocError(f"{rig.path}: coded.levels: expected ascending zooms in (0, 1] (fractions of the "
+                             f"optical range), got {levels!r}")
+        explicit["levels"] = (f"{rig.path}: coded.levels", tuple(float(z) for z in levels))
+    recorded = None if journal is None else journal.header.coded
+    if recorded is not None:  # the levers the survey started with, whatever the defaults are now
+        base = replace(CodedSettings(), **{k: recorded[k] for k in CHOICES if k in recorded})
+        if "levels" in recorded:
+            base = replace(base, levels=tuple(float(z) for z in recorded["levels"]))
+        for key, (where, value) in explicit.items():
+            if value != getattr(base, key):
+                raise FglocError(f"{where}: {journal_path} was started with {key} {_show(getattr(base, key))}, "
+                                 f"got {_show(value)} (a resume runs with the journal's levers: drop or "
+                                 "match it, or survey into a new directory)")
+        return base
+    base = replace(CodedSettings(), **LEGACY) if journal is not None else CodedSettings()
+    return replace(base, **{key: value for key, (_, value) in explicit.items()})
 
 
 def predicted_directions(runner: SurveyRunner) -> dict[str, dict[str, tuple[float, float]]] | None:

@@ -109,16 +109,22 @@ def _existing_journal(rig: RigConfig, out_dir: str | os.PathLike[str], resume: b
         return None  # killed while creating it: start over
 
 
-def check_journal(rig: RigConfig, out_dir: str | os.PathLike[str], resume: bool, simulated: bool) -> None:
-    """Refuse, before any device is opened, what :func:`start_journal` would refuse."""
+def check_journal(rig: RigConfig, out_dir: str | os.PathLike[str], resume: bool, simulated: bool
+                  ) -> JournalState | None:
+    """Refuse, before any device is opened, what :func:`start_journal` would refuse; returns the
+    journal to continue (None: a new one)."""
     state = _existing_journal(rig, out_dir, resume)
     if state is not None:
         resume_change(rig, state, Path(out_dir) / JOURNAL_NAME, simulated)
+    return state
 
 
-def start_journal(rig: RigConfig, out_dir: str | os.PathLike[str], resume: bool, simulated: object | None = None):
+def start_journal(rig: RigConfig, out_dir: str | os.PathLike[str], resume: bool, simulated: object | None = None,
+                  coded: dict[str, Any] | None = None):
     """Create or reopen ``out_dir/journal.jsonl``; a resumed journal must belong to this rig
-    (operational rig.json changes are accepted and journaled, see :mod:`fgloc.survey.resume`)."""
+    (operational rig.json changes are accepted and journaled, see :mod:`fgloc.survey.resume`).
+    ``coded``: a new coded survey's levers, recorded in the header
+    (:func:`fgloc.survey.coded_levers.settings_record`)."""
     path = Path(out_dir) / JOURNAL_NAME
     if _existing_journal(rig, out_dir, resume) is not None:
         writer, state = JournalWriter.open_existing(path)
@@ -139,7 +145,7 @@ def start_journal(rig: RigConfig, out_dir: str | os.PathLike[str], resume: bool,
         return writer, state
     header = JournalHeader(rig.mode, rig.gauge, rig.sigma, rig.camera_ids, rig.node_ids, rig.hash,
                            {"rig": str(rig.path), "simulated": simulated is not None},
-                           rig_meaning(rig, simulated is not None), rig_operational(rig))
+                           rig_meaning(rig, simulated is not None), rig_operational(rig), coded)
     writer = JournalWriter.create(path, header)
     if simulated is not None:
         writer.truth(simulated.scene.truth)  # type: ignore[attr-defined]
@@ -172,28 +178,30 @@ def run_survey(
     if identification not in (None, *IDENTIFICATIONS):
         raise FglocError(f"--identify: expected one of {', '.join(IDENTIFICATIONS)}, got {identification!r}")
     check_rig(rig, simulate)
-    if (identification or rig.identification) == "coded":
-        from fgloc.survey.coded_levers import coded_settings
+    is_coded = (identification or rig.identification) == "coded"
+    if is_coded:
+        from fgloc.survey.coded_levers import coded_settings, settings_record
 
         coded_settings(rig, coded_levers)  # a bad lever is one line before anything is opened
     with SurveyLock(out_dir):
         remove_stale_temps(out_dir)
         own = opened is None
-        check_journal(rig, out_dir, resume, simulate if opened is None else opened.simulated is not None)
+        previous = check_journal(rig, out_dir, resume, simulate if opened is None else opened.simulated is not None)
+        # a resume runs with the levers its journal recorded (a disagreeing file or flag: one line, here)
+        settings = coded_settings(rig, coded_levers, previous, Path(out_dir) / JOURNAL_NAME) if is_coded else None
         opened = opened or (open_simulated(rig) if simulate else open_hardware(rig))
         stopped: SurveyStopped | None = None
         try:
             if opened.check_devices:
                 check_devices(rig, opened.open_head)
-            writer, state = start_journal(rig, out_dir, resume, opened.simulated)
+            writer, state = start_journal(rig, out_dir, resume, opened.simulated,
+                                          None if settings is None else settings_record(settings))
             try:
                 coded = None
-                if (identification or rig.identification) == "coded":
+                if settings is not None:
                     from fgloc.survey.coded import CodedSurvey
-                    from fgloc.survey.coded_levers import coded_settings
 
-                    coded = CodedSurvey(rig, opened.open_head, opened.leds, opened.simulated,
-                                        coded_settings(rig, coded_levers))
+                    coded = CodedSurvey(rig, opened.open_head, opened.leds, opened.simulated, settings)
                     devices: Any = coded
                 else:
                     from fgloc.survey.coded_clock import SequentialClock
