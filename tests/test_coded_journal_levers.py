@@ -20,7 +20,7 @@ from pathlib import Path
 
 import pytest
 
-import fgloc.survey.coded as coded_module
+import fgloc.survey.coded_levers as coded_module
 from fgloc.camera.blink_codes import code_book
 from fgloc.cli import main
 from fgloc.core.errors import FglocError

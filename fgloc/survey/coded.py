@@ -70,14 +70,12 @@ import queue
 import time
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
 
 from fgloc.camera.blink_codes import CodeBook, code_book
-from fgloc.camera.blink_decoder import DecoderConfig, ViewDecode, decode_view, decode_windows
-from fgloc.camera.blink_pairs import PairConfig
 from fgloc.camera.intrinsics import CameraIntrinsics
 from fgloc.camera.pixel_angles import pixel_to_pan_tilt
 from fgloc.core.errors import FglocError
@@ -91,7 +89,6 @@ from fgloc.survey.clock import (
     Frames,
     Op,
     PositionRead,
-    Radio,
     Settle,
     Slew,
     Zoom,
@@ -100,14 +97,14 @@ from fgloc.survey.clock import (
     sum_times,
 )
 from fgloc.survey.coded_clock import SequentialClock
+from fgloc.survey.coded_radio import pause_motes, start_codes, stop_codes
 from fgloc.survey.coded_readings import field_intrinsics
+from fgloc.survey.coded_recording import Frame, record_view
+from fgloc.survey.coded_settings import CodedSettings, CodedStats
 from fgloc.survey.coded_views import (
-    coded_observation,
     distinct_directions,
-    empty_view,
     into_search_box,
     needs_second_recording,
-    on_off_centroid,
     unexplained_blob,
 )
 from fgloc.survey.field_plans import frames_for
@@ -117,71 +114,8 @@ from fgloc.survey.view_planner import box_targets, plan_views
 logger = logging.getLogger(__name__)
 
 
-Frame = tuple[float, np.ndarray]
 Blob = tuple[tuple[float, float], tuple[float, float], float]  #: (u, v) px, head (pan, tilt), zoom of a refused blob
 CLUSTER_SPREAD_PX = 6.0  #: refinement tiles also cover this far (px of the coarser view) around a blob
-
-
-@dataclass(frozen=True)
-class CodedSettings:
-    """Coded-survey knobs (radians, seconds, pixels)."""
-
-    periods: int = 3  #: code periods recorded per view (frames = periods x L + 2)
-    retries: int = 1  #: extra recordings of a view with curable refusals
-    start_attempts: int = 3  #: broadcast starts while some mote has not confirmed
-    report_wait_s: float = 0.2  #: how long to collect the motes' blink reports per broadcast
-    margin_px: float = 16.0  #: a view covers a direction this far inside the image
-    #: sampling of the search box for the planner, in units of ``margin_px / fx``: every direction
-    #: is then within half a margin of a covered sample, so >= 8 px inside some view (the decoder
-    #: refuses blobs within 7 px of the border)
-    target_step: float = 0.7
-    decoder: DecoderConfig = field(default_factory=DecoderConfig)
-    #: refinement zooms (fractions of the optical range, ascending; :meth:`CameraIntrinsics.at_zoom`:
-    #: 2x, 4x, 10x), used where the rig can record at other zooms (the in-process rig)
-    levels: tuple[float, ...] = (1 / 9, 3 / 9, 1.0)
-    #: how a view with curable refusals is recorded again: ``"continue"`` goes on recording L more
-    #: frames without moving and decodes the whole recording in sliding windows
-    #: (:func:`~fgloc.camera.blink_decoder.decode_windows`); ``"burst"`` records a new 3L + 2
-    retry: str = "continue"
-    #: crowded motes: ``"zoom"`` refinement ladder only; ``"radio"`` first pauses colour classes by
-    #: radio and records the wide views again (:mod:`fgloc.survey.coded_separation`), then zooms
-    #: on what is left
-    separate: str = "zoom"
-    #: fallback of a mote a camera did not decode: ``"blobs"`` looks at every blob the camera left
-    #: unexplained; ``"predicted"`` first places the mote from the other cameras' readings
-    #: (:func:`~fgloc.survey.coded_separation.predict_directions`) and looks only at the blobs
-    #: within :data:`~fgloc.survey.coded_levers.PREDICTED_RADIUS` of where it must be (none there: not found, no search)
-    fallback: str = "predicted"
-    #: ``"fields"``: record and decode interlaced video field by field (59.94 Hz, every second
-    #: row; the motes' bit period one field), on rigs that record fields and heads with
-    #: interlaced video; ``"frames"``: whole frames at 29.97 Hz
-    video: str = "frames"
-    #: ``"on"``: a recording starts with L + 2 frames and stops there when they show no blob (an
-    #: empty view), else goes on to 3L + 2 (one continuous recording); ``"off"``: always 3L + 2
-    probe: str = "on"
-    #: ``"on"``: refused blobs are also tried as two LEDs and labelled by both code words when
-    #: that is unique (:mod:`fgloc.camera.blink_pairs`; rotation-free books); ``"off"``: not
-    pairs: str = "on"
-
-
-@dataclass
-class CodedStats:
-    """What the coded phase did in this run."""
-
-    views: int = 0
-    recordings: int = 0
-    second_recordings: int = 0
-    readings: int = 0
-    ambiguous: int = 0
-    duplicate: int = 0
-    rejected: int = 0
-    unassigned: int = 0
-    confirmed: int = 0
-    fallback_nodes: int = 0
-    classes: int = 0  #: radio separation: colour classes (rounds)
-    round_views: int = 0  #: radio separation: views recorded in rounds
-    pause_updates: int = 0  #: radio separation: pause-by-bitmap updates sent
-    failed_views: list[str] = field(default_factory=list)
 
 
 class CodedSurvey:
@@ -262,78 +196,11 @@ class CodedSurvey:
         return sum_times([radio, self.stages, parallel(lanes), FieldTime({"fallback": self.fallback.total})])
 
     # ----- one camera
-    def _grab(self, runner: SurveyRunner, camera: str, count: int, t_start: float, key: str) -> list[Frame]:
-        """``count`` consecutive frames (fields) from ``t_start`` on the survey clock: the simulated
-        rigs' ``record_blinks`` (seeded by ``key``), on hardware grabs stamped by the host clock."""
-        if self.recorder is not None:
-            out: list[Frame] = (self.recorder(camera, count, t_start, key, fields=True) if self.fields
-                                else self.recorder(camera, count, t_start, key))
-            return out
-        frames = []
-        for _ in range(count):
-            img = runner.workers[camera].call(lambda h: h.grab_frame())
-            frames.append((time.monotonic(), np.asarray(img)))
-        return frames
-
     def _record(self, runner: SurveyRunner, camera: str, vid: str, attempt: int, target: tuple[float, float],
                 head: tuple[float, float], zoom: float, t_start: float,
                 before: list[Frame] | None = None) -> tuple[dict[str, Any], list[Frame]]:
-        """Record and decode one recording of a view; returns its journal record and the view's
-        frames so far. ``before``: this process's frames of the view's earlier recordings, which
-        this one continues (L more frames from where they ended, decoded with them in sliding
-        windows); None: a new burst of 3L + 2."""
-        key = f"{vid}/{attempt}"
-        count = self.book.length if before else self.frames
-        if before:  # the recording goes on: the next frame period after the last one
-            t_start = self._continue_at[(camera, vid)]
-        intr = self.intrinsics_at(camera, zoom)
-        probed = False
-        if not before and self.settings.probe == "on":
-            # the first L + 2 frames show every blinking mote on and off (each word has both bits in
-            # any L samples): a view where they show no blob at all is empty, and the recording stops
-            count = self.book.length + 2
-            frames = self._grab(runner, camera, count, t_start, key)
-            probed = True
-            if not empty_view(frames, self.camera.frame_period_s, self.settings.decoder):  # on to 3L + 2
-                frames += self._grab(runner, camera, self.frames - count, t_start + count * self.camera.frame_period_s,
-                                     key + "+")
-                count = self.frames
-        else:
-            frames = self._grab(runner, camera, count, t_start, key)
-        self._continue_at[(camera, vid)] = t_start + count * self.camera.frame_period_s
-        pairs = PairConfig() if self.settings.pairs == "on" else None
-        if before:
-            frames = before + frames
-            dec: ViewDecode = decode_windows(frames, self.camera.frame_period_s, self.book, intr, head[0], head[1],
-                                             self.frames, self.book.length, self.settings.decoder, pairs=pairs)
-        else:
-            dec = decode_view(frames, self.camera.frame_period_s, self.book, intr, head[0], head[1],
-                              self.settings.decoder, pairs=pairs)
-        readings, refused = [], [{"kind": r.kind, "u": r.u, "v": r.v, "reason": r.reason} for r in dec.refused]
-        st = runner.state
-        taken: set[str] = set()
-        stack = np.stack([np.asarray(f) for _, f in frames]) if dec.readings else np.zeros((0, 0, 0))
-        for rd in dec.readings:
-            node = self.node_of_code.get(rd.index)
-            if node is None:
-                refused.append({"kind": "unassigned", "u": rd.u, "v": rd.v,
-                                "reason": f"code {rd.index} is run by no mote of this survey"})
-                continue
-            have = len(st.observations_of(node, camera))
-            if node in taken or have >= self.rig.repeats:
-                continue
-            taken.add(node)
-            # a pair-decoded LED keeps the pair decoder's centroid (its window holds both LEDs)
-            uv = (rd.u, rd.v) if rd.partner is not None else on_off_centroid(stack, rd.u, rd.v) or (rd.u, rd.v)
-            obs = coded_observation(camera, vid, node, have, rd, intr, head, uv, self.rig.sigma,
-                                    self.rig.head_repeatability)
-            readings.append({"node": node, "index": obs.index, "pan": obs.pan, "tilt": obs.tilt, "code": rd.index,
-                             "u": uv[0], "v": uv[1]} | ({} if rd.partner is None else {"partner": rd.partner})
-                            | ({} if obs.view_sigma is None else {"sigma": obs.sigma, "view_sigma": obs.view_sigma}))
-        return {"camera": camera, "view": vid, "attempt": attempt, "target": list(target), "head": list(head),
-                "zoom": zoom, "frames": count, "erased": dec.erased, "clock_s": t_start, "readings": readings,
-                "refused": refused} | ({"continued": True} if before else {}) | (
-                    {"probe": self.book.length + 2} if probed else {}), frames
+        """One recording of a view and its journal record (:func:`fgloc.survey.coded_recording.record_view`)."""
+        return record_view(self, runner, camera, vid, attempt, target, head, zoom, t_start, before)
 
     def _commit(self, runner: SurveyRunner, record: dict[str, Any]) -> None:
         """Journal one view (the commit of all its readings), then apply it to the state."""
@@ -489,53 +356,15 @@ class CodedSurvey:
                 logger.warning(f"{camera}: could not zoom back to the survey zoom: {exc}")
 
     # ----- the whole phase
-    def _broadcast(self, command: object, expect: set[int]) -> dict[int, tuple[bool, int, int]]:
-        got: dict[int, tuple[bool, int, int]] = self.leds.broadcast_codes(command, expect, self.settings.report_wait_s)
-        self.radio_s += price([Radio(broadcast=1)], self.timing[self.rig.camera_ids[0]]).total
-        return got
-
     def start_codes(self, runner: SurveyRunner) -> None:
-        from fgloc.drivers.tinyos.blink import BlinkBroadcast
-
-        command = BlinkBroadcast(self.book.length, self.first, len(self.book), self.camera.frame_period_s)
-        expect = set(self.addresses.values())
-        confirmed: set[int] = set()
-        for _ in range(self.settings.start_attempts):
-            got = self._broadcast(command, expect - confirmed)
-            confirmed |= {a for a, (running, length, _) in got.items() if running and length == self.book.length}
-            if expect <= confirmed:
-                break
-        silent = sorted(n for n, a in self.addresses.items() if a not in confirmed)
-        self.stats.confirmed = len(expect & confirmed)
-        rec = {"type": "codes", "action": "start", "length": self.book.length, "first": self.first,
-               "count": len(self.book), "bit_period_s": command.bit_period_s, "confirmed": self.stats.confirmed,
-               "silent": silent}
-        runner.journal.append(rec)
-        runner.state.codes.append(rec)
-        if silent:
-            logger.warning(f"{len(silent)} motes did not confirm their code (first: {silent[0]}); "
-                           "they are read the sequential way if no camera decodes them")
+        start_codes(self, runner)
 
     def pause(self, paused: set[int]) -> None:
-        """Pause (LED dark, code running) the motes at ``paused`` addresses and resume the others:
-        the pause-by-bitmap packets over the survey's address range, each broadcast
-        ``PAUSE_REPEATS`` times (no report confirms a pause; a mote that missed all stays lit,
-        and its blob stays ambiguous: refused, never guessed)."""
-        from fgloc.drivers.tinyos.blink import pause_packets
-        from fgloc.survey.coded_separation import PAUSE_REPEATS
-
-        packets = pause_packets(paused, range(self.first, max(self.addresses.values()) + 1))
-        for packet in packets:
-            for _ in range(PAUSE_REPEATS):
-                self.leds.broadcast_codes(packet, set(), 0.0)
-        self.radio_s += price([Radio(broadcast=PAUSE_REPEATS * len(packets))], self.timing[self.rig.camera_ids[0]]).total
-        self.stats.pause_updates += 1
+        """Pause the motes at ``paused`` addresses, resume the others (:func:`fgloc.survey.coded_radio.pause_motes`)."""
+        pause_motes(self, paused)
 
     def stop_codes(self, runner: SurveyRunner) -> None:
-        from fgloc.drivers.tinyos.blink import BlinkCommand
-
-        self._broadcast(BlinkCommand(start=False), set())
-        runner.journal.append({"type": "codes", "action": "stop"})
+        stop_codes(self, runner)
 
     def progress(self, runner: SurveyRunner, views_done: int, views_total: int, t0: float) -> Progress:
         st, cams = runner.state, self.rig.camera_ids

@@ -2,7 +2,7 @@
 remembered by the journal, and the predicted fallback.
 
 rig.json ``"coded"`` (optional) and ``fgloc survey --coded KEY=VALUE`` choose them
-(:func:`coded_settings`; a new survey's defaults are :class:`~fgloc.survey.coded.CodedSettings`'s,
+(:func:`coded_settings`; a new survey's defaults are :class:`~fgloc.survey.coded_settings.CodedSettings`'s,
 the measured fastest: continue, predicted, probe on, pairs on):
 
 * ``retry``: ``"burst"`` | ``"continue"`` (a retry goes on recording L frames, sliding windows);
@@ -40,9 +40,10 @@ from fgloc.core.geometry import pan_tilt_bearing
 from fgloc.files.journal import JournalState
 from fgloc.files.rig_config import RigConfig
 from fgloc.survey.coded_views import distinct_directions
+from fgloc.survey.coded_settings import CodedSettings
 
 if TYPE_CHECKING:
-    from fgloc.survey.coded import CodedSettings, CodedSurvey
+    from fgloc.survey.coded import CodedSurvey
     from fgloc.survey.runner import SurveyRunner
 
 RETRY_MODES = ("burst", "continue")
@@ -72,11 +73,10 @@ def coded_settings(rig: RigConfig, overrides: Mapping[str, str] | None = None,
     """The coded-survey levers: rig.json ``"coded": {"retry": ..., "separate": ..., "fallback": ...,
     "video": ..., "probe": ..., "pairs": ..., "levels": [zoom, ...]}`` (each optional), each
     overridden by ``overrides`` (the CLI's ``--coded KEY=VALUE``), over the base levers:
-    :class:`~fgloc.survey.coded.CodedSettings`'s defaults for a new survey (``journal`` None);
+    :class:`~fgloc.survey.coded_settings.CodedSettings`'s defaults for a new survey (``journal`` None);
     for a resumed ``journal`` its header's recorded levers (a file or flag value that differs:
     one-line :class:`FglocError`), or :data:`LEGACY` when it recorded none (module docstring,
     "Resume rule"). One-line :class:`FglocError` naming the file or flag on a bad value."""
-    from fgloc.survey.coded import CodedSettings
 
     raw = rig.raw.get("coded", {}) if isinstance(rig.raw, dict) else {}
     if not isinstance(raw, dict):

@@ -1,0 +1,103 @@
+"""One recording of one view of the coded survey: grab, probe, decode, and its journal record.
+
+:func:`record_view` records ``3L + 2`` frames (fields) of a view (or, with the probe,
+``L + 2`` first and stops there when they show no blob; or, continuing an earlier
+recording, ``L`` more decoded with it in sliding windows), decodes them
+(:func:`fgloc.camera.blink_decoder.decode_view` / :func:`~fgloc.camera.blink_decoder.decode_windows`,
+pairs with :mod:`fgloc.camera.blink_pairs` when the lever is on) and turns each decoded LED
+into a reading (:func:`fgloc.survey.coded_views.coded_observation`). The caller
+(:meth:`fgloc.survey.coded.CodedSurvey._visit`) journals the record and prices the frames.
+Angles radians; pixels OpenCV convention; times survey-clock seconds.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from fgloc.camera.blink_decoder import ViewDecode, decode_view, decode_windows
+from fgloc.camera.blink_pairs import PairConfig
+from fgloc.survey.coded_views import coded_observation, empty_view, on_off_centroid
+from fgloc.survey.runner import SurveyRunner
+
+if TYPE_CHECKING:
+    from fgloc.survey.coded import CodedSurvey
+
+Frame = tuple[float, np.ndarray]
+
+
+def grab_frames(coded: CodedSurvey, runner: SurveyRunner, camera: str, count: int, t_start: float, key: str) -> list[Frame]:
+    """``count`` consecutive frames (fields) from ``t_start`` on the survey clock: the simulated
+    rigs' ``record_blinks`` (seeded by ``key``), on hardware grabs stamped by the host clock."""
+    if coded.recorder is not None:
+        out: list[Frame] = (coded.recorder(camera, count, t_start, key, fields=True) if coded.fields
+                            else coded.recorder(camera, count, t_start, key))
+        return out
+    frames = []
+    for _ in range(count):
+        img = runner.workers[camera].call(lambda h: h.grab_frame())
+        frames.append((time.monotonic(), np.asarray(img)))
+    return frames
+
+
+def record_view(coded: CodedSurvey, runner: SurveyRunner, camera: str, vid: str, attempt: int, target: tuple[float, float],
+            head: tuple[float, float], zoom: float, t_start: float,
+            before: list[Frame] | None = None) -> tuple[dict[str, Any], list[Frame]]:
+    """Record and decode one recording of a view; returns its journal record and the view's
+    frames so far. ``before``: this process's frames of the view's earlier recordings, which
+    this one continues (L more frames from where they ended, decoded with them in sliding
+    windows); None: a new burst of 3L + 2."""
+    key = f"{vid}/{attempt}"
+    count = coded.book.length if before else coded.frames
+    if before:  # the recording goes on: the next frame period after the last one
+        t_start = coded._continue_at[(camera, vid)]
+    intr = coded.intrinsics_at(camera, zoom)
+    probed = False
+    if not before and coded.settings.probe == "on":
+        # the first L + 2 frames show every blinking mote on and off (each word has both bits in
+        # any L samples): a view where they show no blob at all is empty, and the recording stops
+        count = coded.book.length + 2
+        frames = grab_frames(coded, runner, camera, count, t_start, key)
+        probed = True
+        if not empty_view(frames, coded.camera.frame_period_s, coded.settings.decoder):  # on to 3L + 2
+            frames += grab_frames(coded, runner, camera, coded.frames - count, t_start + count * coded.camera.frame_period_s,
+                                 key + "+")
+            count = coded.frames
+    else:
+        frames = grab_frames(coded, runner, camera, count, t_start, key)
+    coded._continue_at[(camera, vid)] = t_start + count * coded.camera.frame_period_s
+    pairs = PairConfig() if coded.settings.pairs == "on" else None
+    if before:
+        frames = before + frames
+        dec: ViewDecode = decode_windows(frames, coded.camera.frame_period_s, coded.book, intr, head[0], head[1],
+                                         coded.frames, coded.book.length, coded.settings.decoder, pairs=pairs)
+    else:
+        dec = decode_view(frames, coded.camera.frame_period_s, coded.book, intr, head[0], head[1],
+                          coded.settings.decoder, pairs=pairs)
+    readings, refused = [], [{"kind": r.kind, "u": r.u, "v": r.v, "reason": r.reason} for r in dec.refused]
+    st = runner.state
+    taken: set[str] = set()
+    stack = np.stack([np.asarray(f) for _, f in frames]) if dec.readings else np.zeros((0, 0, 0))
+    for rd in dec.readings:
+        node = coded.node_of_code.get(rd.index)
+        if node is None:
+            refused.append({"kind": "unassigned", "u": rd.u, "v": rd.v,
+                            "reason": f"code {rd.index} is run by no mote of this survey"})
+            continue
+        have = len(st.observations_of(node, camera))
+        if node in taken or have >= coded.rig.repeats:
+            continue
+        taken.add(node)
+        # a pair-decoded LED keeps the pair decoder's centroid (its window holds both LEDs)
+        uv = (rd.u, rd.v) if rd.partner is not None else on_off_centroid(stack, rd.u, rd.v) or (rd.u, rd.v)
+        obs = coded_observation(camera, vid, node, have, rd, intr, head, uv, coded.rig.sigma,
+                                coded.rig.head_repeatability)
+        readings.append({"node": node, "index": obs.index, "pan": obs.pan, "tilt": obs.tilt, "code": rd.index,
+                         "u": uv[0], "v": uv[1]} | ({} if rd.partner is None else {"partner": rd.partner})
+                        | ({} if obs.view_sigma is None else {"sigma": obs.sigma, "view_sigma": obs.view_sigma}))
+    return {"camera": camera, "view": vid, "attempt": attempt, "target": list(target), "head": list(head),
+            "zoom": zoom, "frames": count, "erased": dec.erased, "clock_s": t_start, "readings": readings,
+            "refused": refused} | ({"continued": True} if before else {}) | (
+                {"probe": coded.book.length + 2} if probed else {}), frames

@@ -1,0 +1,74 @@
+"""The coded survey's settings (its levers and knobs) and its per-run counters.
+
+:class:`CodedSettings` is what rig.json ``"coded"`` and ``fgloc survey --coded`` choose
+(:mod:`fgloc.survey.coded_levers`); :class:`CodedStats` counts what one run of
+:class:`fgloc.survey.coded.CodedSurvey` did. Radians, seconds, pixels.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from fgloc.camera.blink_decoder import DecoderConfig
+
+
+@dataclass(frozen=True)
+class CodedSettings:
+    """Coded-survey knobs (radians, seconds, pixels)."""
+
+    periods: int = 3  #: code periods recorded per view (frames = periods x L + 2)
+    retries: int = 1  #: extra recordings of a view with curable refusals
+    start_attempts: int = 3  #: broadcast starts while some mote has not confirmed
+    report_wait_s: float = 0.2  #: how long to collect the motes' blink reports per broadcast
+    margin_px: float = 16.0  #: a view covers a direction this far inside the image
+    #: sampling of the search box for the planner, in units of ``margin_px / fx``: every direction
+    #: is then within half a margin of a covered sample, so >= 8 px inside some view (the decoder
+    #: refuses blobs within 7 px of the border)
+    target_step: float = 0.7
+    decoder: DecoderConfig = field(default_factory=DecoderConfig)
+    #: refinement zooms (fractions of the optical range, ascending; :meth:`CameraIntrinsics.at_zoom`:
+    #: 2x, 4x, 10x), used where the rig can record at other zooms (the in-process rig)
+    levels: tuple[float, ...] = (1 / 9, 3 / 9, 1.0)
+    #: how a view with curable refusals is recorded again: ``"continue"`` goes on recording L more
+    #: frames without moving and decodes the whole recording in sliding windows
+    #: (:func:`~fgloc.camera.blink_decoder.decode_windows`); ``"burst"`` records a new 3L + 2
+    retry: str = "continue"
+    #: crowded motes: ``"zoom"`` refinement ladder only; ``"radio"`` first pauses colour classes by
+    #: radio and records the wide views again (:mod:`fgloc.survey.coded_separation`), then zooms
+    #: on what is left
+    separate: str = "zoom"
+    #: fallback of a mote a camera did not decode: ``"blobs"`` looks at every blob the camera left
+    #: unexplained; ``"predicted"`` first places the mote from the other cameras' readings
+    #: (:func:`~fgloc.survey.coded_separation.predict_directions`) and looks only at the blobs
+    #: within :data:`~fgloc.survey.coded_levers.PREDICTED_RADIUS` of where it must be (none there: not found, no search)
+    fallback: str = "predicted"
+    #: ``"fields"``: record and decode interlaced video field by field (59.94 Hz, every second
+    #: row; the motes' bit period one field), on rigs that record fields and heads with
+    #: interlaced video; ``"frames"``: whole frames at 29.97 Hz
+    video: str = "frames"
+    #: ``"on"``: a recording starts with L + 2 frames and stops there when they show no blob (an
+    #: empty view), else goes on to 3L + 2 (one continuous recording); ``"off"``: always 3L + 2
+    probe: str = "on"
+    #: ``"on"``: refused blobs are also tried as two LEDs and labelled by both code words when
+    #: that is unique (:mod:`fgloc.camera.blink_pairs`; rotation-free books); ``"off"``: not
+    pairs: str = "on"
+
+
+@dataclass
+class CodedStats:
+    """What the coded phase did in this run."""
+
+    views: int = 0
+    recordings: int = 0
+    second_recordings: int = 0
+    readings: int = 0
+    ambiguous: int = 0
+    duplicate: int = 0
+    rejected: int = 0
+    unassigned: int = 0
+    confirmed: int = 0
+    fallback_nodes: int = 0
+    classes: int = 0  #: radio separation: colour classes (rounds)
+    round_views: int = 0  #: radio separation: views recorded in rounds
+    pause_updates: int = 0  #: radio separation: pause-by-bitmap updates sent
+    failed_views: list[str] = field(default_factory=list)
