@@ -39,8 +39,8 @@ from fgloc.core.errors import FglocError
 from fgloc.core.geometry import pan_tilt_bearing
 from fgloc.files.journal import JournalState
 from fgloc.files.rig_config import RigConfig
-from fgloc.survey.coded_views import distinct_directions
 from fgloc.survey.coded_settings import CodedSettings
+from fgloc.survey.coded_views import distinct_directions
 
 if TYPE_CHECKING:
     from fgloc.survey.coded import CodedSurvey
