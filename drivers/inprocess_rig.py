@@ -173,6 +173,25 @@ class SimScene:
         return {(c, n) for i, c in enumerate(self.camera_ids) for j, n in enumerate(self.node_ids)
                 if self.visible[i, j] and n not in self.dead}
 
+    def field_search_boxes(self, margin_deg: float = 5.0) -> dict[str, dict[str, float]]:
+        """Per camera, a rig.json ``cameras[].search`` box (degrees) holding every visible node's
+        apparent bearing with ``margin_deg`` to spare: what a field team sets when it knows where
+        the field lies from each camera. A camera whose visible nodes lie across the +-180 degree
+        pan seam (encoder pans more than 180 degrees apart) keeps every pan."""
+        out = {}
+        for i, c in enumerate(self.camera_ids):
+            seen = self.visible[i] & np.array([n not in self.dead for n in self.node_ids])
+            if not seen.any():
+                continue
+            pan, tilt = np.degrees(self.apparent[i, seen, 0]), np.degrees(self.apparent[i, seen, 1])
+            box = {"tilt_min_deg": max(-90.0, float(tilt.min()) - margin_deg),
+                   "tilt_max_deg": min(90.0, float(tilt.max()) + margin_deg)}
+            if float(pan.max() - pan.min()) <= 180.0:
+                box |= {"pan_min_deg": max(-180.0, float(pan.min()) - margin_deg),
+                        "pan_max_deg": min(180.0, float(pan.max()) + margin_deg)}
+            out[c] = box
+        return out
+
 
 def pair_noise_sigma(rig: RigConfig) -> float:
     """Radians: the fixed per-(camera, node) error's sigma, ``sigma`` less the head's repeatability

@@ -59,7 +59,7 @@ EXAMPLE = ROOT / "examples" / "rig-simulated.json"
 
 
 def rig_for(seed: int, motes: int, width: int, mode: str, fx: float | None = None, repeatability_deg: float = 0.0,
-            coded: dict | None = None):
+            coded: dict | None = None, field_boxes: bool = False):
     data = json.loads(EXAMPLE.read_text())
     data["node_ids"] = [f"n{j:03d}" for j in range(motes)]
     f = fx or width / 2.0
@@ -73,6 +73,11 @@ def rig_for(seed: int, motes: int, width: int, mode: str, fx: float | None = Non
         data["coded"] = coded
     if repeatability_deg > 0:
         data["head_repeatability_deg"] = repeatability_deg
+    if field_boxes:  # each camera searches the box around its visible nodes (SimScene.field_search_boxes)
+        boxes = InProcessRig(parse_rig(data, str(EXAMPLE), EXAMPLE.parent)).scene.field_search_boxes()
+        for cam in data["cameras"]:
+            if cam["id"] in boxes:
+                cam["search"] = boxes[cam["id"]]
     return parse_rig(data, str(EXAMPLE), EXAMPLE.parent)
 
 
@@ -163,8 +168,8 @@ def errors(survey: Survey, truth) -> tuple[list[float], list[float]]:  # noqa: A
 
 
 def run(seed: int, motes: int, width: int, mode: str, out: Path, fx: float | None = None,
-        repeatability_deg: float = 0.0, coded: dict | None = None) -> dict:
-    rig = rig_for(seed, motes, width, mode, fx, repeatability_deg, coded)
+        repeatability_deg: float = 0.0, coded: dict | None = None, field_boxes: bool = False) -> dict:
+    rig = rig_for(seed, motes, width, mode, fx, repeatability_deg, coded, field_boxes)
     sim = InProcessRig(rig)
     times: list[FieldTime] = []
     if mode == "sequential":
@@ -225,6 +230,9 @@ def main() -> None:
                     help="head repeatability (rig.json head_repeatability_deg, part of sigma_deg 0.1)")
     ap.add_argument("--coded", default="{}", help='rig.json "coded" levers as JSON, e.g. '
                     '\'{"retry": "continue", "fallback": "predicted", "separate": "radio"}\'')
+    ap.add_argument("--field-boxes", action="store_true",
+                    help="each camera searches a box around its visible nodes (rig.json cameras[].search, 5 deg "
+                         "margin; all pans for a camera that sees across the +-180 deg seam), both surveys")
     args = ap.parse_args()
     coded = json.loads(args.coded)
     rows: dict[str, list[dict]] = {"sequential": [], "coded": []}
@@ -232,7 +240,7 @@ def main() -> None:
         for seed in range(1, args.seeds + 1):
             for mode in rows:
                 rows[mode].append(run(seed, args.motes, args.width, mode, Path(tmp) / f"{mode}{seed}", args.fx,
-                                      args.repeatability_deg, coded))
+                                      args.repeatability_deg, coded, args.field_boxes))
     for mode, rs in rows.items():
         med = statistics.median
         print(f"{mode}: field time median {med(r['field'].total for r in rs):.1f} s "

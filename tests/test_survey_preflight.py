@@ -114,6 +114,10 @@ CASES = {
         lambda d: d["search"].update(pan_min_deg=-180, pan_max_deg=180),
         "search.pan_min_deg: camera cam0 (EVI-D100, upright) can pan only -100.0..100.0 deg, "
         "the search goes to -180 deg", ""),
+    "a camera's own box outside its head's range": (
+        lambda d: d["cameras"][0].update(search={"pan_min_deg": -20, "pan_max_deg": 120}),
+        "cameras[0].search.pan_max_deg: camera cam0 (EVI-D100, upright) can pan only -100.0..100.0 deg, "
+        "the search goes to 120 deg", ""),
     "tilt range outside the head's": (
         lambda d: d["search"].update(tilt_min_deg=-30),
         "search.tilt_min_deg: camera cam0 (EVI-D100, upright) can tilt only -25.0..25.0 deg, "

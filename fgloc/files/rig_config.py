@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 import os
 import zlib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -70,6 +70,9 @@ class CameraConfig:
     address: int = 1
     video: str | None = None  # cv2.VideoCapture source for frames: device index ("0") or stream URL
     reply_port: int | None = None  # visca-ip: fixed controller UDP port the camera replies to (e.g. 52381)
+    #: this camera's search box (rig.json ``cameras[].search``: any of pan_min_deg, pan_max_deg,
+    #: tilt_min_deg, tilt_max_deg), the rig's ``search`` for the fields it leaves out; None: the rig's
+    search: SearchConfig | None = None
 
 
 @dataclass(frozen=True)
@@ -169,6 +172,12 @@ class RigConfig:
     def camera_ids(self) -> list[str]:
         return [c.id for c in self.cameras]
 
+    def search_for(self, camera_id: str) -> SearchConfig:
+        """Where and how camera ``camera_id`` searches: its own box where rig.json gives one
+        (``cameras[].search``), else the rig's ``search``."""
+        cam = self.cameras[self.camera_ids.index(camera_id)]
+        return cam.search or self.search
+
 
 def _fail(path: str, name: str, problem: str) -> RigConfigError:
     return RigConfigError(f"{path}: {name}: {problem}")
@@ -233,6 +242,23 @@ def _zoom_levers(section: dict[str, Any], path: str) -> dict[str, dict[float, tu
                             f"zoom {zoom:g} is listed twice")
             levers[zoom] = (float(item.get("lever_y_baseline", 0.0)), float(item.get("lever_z_baseline", 0.0)))
         out[cid] = levers
+    return out
+
+
+def _camera_search(box: dict[str, Any] | None, search: SearchConfig, name: str, path: str) -> SearchConfig | None:
+    """A camera's own search box (degrees in ``box``) over the rig's ``search``; None without one."""
+    if not box:
+        return None
+    deg = {k: math.radians(float(box[f"{k}_deg"])) for k in ("pan_min", "pan_max", "tilt_min", "tilt_max")
+           if f"{k}_deg" in box}
+    out = replace(search, pan_min=deg.get("pan_min", search.pan_min), pan_max=deg.get("pan_max", search.pan_max),
+                  tilt_min=deg.get("tilt_min", search.tilt_min), tilt_max=deg.get("tilt_max", search.tilt_max))
+    if out.pan_min >= out.pan_max:
+        raise _fail(path, f"{name}.pan_max_deg", f"must exceed pan_min_deg ({math.degrees(out.pan_min):g}), "
+                    f"got {math.degrees(out.pan_max):g}")
+    if out.tilt_min >= out.tilt_max:
+        raise _fail(path, f"{name}.tilt_max_deg", f"must exceed tilt_min_deg ({math.degrees(out.tilt_min):g}), "
+                    f"got {math.degrees(out.tilt_max):g}")
     return out
 
 
@@ -315,6 +341,8 @@ def parse_rig(data: Any, path: str = "rig.json", base: Path | None = None) -> Ri
         raise _fail(path, "search.pan_max_deg", f"must exceed pan_min_deg, got {math.degrees(search.pan_max):g}")
     if search.tilt_min >= search.tilt_max:
         raise _fail(path, "search.tilt_max_deg", f"must exceed tilt_min_deg, got {math.degrees(search.tilt_max):g}")
+    cameras = [replace(c, search=_camera_search(top["cameras"][i].get("search"), search, f"cameras[{i}].search", path))
+               for i, c in enumerate(cameras)]
 
     r, rd = top.get("retry", {}), RetryConfig()
     retry = RetryConfig(

@@ -176,7 +176,7 @@ class CodedSurvey:
     # ----- plan and clock
     def plan(self, camera: str) -> list[tuple[float, float]]:
         """The camera's views (head pan, tilt), in visiting order: a function of the rig only."""
-        s = self.rig.search
+        s = self.rig.search_for(camera)
         cam = self.rig.cameras[self.rig.camera_ids.index(camera)]
         step = self.settings.target_step * self.settings.margin_px / max(cam.intrinsics.fx, cam.intrinsics.fy)
         targets = box_targets(s.pan_min, s.pan_max, s.tilt_min, s.tilt_max, step)
@@ -325,7 +325,7 @@ class CodedSurvey:
         search even when every rung explains its own."""
         here, zoom0 = self.here[camera], self.survey_zoom[camera]
         zoom = zoom0
-        s = self.rig.search
+        s = self.rig.search_for(camera)
         for rung, level in enumerate(self.levels, start=1):
             if failed:
                 break

@@ -190,7 +190,6 @@ def run_separation(coded: CodedSurvey, runner: SurveyRunner, pool: ThreadPoolExe
             blobs = {c: [(uv, head) for uv, head, _ in coded.unexplained(coded.wide_records[c])] for c in cams}
             intr = {c: coded.intrinsics_at(c, coded.survey_zoom[c]) for c in cams}
             plan = plan_separation(intr, blobs, predicted, unread, RADIUS_PX, CONFLICT_PX)
-    s = coded.rig.search
     if plan is not None and plan.classes:
         logger.info(f"radio separation: {len(plan.colour)} crowded motes in {plan.classes} colour classes")
         coded.stats.classes = plan.classes
@@ -202,6 +201,7 @@ def run_separation(coded: CodedSurvey, runner: SurveyRunner, pool: ThreadPoolExe
                 mine = [plan.crowded[c][n] for n in sorted(plan.crowded[c]) if plan.colour[n] == k]
                 if not mine:
                     continue
+                s = coded.rig.search_for(c)
                 views = [into_search_box(p, t, s.pan_min, s.pan_max, s.tilt_min, s.tilt_max) for p, t in plan_views(
                     coded.intrinsics_at(c, coded.survey_zoom[c]), np.array(mine), coded.settings.margin_px,
                     start=coded.here[c], tilt_limits=(s.tilt_min, s.tilt_max))]

@@ -87,7 +87,8 @@ def _range_problem(rig: RigConfig, index: int) -> PreflightError | None:
     units = PanTiltUnits(model, mounting(cam.mounting))
     pans = sorted(math.degrees(units.to_spec(c, 0)[0]) for c in (model.pan_min, model.pan_max))
     tilts = sorted(math.degrees(units.to_spec(0, c)[1]) for c in (model.tilt_min, model.tilt_max))
-    s, eps = rig.search, 1e-6
+    s, eps = rig.search_for(cam.id), 1e-6
+    where = "search" if cam.search is None else f"cameras[{index}].search"
     limits = (("pan_min_deg", s.pan_min, pans[0] - eps <= math.degrees(s.pan_min), pans),
               ("pan_max_deg", s.pan_max, math.degrees(s.pan_max) <= pans[1] + eps, pans),
               ("tilt_min_deg", s.tilt_min, tilts[0] - eps <= math.degrees(s.tilt_min), tilts),
@@ -96,7 +97,7 @@ def _range_problem(rig: RigConfig, index: int) -> PreflightError | None:
         if not inside:
             axis = name.split("_")[0]
             return PreflightError(
-                f"{rig.path}: search.{name}: camera {cam.id} ({model.name}, {cam.mounting}) can {axis} only "
+                f"{rig.path}: {where}.{name}: camera {cam.id} ({model.name}, {cam.mounting}) can {axis} only "
                 f"{lo:.1f}..{hi:.1f} deg, the search goes to {math.degrees(value):g} deg")
     return None
 

@@ -109,8 +109,9 @@ class CameraWorker:
         self.retry = rig.retry
         self.stats = stats
         cam = rig.cameras[rig.camera_ids.index(camera_id)]
-        self.locator = LedLocator(rig.search, PinholePixelModel(cam.intrinsics))
-        self.home = (0.0, 0.5 * (rig.search.tilt_min + rig.search.tilt_max))
+        search = rig.search_for(camera_id)
+        self.locator = LedLocator(search, PinholePixelModel(cam.intrinsics))
+        self.home = (0.0, 0.5 * (search.tilt_min + search.tilt_max))
         self.zoom = cam.zoom
         self.head: PanTiltHead | None = None
         self.lock = threading.Lock()
