@@ -132,6 +132,8 @@ class Variant:
     #: --partner), or a table by the distance to the nearest third mote; 0: off (colour rounds)
     partner_rate: float | tuple[tuple[float, float], ...] = 0.0
     partner_any: bool = False  #: every crowded group may leave one member unread (upper bound only)
+    #: the same for crowded groups of exactly three (two read in rounds, the third decoded); 0: off
+    partner_group_rate: float | tuple[tuple[float, float], ...] = 0.0
 
 
 _SEQUENTIAL: dict[tuple[int, int, int, RigTiming], SequentialTime] = {}
@@ -190,17 +192,27 @@ def run(n_motes: int, n_cams: int, timing: RigTiming, miss_rate: float, seed: in
                   for c in cams}
     partner_eligible: dict[str, np.ndarray] | None = None
     partner_ok: dict[str, np.ndarray] | None = None
-    if variant.partner_rate:  # cover rounds: which groups may leave a member unread, which succeed
-        partner_rng = np.random.default_rng([seed, 18])  # its own stream: the other draws stay as they were
+    if variant.partner_rate or variant.partner_group_rate:  # cover rounds: which groups may leave a member unread, which succeed
+        partner_rng = np.random.default_rng([seed, 18])  # its own streams: the other draws stay as they were
+        group_partner_rng = np.random.default_rng([seed, 19])
         partner_eligible, partner_ok = {}, {}
         for c in cams:
             if variant.partner_any:
                 partner_eligible[c] = ~(neighbour_px(pts[c], intr, fields) >= SEPARATION_PX)
-            else:
-                partner_eligible[c] = pair_decoding(intr, pts[c], SEPARATION_PX, 1.0, np.random.default_rng(0),
-                                                    fields).resolved
-            drawn = pair_decoding(intr, pts[c], SEPARATION_PX, variant.partner_rate, partner_rng, fields).resolved
-            partner_ok[c] = partner_eligible[c] & (drawn | (variant.partner_any and variant.partner_rate == 1.0))
+                partner_ok[c] = partner_eligible[c].copy()
+                continue
+            partner_eligible[c] = np.zeros(n_motes, bool)
+            partner_ok[c] = np.zeros(n_motes, bool)
+            if variant.partner_rate:
+                partner_eligible[c] |= pair_decoding(intr, pts[c], SEPARATION_PX, 1.0, np.random.default_rng(0),
+                                                     fields).resolved
+                partner_ok[c] |= pair_decoding(intr, pts[c], SEPARATION_PX, variant.partner_rate, partner_rng,
+                                               fields).resolved
+            if variant.partner_group_rate:
+                partner_eligible[c] |= group_decoding(intr, pts[c], SEPARATION_PX, 1.0, np.random.default_rng(0),
+                                                      fields).resolved
+                partner_ok[c] |= group_decoding(intr, pts[c], SEPARATION_PX, variant.partner_group_rate,
+                                                group_partner_rng, fields).resolved
     extend = variant.extend * book.length
     round_k = variant.round_frames[0] * book.length + variant.round_frames[1]
     retry_frames = book.length if variant.continuous_retry else None
@@ -347,6 +359,9 @@ def main() -> None:
                     "member read in a radio round, the other decoded from the wide view by the known-partner decoder "
                     "with this success rate (scripts/blink_montecarlo.py --partner), or per bound on the distance to "
                     "the nearest third mote (px); failures are read in extra rounds; default off")
+    ap.add_argument("--partner-group-decode", default="", metavar="RATE|PX:RATE,...,inf:RATE",
+                    help="cover rounds: the same for crowded groups of exactly three (two read in rounds, the third "
+                    "decoded; scripts/blink_montecarlo.py --groups --partner), per bound on the nearest fourth mote")
     ap.add_argument("--partner-any", action="store_true",
                     help="with --partner-decode 1: every crowded group leaves one member unread (upper bound)")
     ap.add_argument("--need", type=int, default=0,
@@ -390,6 +405,12 @@ def main() -> None:
             ap.error(f"--partner-decode: {exc} ({args.partner_decode})")
         variant = replace(variant, partner_rate=table[0][1] if len(table) == 1 else table,
                           partner_any=args.partner_any)
+    if args.partner_group_decode:
+        try:
+            table = pair_rate_table(args.partner_group_decode)
+        except ValueError as exc:
+            ap.error(f"--partner-group-decode: {exc} ({args.partner_group_decode})")
+        variant = replace(variant, partner_group_rate=table[0][1] if len(table) == 1 else table)
     if args.partner_any and args.partner_decode.strip() not in ("1", "1.0"):
         ap.error(f"--partner-any: only with --partner-decode 1 (an upper bound) ({args.partner_decode or 'off'})")
     if args.old:

@@ -11,8 +11,8 @@ independent in the conflict graph, that together hold every required member.
 :func:`cover_colour` picks the member each eligible group leaves unread (greedy, so the
 graph induced on the required motes loses as many edges, and odd cycles, as it can),
 colours the required motes (:func:`fgloc.survey.view_planner.colour_conflicts`) and
-appends rounds for the unread members whose known-partner decode fails (learnt only
-after the rounds: they are read in extra rounds at the end, never assumed away).
+puts the unread members whose known-partner decode fails (learnt only after their
+partners' round, never assumed away) into the first later round they fit.
 """
 
 from __future__ import annotations
@@ -66,9 +66,11 @@ def cover_colour(
     required by some camera, then ``sweeps`` passes of local search that move a group's
     unread member when that needs fewer colours (ties: fewer required motes).
     Returns the colour (round) per mote (-1: lit in no round) and, per camera, the motes
-    it must read (its targets minus the unread ones whose decode succeeds). Unread motes
-    whose decode fails get rounds after the cover rounds (coloured among themselves),
-    read by the cameras that left them."""
+    it must read (its targets minus the unread ones whose decode succeeds). An unread mote
+    whose decode fails is known to fail once the last of its group's other members has
+    been read (the decode runs on the wide recording between rounds): it is lit, for the
+    cameras that left it, in the first later round in which none of its conflict
+    neighbours is lit (a new round after the cover rounds if none)."""
     ok = eligible if ok is None else ok
     all_edges = np.vstack([np.asarray(e, int).reshape(-1, 2) for e in edges.values()] or [np.zeros((0, 2), int)])
     groups: list[tuple[str, list[int]]] = []
@@ -128,15 +130,16 @@ def cover_colour(
             break
     colour = _colours(n, required_mask(), all_edges)
     reads = {c: np.asarray(t, bool).copy() for c, t in targets.items()}
-    failed = np.zeros(n, bool)
-    for (c, _), v in zip(groups, skip):
+    after: dict[int, int] = {}  # failed unread mote -> first round after its group's members were read
+    for (c, members), v in zip(groups, skip):
         if ok[c][v]:
             reads[c][v] = False
-        else:
-            failed[v] = True
-    failed &= colour < 0  # a failed mote some other camera reads is read in its round already
-    if failed.any():
-        extra = _colours(n, failed, all_edges)
-        top = int(colour.max()) + 1 if (colour >= 0).any() else 0
-        colour[failed] = extra[failed] + top
+        elif colour[v] < 0:  # no camera reads it in a cover round: read it once its failure is known
+            done = max(int(colour[u]) for u in members if u != v) + 1
+            after[v] = max(after.get(v, 0), done)
+    for v in sorted(after, key=lambda u: (after[u], u)):
+        r = after[v]
+        while any(colour[u] == r for u in adj.get(v, ())):
+            r += 1
+        colour[v] = r
     return colour, reads
