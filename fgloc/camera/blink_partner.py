@@ -9,7 +9,7 @@ the wide recording that already exists, by the pair decoder's measurements
 
 1. **Levels.** As the pair (group) decoder: ``n + 1`` equally spaced levels (off, one
    LED, ..., ``n`` LEDs; the top level may never occur for ``n = 3``), the one-LED step
-   ``min_snr`` noise sigmas, dark when off, at most one sample above the top level (a
+   ``min_snr`` (8) noise sigmas, dark when off, at most one sample above the top level (a
    further LED refuses). Each sample's count folds into the count word (every position).
 2. **Explanations.** For every rotation of every known word, the remainder ``counts -
    sum(known rotated bits)`` is compared with every rotation of every book word (the known
@@ -53,7 +53,9 @@ from fgloc.camera.led_detection import DetectorConfig, detect_led
 class PartnerConfig:
     """Known-partner thresholds; the level, aperture and centroid ones are the pair decoder's."""
 
-    pair: PairConfig = PairConfig()
+    #: the pair decoder's thresholds, the one-LED step gate at 8 noise sigmas (the group
+    #: decoder's; level band 2.4 sigma): a count error cannot label, only refuse (margin)
+    pair: PairConfig = PairConfig(min_snr=8.0)
     margin: int = 3  #: every other explanation at least this many count errors away
     known_px: float = 1.0  #: a known LED's exclusive centroid within this of its given pixel
 
