@@ -27,8 +27,12 @@ within 6 px of the pair's centre) and is decoded with pair decoding on
 both its motes are read within 2 px; mislabels are counted over all readings as above.
 
     OPENBLAS_NUM_THREADS=1 .venv/bin/python scripts/blink_montecarlo.py --trials 250 [--fields] [--sync] [--slide 1]
-        [--pairs 40 [--time-decode]] [--groups 20]
+        [--pairs 40 [--time-decode]] [--groups 20] [--partner]
     OPENBLAS_NUM_THREADS=1 .venv/bin/python scripts/blink_montecarlo.py --candidates 3|book --frames 18 --motes 20 [--fields]
+
+``--partner`` (with ``--pairs`` or ``--groups``): each crowd's last mote is also decoded by
+the known-partner decoder (:mod:`fgloc.camera.blink_partner`), the others known
+(:func:`_partner_stats`; margins 3 and 2 on the same views).
 
 ``--candidates M``: radio-separation round views (:func:`candidate_trial`): ``--motes`` lit
 class motes (none within 4 px of another), each decoded by

@@ -47,6 +47,14 @@ lit, with known IDs and predicted directions); round views are retried, continui
 code length, at the candidate miss rate Q measured by ``scripts/blink_montecarlo.py
 --candidates``. Off by default: every figure without it is unchanged.
 
+``--partner-decode RATE --partner-group-decode RATE`` (cover rounds, with ``--separate
+radio|best``; ``PX:RATE,...,inf:RATE`` tables as above): a crowded group of exactly two
+(three) needs all but one member read in a radio round, the last decoded from the wide view
+by the known-partner decoder (:mod:`fgloc.camera.blink_partner`) with the measured rate
+(``scripts/blink_montecarlo.py --pairs|--groups --partner``); a failure is read in the
+first later round it fits (:mod:`fgloc.survey.field_plan_cover`). ``--partner-any`` with
+``--partner-decode 1``: every crowded group leaves one member (an upper bound). Off by default.
+
 ``--old`` prices the previous plan (rotation-free book, burst retries of wide views only,
 separate tiles on the fixed ladder, zoom-out). The sequential column is the same in
 every variant.
