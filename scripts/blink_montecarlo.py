@@ -27,8 +27,12 @@ within 6 px of the pair's centre) and is decoded with pair decoding on
 both its motes are read within 2 px; mislabels are counted over all readings as above.
 
     OPENBLAS_NUM_THREADS=1 .venv/bin/python scripts/blink_montecarlo.py --trials 250 [--fields] [--sync] [--slide 1]
-        [--pairs 40 [--time-decode]] [--groups 20]
+        [--pairs 40 [--time-decode]] [--groups 20] [--partner]
     OPENBLAS_NUM_THREADS=1 .venv/bin/python scripts/blink_montecarlo.py --candidates 3|book --frames 18 --motes 20 [--fields]
+
+``--partner`` (with ``--pairs`` or ``--groups``): each crowd's last mote is also decoded by
+the known-partner decoder (:mod:`fgloc.camera.blink_partner`), the others known
+(:func:`_partner_stats`; margins 3 and 2 on the same views).
 
 ``--candidates M``: radio-separation round views (:func:`candidate_trial`): ``--motes`` lit
 class motes (none within 4 px of another), each decoded by
@@ -51,8 +55,15 @@ import numpy as np
 
 from fgloc.camera.blink_candidates import Candidate, CandidateRule, decode_candidates
 from fgloc.camera.blink_codes import CodeBook, code_book, sync_code_book
-from fgloc.camera.blink_decoder import DecodedReading, SyncTiming, decode_view, decode_windows  # noqa: E402
+from fgloc.camera.blink_decoder import (  # noqa: E402
+    DecodedReading,
+    SyncTiming,
+    ViewDecode,
+    decode_view,
+    decode_windows,
+)
 from fgloc.camera.blink_pairs import PairConfig
+from fgloc.camera.blink_partner import PartnerConfig, decode_partner_view
 from fgloc.camera.intrinsics import CameraIntrinsics
 from fgloc.camera.pixel_angles import pixel_to_pan_tilt
 from fgloc.core.geometry import pan_tilt_bearing
@@ -71,7 +82,8 @@ from fgloc.survey.field_plans import frames_for
 
 def trial(seed: int, n_motes: int, book_size: int, glints: int, fields: bool = False,
           frames: int | None = None, extend: int = 0, sync: bool = False, resync_s: float = 10.0,
-          slide: int = 0, pairs: int = 0, time_decode: bool = False, groups: int = 0) -> dict[str, float]:
+          slide: int = 0, pairs: int = 0, time_decode: bool = False, groups: int = 0,
+          partner: bool = False) -> dict[str, float]:
     """One view. ``frames`` recorded (default 3L + 2); with ``extend`` > 0 the recording
     goes on for ``extend`` more frames and the whole stack is decoded again (keys ``ext_*``):
     the retry of a view whose motes were missed, without moving the head. ``slide``:
@@ -79,7 +91,8 @@ def trial(seed: int, n_motes: int, book_size: int, glints: int, fields: bool = F
     synchronized book and a synchronized start (see the module docstring). ``pairs``: that many
     crowded pairs more, decoded with pair decoding (keys ``pair_*``). ``time_decode``: the
     first window is decoded once more without pair decoding, both timed (keys ``t_off``,
-    ``t_on``, seconds)."""
+    ``t_on``, seconds). ``partner``: each crowded pair (group) is also decoded by the
+    known-partner decoder given one (two) of its motes (keys ``ptn_*``, :func:`_partner_stats`)."""
     rng = np.random.default_rng(seed)
     intr = CameraIntrinsics.from_fov(640, 480, 65.0)
     if fields:
@@ -146,6 +159,11 @@ def trial(seed: int, n_motes: int, book_size: int, glints: int, fields: bool = F
         if pairs:
             out.update({prefix + k: v for k, v in _pair_stats(res.readings, ids, uv, truth, n_single, found,
                                                                isolated, pans, tilts).items()})
+        if partner and not prefix:
+            plain = decode_view(within(k0), 1.0 / cfg.frame_rate_hz, book, intr, head_pan, head_tilt)
+            first = n_single if pairs else g0
+            out.update(_partner_stats(rng, within(k0), 1.0 / cfg.frame_rate_hz, book, plain, res.readings, ids, uv,
+                                      first, 2 if pairs else 3))
         out.update({prefix + "correct": correct, prefix + "mislabelled": mislabelled,
                     prefix + "isolated_missed": iso_missed, prefix + "views_missing": float(iso_missed > 0), prefix + "ambiguous": len(res.ambiguous()),
                     prefix + "erased": res.erased, prefix + "samples": res.samples,
@@ -410,6 +428,9 @@ def main() -> None:
     ap.add_argument("--pairs", type=int, default=0, help="crowded pairs per view, decoded with pair decoding on")
     ap.add_argument("--groups", type=int, default=0,
                     help="crowded groups of three per view, decoded with group decoding on (max_group=3)")
+    ap.add_argument("--partner", action="store_true",
+                    help="with --pairs/--groups: also decode each crowd's last mote by the known-partner decoder "
+                    "(fgloc.camera.blink_partner), the others known")
     ap.add_argument("--time-decode", action="store_true",
                     help="also decode each first window without pair decoding; print both medians (s per view)")
     ap.add_argument("--candidates", default="", metavar="M|book",
@@ -434,6 +455,8 @@ def main() -> None:
             ap.error(f"--max-unread/--book-margin: {exc}")
         _run_candidates(args)
         return
+    if args.partner and not (args.pairs or args.groups) or args.partner and (args.sync or args.slide):
+        ap.error("--partner: with --pairs or --groups, rotation-free book, no --slide")
     if args.pairs and args.groups:  # their statistics index the motes of one kind of crowd per view
         ap.error("--pairs and --groups are separate experiments: give one of them")
     tot: dict[str, float] = {}
@@ -442,7 +465,7 @@ def main() -> None:
     for k in range(args.trials):
         for key, v in trial(args.seed + k, args.motes, args.book, args.glints, args.fields, args.frames,
                              args.extend, args.sync, args.resync, args.slide, args.pairs, args.time_decode,
-                             args.groups).items():
+                             args.groups, args.partner).items():
             if key in times:
                 times[key].append(v)
             else:
@@ -474,9 +497,90 @@ def main() -> None:
             _print_pairs(tot, prefix)
         if args.groups:
             _print_groups(tot, prefix)
+        if args.partner and not prefix:
+            _print_partner(tot)
     if times["t_on"]:
         print(f"decode_view per view, median of {len(times['t_on'])}: without pair decoding "
               f"{1e3 * float(np.median(times['t_off'])):.0f} ms, with {1e3 * float(np.median(times['t_on'])):.0f} ms")
+
+
+PARTNER_MARGINS = (3, 2)  #: margins (count errors) of the known-partner decodes measured side by side
+
+
+def _partner_stats(rng: np.random.Generator, frames: list[tuple[float, np.ndarray]], period: float, book: CodeBook,
+                   plain: ViewDecode, readings: tuple, ids: np.ndarray, uv: np.ndarray, first: int,
+                   size: int) -> dict[str, float]:
+    """Known-partner decodes of one view: for each crowded group (rows ``first``.. in
+    ``size``s), ``size - 1`` random members are known (book index, true pixel + 0.1 px sd:
+    a round reading) and the last is decoded from the blob the plain decoder refused
+    nearest the first known pixel (within 4 px), once per margin of PARTNER_MARGINS (keys
+    ``ptn{margin}_*``). Resolved: the right index within 2 px; mislabelled: any other
+    label. Also, per group, the same decode with the first known member replaced by a mote
+    of the view outside the group (a wrong "known" partner): any label counts as
+    ``wrong_labelled``. By the nearest other mote (THIRD_BINS) and among the groups the
+    blind pair (group) decoder left unresolved (``cond_*``)."""
+    st: dict[str, float] = {}
+    for m in PARTNER_MARGINS:
+        for k in ("n", "ok", "mislabelled", "noblob", "wrong_n", "wrong_labelled", "cond_n", "cond_ok"):
+            st[f"ptn{m}_{k}"] = 0
+        for b in range(len(THIRD_BINS) - 1):
+            st[f"ptn{m}_n_t{b}"] = st[f"ptn{m}_ok_t{b}"] = st[f"ptn{m}_cn_t{b}"] = st[f"ptn{m}_cok_t{b}"] = 0
+    blobs = np.array([(b.u, b.v) for b in plain.refused]).reshape(-1, 2)
+    found = {r.index: r for r in readings}
+    for g in range(first, len(ids) - size + 1, size):
+        members = list(range(g, g + size))
+        order = [int(x) for x in rng.permutation(members)]
+        last, known = order[-1], order[:-1]
+        rest = np.delete(uv, members, axis=0)
+        third = min(float(np.min(np.hypot(*(rest - uv[m]).T))) for m in members) if len(rest) else math.inf
+        t = min(int(np.searchsorted(THIRD_BINS, third, side="right")) - 1, len(THIRD_BINS) - 2)
+        unresolved = not all(int(ids[m]) in found and math.dist((found[int(ids[m])].u, found[int(ids[m])].v), uv[m])
+                             <= 2.0 for m in members)
+        d = np.hypot(*(blobs - uv[known[0]]).T) if len(blobs) else np.zeros(0)
+        kn = [(int(ids[m]), (float(uv[m][0] + 0.1 * rng.standard_normal()),
+                             float(uv[m][1] + 0.1 * rng.standard_normal()))) for m in known]
+        outside = [int(i) for i in ids if int(i) not in {int(ids[m]) for m in members}]
+        wrong = [(int(rng.choice(outside)), kn[0][1])] + kn[1:]
+        for mg in PARTNER_MARGINS:
+            p = f"ptn{mg}_"
+            st[p + "n"] += 1
+            st[f"{p}n_t{t}"] += 1
+            st[p + "cond_n"] += unresolved
+            st[f"{p}cn_t{t}"] += unresolved
+            if not d.size or d.min() > 4.0:
+                st[p + "noblob"] += 1
+                continue
+            bu, bv = (float(x) for x in blobs[int(np.argmin(d))])
+            cfg = PartnerConfig(margin=mg)
+            res = decode_partner_view(frames, period, book, bu, bv, kn, cfg)
+            if res.ok and res.uv is not None:
+                if res.index == int(ids[last]) and math.dist(res.uv, uv[last]) <= 2.0:
+                    st[p + "ok"] += 1
+                    st[f"{p}ok_t{t}"] += 1
+                    st[p + "cond_ok"] += unresolved
+                    st[f"{p}cok_t{t}"] += unresolved
+                else:
+                    st[p + "mislabelled"] += 1
+            st[p + "wrong_n"] += 1
+            st[p + "wrong_labelled"] += decode_partner_view(frames, period, book, bu, bv, wrong, cfg).ok
+    return st
+
+
+def _print_partner(tot: dict[str, float]) -> None:
+    for mg in PARTNER_MARGINS:
+        p = f"ptn{mg}_"
+        n = tot[p + "n"]
+        print(f"  known-partner decodes, margin {mg}: {n:.0f}: resolved {tot[p + 'ok']:.0f} "
+              f"({tot[p + 'ok'] / max(n, 1):.2%}), mislabelled {tot[p + 'mislabelled']:.0f}, no refused blob at the "
+              f"known pixel {tot[p + 'noblob']:.0f}; wrong known partner labelled {tot[p + 'wrong_labelled']:.0f} of "
+              f"{tot[p + 'wrong_n']:.0f}")
+        print("    resolved by nearest other mote: " + ", ".join(
+            f"{THIRD_BINS[b]:.0f}-{THIRD_BINS[b + 1]:.0f} px {tot[f'{p}ok_t{b}'] / max(tot[f'{p}n_t{b}'], 1):.1%}"
+            f" of {tot[f'{p}n_t{b}']:.0f}" for b in range(len(THIRD_BINS) - 1)))
+        print(f"    among those the blind decoder left unresolved: {tot[p + 'cond_ok']:.0f} of {tot[p + 'cond_n']:.0f} "
+              f"({tot[p + 'cond_ok'] / max(tot[p + 'cond_n'], 1):.2%}); by nearest other mote: " + ", ".join(
+            f"{THIRD_BINS[b]:.0f}-{THIRD_BINS[b + 1]:.0f} px {tot[f'{p}cok_t{b}'] / max(tot[f'{p}cn_t{b}'], 1):.1%}"
+            f" of {tot[f'{p}cn_t{b}']:.0f}" for b in range(len(THIRD_BINS) - 1)))
 
 
 def _print_pairs(tot: dict[str, float], p: str) -> None:

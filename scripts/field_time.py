@@ -47,6 +47,14 @@ lit, with known IDs and predicted directions); round views are retried, continui
 code length, at the candidate miss rate Q measured by ``scripts/blink_montecarlo.py
 --candidates``. Off by default: every figure without it is unchanged.
 
+``--partner-decode RATE --partner-group-decode RATE`` (cover rounds, with ``--separate
+radio|best``; ``PX:RATE,...,inf:RATE`` tables as above): a crowded group of exactly two
+(three) needs all but one member read in a radio round, the last decoded from the wide view
+by the known-partner decoder (:mod:`fgloc.camera.blink_partner`) with the measured rate
+(``scripts/blink_montecarlo.py --pairs|--groups --partner``); a failure is read in the
+first later round it fits (:mod:`fgloc.survey.field_plan_cover`). ``--partner-any`` with
+``--partner-decode 1``: every crowded group leaves one member (an upper bound). Off by default.
+
 ``--old`` prices the previous plan (rotation-free book, burst retries of wide views only,
 separate tiles on the fixed ladder, zoom-out). The sequential column is the same in
 every variant.
@@ -127,6 +135,13 @@ class Variant:
     round_frames: tuple[int, int] = (0, 0)  #: (a, b): a L + b samples; (0, 0): off
     #: isolated miss rate of a short-round view (blink_montecarlo.py --candidates); None: the wide rate
     round_miss_rate: float | None = None
+    #: cover rounds: share of crowded groups of exactly two whose unread member the known-partner
+    #: decoder reads from the wide view once the other was read in a round (blink_montecarlo.py
+    #: --partner), or a table by the distance to the nearest third mote; 0: off (colour rounds)
+    partner_rate: float | tuple[tuple[float, float], ...] = 0.0
+    partner_any: bool = False  #: every crowded group may leave one member unread (upper bound only)
+    #: the same for crowded groups of exactly three (two read in rounds, the third decoded); 0: off
+    partner_group_rate: float | tuple[tuple[float, float], ...] = 0.0
 
 
 _SEQUENTIAL: dict[tuple[int, int, int, RigTiming], SequentialTime] = {}
@@ -183,6 +198,29 @@ def run(n_motes: int, n_cams: int, timing: RigTiming, miss_rate: float, seed: in
     if variant.group_rate:  # group-decoded motes too
         needed = {c: (np.ones(n_motes, bool) if needed[c] is None else needed[c]) & ~groups[c].resolved  # type: ignore[operator]
                   for c in cams}
+    partner_eligible: dict[str, np.ndarray] | None = None
+    partner_ok: dict[str, np.ndarray] | None = None
+    if variant.partner_rate or variant.partner_group_rate:  # cover rounds: which groups may leave a member unread, which succeed
+        partner_rng = np.random.default_rng([seed, 18])  # its own streams: the other draws stay as they were
+        group_partner_rng = np.random.default_rng([seed, 19])
+        partner_eligible, partner_ok = {}, {}
+        for c in cams:
+            if variant.partner_any:
+                partner_eligible[c] = ~(neighbour_px(pts[c], intr, fields) >= SEPARATION_PX)
+                partner_ok[c] = partner_eligible[c].copy()
+                continue
+            partner_eligible[c] = np.zeros(n_motes, bool)
+            partner_ok[c] = np.zeros(n_motes, bool)
+            if variant.partner_rate:
+                partner_eligible[c] |= pair_decoding(intr, pts[c], SEPARATION_PX, 1.0, np.random.default_rng(0),
+                                                     fields).resolved
+                partner_ok[c] |= pair_decoding(intr, pts[c], SEPARATION_PX, variant.partner_rate, partner_rng,
+                                               fields).resolved
+            if variant.partner_group_rate:
+                partner_eligible[c] |= group_decoding(intr, pts[c], SEPARATION_PX, 1.0, np.random.default_rng(0),
+                                                      fields).resolved
+                partner_ok[c] |= group_decoding(intr, pts[c], SEPARATION_PX, variant.partner_group_rate,
+                                                group_partner_rng, fields).resolved
     extend = variant.extend * book.length
     round_k = variant.round_frames[0] * book.length + variant.round_frames[1]
     retry_frames = book.length if variant.continuous_retry else None
@@ -206,7 +244,8 @@ def run(n_motes: int, n_cams: int, timing: RigTiming, miss_rate: float, seed: in
 
     def plan(radio_cams: tuple[str, ...]) -> dict[str, object]:
         """Refinement (and radio separation for ``radio_cams``) priced on the clock."""
-        sep = radio_separation(intr, pts, views, SEPARATION_PX, radio_cams, fields, needed) if radio_cams else None
+        sep = radio_separation(intr, pts, views, SEPARATION_PX, radio_cams, fields, needed,
+                               partner=partner_eligible, partner_ok=partner_ok) if radio_cams else None
         refine: dict[str, list[RefinePass]] = {}
         unresolved = n_refine = 0
         refine_retry = 0.0
@@ -323,6 +362,16 @@ def main() -> None:
     ap.add_argument("--round-miss-rate", type=float, default=None, metavar="Q",
                     help="with --round-frames: isolated miss rate of a short-round view (scripts/blink_montecarlo.py "
                     "--candidates); default: --miss-rate")
+    ap.add_argument("--partner-decode", default="", metavar="RATE|PX:RATE,...,inf:RATE",
+                    help="cover rounds (with --separate radio|best): a crowded group of exactly two needs only one "
+                    "member read in a radio round, the other decoded from the wide view by the known-partner decoder "
+                    "with this success rate (scripts/blink_montecarlo.py --partner), or per bound on the distance to "
+                    "the nearest third mote (px); failures are read in extra rounds; default off")
+    ap.add_argument("--partner-group-decode", default="", metavar="RATE|PX:RATE,...,inf:RATE",
+                    help="cover rounds: the same for crowded groups of exactly three (two read in rounds, the third "
+                    "decoded; scripts/blink_montecarlo.py --groups --partner), per bound on the nearest fourth mote")
+    ap.add_argument("--partner-any", action="store_true",
+                    help="with --partner-decode 1: every crowded group leaves one member unread (upper bound)")
     ap.add_argument("--need", type=int, default=0,
                     help="refine a mote only where fewer than this many other cameras resolve it (0: always)")
     ap.add_argument("--old", action="store_true", help="the previous plan: rotation-free book, burst retries of "
@@ -357,6 +406,21 @@ def main() -> None:
         except ValueError as exc:
             ap.error(f"--group-decode: {exc} ({args.group_decode})")
         variant = replace(variant, group_rate=table[0][1] if len(table) == 1 else table)
+    if args.partner_decode:
+        try:
+            table = pair_rate_table(args.partner_decode)
+        except ValueError as exc:
+            ap.error(f"--partner-decode: {exc} ({args.partner_decode})")
+        variant = replace(variant, partner_rate=table[0][1] if len(table) == 1 else table,
+                          partner_any=args.partner_any)
+    if args.partner_group_decode:
+        try:
+            table = pair_rate_table(args.partner_group_decode)
+        except ValueError as exc:
+            ap.error(f"--partner-group-decode: {exc} ({args.partner_group_decode})")
+        variant = replace(variant, partner_group_rate=table[0][1] if len(table) == 1 else table)
+    if args.partner_any and args.partner_decode.strip() not in ("1", "1.0"):
+        ap.error(f"--partner-any: only with --partner-decode 1 (an upper bound) ({args.partner_decode or 'off'})")
     if args.old:
         variant = replace(OLD, fields=not args.frames, broadcast=not args.unicast)
     print(f"head {args.head}, {args.fps:.2f} frames/s, miss rate {args.miss_rate}, refinement zooms {levels}, {variant}")

@@ -42,6 +42,7 @@ from fgloc.survey.clock import (
     parallel,
     price,
 )
+from fgloc.survey.field_plan_cover import cover_colour
 from fgloc.survey.view_planner import (
     RadioRound,
     colour_conflicts,
@@ -136,6 +137,7 @@ def radio_separation(
     separation_px: float, radio_cameras: Sequence[str], field_rows: bool = False,
     needed: dict[str, np.ndarray | None] | None = None, lamps: dict[str, np.ndarray] | None = None,
     addresses: Sequence[int] | None = None, repeats: int = 3, margin_px: float = 12.0,
+    partner: dict[str, np.ndarray] | None = None, partner_ok: dict[str, np.ndarray] | None = None,
 ) -> RadioSeparation:
     """Separate crowded motes in time instead of by zoom.
 
@@ -156,6 +158,7 @@ def radio_separation(
     needed = needed or {}
     lamps = lamps or {}
     pairs: list[np.ndarray] = []
+    cam_pairs: dict[str, np.ndarray] = {}
     mine: dict[str, np.ndarray] = {}
     leftover: dict[str, np.ndarray] = {}
     for c in cams:
@@ -178,11 +181,17 @@ def radio_separation(
         zoom[pc[lit_by_lamp].ravel()] = True
         pc = pc[~lit_by_lamp]
         pairs.append(pc)
+        cam_pairs[c] = pc
         m = np.zeros(n, bool)
         m[pc.ravel()] = True
         mine[c] = m & need & ~zoom
         leftover[c] = crowded & need & (zoom | lamp_close)
-    colour = colour_conflicts(n, np.vstack(pairs) if pairs else np.zeros((0, 2), int))
+    if partner is None:
+        colour = colour_conflicts(n, np.vstack(pairs) if pairs else np.zeros((0, 2), int))
+    else:
+        colour, mine = cover_colour(n, cam_pairs, mine, {c: partner.get(c, np.zeros(n, bool)) for c in mine},
+                                    None if partner_ok is None else
+                                    {c: partner_ok.get(c, np.zeros(n, bool)) for c in mine})
     rounds = {c: plan_radio_rounds(intr, pan_tilt[c], views[c], colour, mine[c], margin_px,
                                    views[c][-1] if views[c] else (0.0, 0.0)) for c in mine}
     addr = np.arange(1, n + 1) if addresses is None else np.asarray(addresses, int)
