@@ -68,6 +68,38 @@ def _refuse(why: str, exclusive: tuple[int, ...] = (0, 0, 0)) -> GroupResult:
     return GroupResult(None, None, (math.nan,) * 3, exclusive, why)
 
 
+def led_levels(flux: np.ndarray, valid: np.ndarray, n: int, cfg: PairConfig, noise: float, min_snr: float,
+               ideal: bool = False) -> tuple[np.ndarray, float] | str:
+    """The flux levels of a blob of ``n`` LEDs (``n + 1`` levels: off, one, ..., all lit) and its
+    one-LED step (DN), or why the blob is no ``n`` equally bright LEDs.
+
+    The levels of the ``valid`` samples' fluxes must be equally spaced within
+    ``cfg.max_level_skew`` of the step; for three LEDs, all lit together may never occur (then
+    four levels are fitted as three and the top one extrapolated). The step must be
+    ``min_snr`` noise sigmas (``noise``: the aperture's flux noise), the off level dark, and at
+    most one sample above the top level. ``ideal``: the levels returned are the equally
+    spaced ones from the off level, not the fitted ones."""
+    skew = math.inf
+    for top in ((3, 2) if n == 3 else (n,)):
+        c = _levels(flux[valid], top + 1)
+        step = (c[top] - c[0]) / top
+        skew = max(abs(c[k] - (c[0] + k * step)) / step for k in range(1, top)) if step > 0 else math.inf
+        if skew <= cfg.max_level_skew:
+            break
+    else:
+        return f"levels not 0..{n} LEDs (off the equal spacing by {skew:.2f} step)"
+    if ideal or top < n:
+        c = c[0] + step * np.arange(n + 1.0)
+    if step < min_snr * noise:
+        return f"one-LED step {step:.0f} < {min_snr} x {noise:.1f}"
+    if abs(c[0]) > cfg.max_off_level * step + 4.0 * noise:
+        return f"never dark (off level {c[0]:.0f} of step {step:.0f})"
+    above = int(np.count_nonzero(valid & (flux > c[n] + cfg.level_band * step)))
+    if above > 1:
+        return f"{above} samples brighter than {n} LEDs"
+    return c, float(step)
+
+
 def _levels(f: np.ndarray, n: int) -> np.ndarray:
     """``n`` levels of fluxes ``f`` (1-D n-medians started equally spaced between the extremes)."""
     lo, hi = float(np.min(f)), float(np.max(f))
@@ -160,22 +192,10 @@ def decode_group(
     big, pad, ring, core, (cu, cv) = cut
     big, flux = _background_free(big, valid, ring, core, _off_and_one)
     noise = float(noise_sigma) * math.sqrt(core.sum() * 2.0)
-    for top in (3, 2):  # three LEDs lit together in some sample, or never
-        c = _levels(flux[valid], top + 1)
-        step = (c[top] - c[0]) / top
-        skew = max(abs(c[k] - (c[0] + k * step)) / step for k in range(1, top)) if step > 0 else math.inf
-        if skew <= cfg.max_level_skew:
-            break
-    else:
-        return _refuse(f"levels not 0..3 LEDs (off the equal spacing by {skew:.2f} step)")
-    c = c[0] + step * np.arange(4.0) if top == 2 else c
-    if step < cfg.group_min_snr * noise:
-        return _refuse(f"one-LED step {step:.0f} < {cfg.group_min_snr} x {noise:.1f}")
-    if abs(c[0]) > cfg.max_off_level * step + 4.0 * noise:
-        return _refuse(f"never dark (off level {c[0]:.0f} of step {step:.0f})")
-    above = int(np.count_nonzero(valid & (flux > c[3] + cfg.level_band * step)))
-    if above > 1:
-        return _refuse(f"{above} samples brighter than three LEDs")
+    fitted = led_levels(flux, valid, 3, cfg, noise, cfg.group_min_snr)
+    if isinstance(fitted, str):
+        return _refuse(fitted)
+    c, step = fitted
     length = book.length
     counted = count_and_singles(big, flux, valid, positions, tuple(float(x) for x in c[:4]), step, cfg, length,
                                 pad, r, "all-off")

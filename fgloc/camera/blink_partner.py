@@ -37,7 +37,7 @@ import numpy as np
 
 from fgloc.camera.blink_codes import CodeBook
 from fgloc.camera.blink_decoder import sample_stack
-from fgloc.camera.blink_groups import _levels
+from fgloc.camera.blink_groups import _levels, led_levels
 from fgloc.camera.blink_pairs import (
     PairConfig,
     _background_free,
@@ -146,23 +146,10 @@ def decode_partner(
 
     big, flux = _background_free(big, valid, ring, core, off_and_one)
     noise = float(noise_sigma) * math.sqrt(core.sum() * 2.0)
-    skew = math.inf
-    for top in ((3, 2) if n == 3 else (2,)):  # for three LEDs, all lit together may never occur
-        c = _levels(flux[valid], top + 1)
-        step = (c[top] - c[0]) / top
-        skew = max(abs(c[k] - (c[0] + k * step)) / step for k in range(1, top)) if step > 0 else math.inf
-        if skew <= pc.max_level_skew:
-            break
-    else:
-        return _refuse(f"levels not 0..{n} LEDs (off the equal spacing by {skew:.2f} step)")
-    levels = c[0] + step * np.arange(n + 1.0)
-    if step < (pc.min_snr if n == 2 else pc.group_min_snr) * noise:
-        return _refuse(f"one-LED step {step:.0f} < {pc.min_snr if n == 2 else pc.group_min_snr} x {noise:.1f}")
-    if abs(levels[0]) > pc.max_off_level * step + 4.0 * noise:
-        return _refuse(f"never dark (off level {levels[0]:.0f} of step {step:.0f})")
-    above = int(np.count_nonzero(valid & (flux > levels[n] + pc.level_band * step)))
-    if above > 1:
-        return _refuse(f"{above} samples brighter than {n} LEDs")
+    fitted = led_levels(flux, valid, n, pc, noise, pc.min_snr if n == 2 else pc.group_min_snr, ideal=True)
+    if isinstance(fitted, str):
+        return _refuse(fitted)
+    levels, step = fitted
     length = book.length
     counted = count_and_singles(big, flux, valid, positions, tuple(float(x) for x in levels), step, pc, length,
                                 pad, r, "all-off")
