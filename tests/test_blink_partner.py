@@ -14,8 +14,9 @@ from fgloc.camera.blink_partner import decode_partner, decode_partner_view, expl
 from fgloc.camera.intrinsics import CameraIntrinsics
 from fgloc.core.model import CameraPose
 from fgloc.drivers.blink_frames import BlinkRenderConfig, motes_with_codes, points_at_pixels, render_view
-from fgloc.drivers.rendered_camera import LedScene, RenderedCamera, add_spot
+from fgloc.drivers.rendered_camera import LedScene, RenderedCamera
 from fgloc.survey.field_plans import frames_for
+from tests.test_blink_pairs import _stack  # the pair tests' synthetic samples (same book)
 
 BOOK = code_book(100)
 INTR = CameraIntrinsics.from_fov(320, 240, 50.0)
@@ -60,24 +61,6 @@ def test_remainder_no_book_word_and_known_word_refused() -> None:
     assert hit is None
     with pytest.raises(ValueError):
         explain_partner(BOOK, c, [3, 3])
-
-
-def _stack(words: list[tuple[int, int]], uv: list[tuple[float, float]], seed: int = 0,
-           flux: float = 1500.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Synthetic samples (41 x 41 px, textured background, 2 DN noise) of LEDs with
-    ``words`` (book index, rotation), exactly aligned with the samples."""
-    L = BOOK.length
-    n = frames_for(L)
-    rng = np.random.default_rng(seed)
-    bg = 60.0 + 20.0 * rng.random((41, 41))
-    stack = np.zeros((n, 41, 41), np.float32)
-    for s in range(n):
-        img = bg * (1.0 + 0.02 * rng.standard_normal())
-        for (w, r), (u, v) in zip(words, uv):
-            if _bits(w, r)[s % L]:
-                add_spot(img, u, v, flux, 1.2)
-        stack[s] = img + 2.0 * rng.standard_normal(img.shape)
-    return stack, np.ones(n, bool), np.arange(n) % L
 
 
 @pytest.mark.parametrize("sep", [1.0, 2.0, 3.0, 4.0])
