@@ -394,31 +394,20 @@ def main() -> None:
             ap.error(f"--round-frames: {exc} ({args.round_frames})")
     if args.round_miss_rate is not None and not (args.round_frames and 0.0 <= args.round_miss_rate < 1.0):
         ap.error(f"--round-miss-rate: needs --round-frames and a rate in [0, 1) ({args.round_miss_rate})")
-    if args.pair_decode:
+    # crowd-decoding rates: one rate, or per bound on the distance to the nearest other mote
+    for flag, value, name in (("--pair-decode", args.pair_decode, "pair_rate"),
+                              ("--group-decode", args.group_decode, "group_rate"),
+                              ("--partner-decode", args.partner_decode, "partner_rate"),
+                              ("--partner-group-decode", args.partner_group_decode, "partner_group_rate")):
+        if not value:
+            continue
         try:
-            table = pair_rate_table(args.pair_decode)
+            table = pair_rate_table(value)
         except ValueError as exc:
-            ap.error(f"--pair-decode: {exc} ({args.pair_decode})")
-        variant = replace(variant, pair_rate=table[0][1] if len(table) == 1 else table)
-    if args.group_decode:
-        try:
-            table = pair_rate_table(args.group_decode)
-        except ValueError as exc:
-            ap.error(f"--group-decode: {exc} ({args.group_decode})")
-        variant = replace(variant, group_rate=table[0][1] if len(table) == 1 else table)
+            ap.error(f"{flag}: {exc} ({value})")
+        variant = replace(variant, **{name: table[0][1] if len(table) == 1 else table})
     if args.partner_decode:
-        try:
-            table = pair_rate_table(args.partner_decode)
-        except ValueError as exc:
-            ap.error(f"--partner-decode: {exc} ({args.partner_decode})")
-        variant = replace(variant, partner_rate=table[0][1] if len(table) == 1 else table,
-                          partner_any=args.partner_any)
-    if args.partner_group_decode:
-        try:
-            table = pair_rate_table(args.partner_group_decode)
-        except ValueError as exc:
-            ap.error(f"--partner-group-decode: {exc} ({args.partner_group_decode})")
-        variant = replace(variant, partner_group_rate=table[0][1] if len(table) == 1 else table)
+        variant = replace(variant, partner_any=args.partner_any)
     if args.partner_any and args.partner_decode.strip() not in ("1", "1.0"):
         ap.error(f"--partner-any: only with --partner-decode 1 (an upper bound) ({args.partner_decode or 'off'})")
     if args.old:

@@ -38,13 +38,12 @@ import numpy as np
 from fgloc.camera.blink_codes import CodeBook
 from fgloc.camera.blink_pairs import (
     PairConfig,
-    _background_free,
     _centroid,
     _fold,
     _rotation_table,
     _spread,
+    background_free_aperture,
     count_and_singles,
-    cut_aperture,
     exclusive_centroids,
 )
 
@@ -186,12 +185,10 @@ def decode_group(
         raise ValueError("group decoding needs a rotation-free book")
     cfg = config or PairConfig()
     r = cfg.group_radius_px
-    cut = cut_aperture(stack, u, v, r)
-    if cut is None:
+    window = background_free_aperture(stack, valid, u, v, r, noise_sigma, _off_and_one)
+    if window is None:
         return _refuse("too close to the image border")
-    big, pad, ring, core, (cu, cv) = cut
-    big, flux = _background_free(big, valid, ring, core, _off_and_one)
-    noise = float(noise_sigma) * math.sqrt(core.sum() * 2.0)
+    big, flux, noise, pad, (ox, oy) = window
     fitted = led_levels(flux, valid, 3, cfg, noise, cfg.group_min_snr)
     if isinstance(fitted, str):
         return _refuse(fitted)
@@ -257,5 +254,4 @@ def decode_group(
         if off_mid > cfg.max_both_px:
             return _refuse(f"LEDs {subset} lit together centred {off_mid:.2f} px from their mean: not these LEDs",
                            excl)
-    ox, oy = cu - pad, cv - pad
     return GroupResult(tuple(wd[0] for wd in words), tuple((p[0] + ox, p[1] + oy) for p in uv), tuple(sig), excl)

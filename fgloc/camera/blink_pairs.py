@@ -253,6 +253,22 @@ def cut_aperture(stack: np.ndarray, u: float, v: float, r: int
     return big, pad, cheb > r + 1, cheb <= r, (cu, cv)
 
 
+def background_free_aperture(
+    stack: np.ndarray, valid: np.ndarray, u: float, v: float, r: int, noise_sigma: float,
+    off_and_one: Callable[[np.ndarray], tuple[float, float]] | None = None,
+) -> tuple[np.ndarray, np.ndarray, float, int, tuple[int, int]] | None:
+    """The window around pixel (u, v) (:func:`cut_aperture`) minus its static background
+    (:func:`_background_free`), each sample's flux in the ``r`` core, the flux noise (DN: the
+    per-pixel frame-difference ``noise_sigma`` over the core), the window's pad and the image
+    pixel of its corner (ox, oy); None when the window leaves the image."""
+    cut = cut_aperture(stack, u, v, r)
+    if cut is None:
+        return None
+    big, pad, ring, core, (cu, cv) = cut
+    big, flux = _background_free(big, valid, ring, core, off_and_one)
+    return big, flux, float(noise_sigma) * math.sqrt(core.sum() * 2.0), pad, (cu - pad, cv - pad)
+
+
 def count_and_singles(big: np.ndarray, flux: np.ndarray, valid: np.ndarray, positions: np.ndarray,
                       levels: tuple[float, ...], step: float, cfg: PairConfig, length: int, pad: int, r: int,
                       off_name: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, list] | str:
@@ -345,12 +361,10 @@ def decode_pair(
     a frame difference (DN), as :func:`fgloc.camera.led_detection.detect_led` reports it."""
     cfg = config or PairConfig()
     r = cfg.radius_px
-    cut = cut_aperture(stack, u, v, r)
-    if cut is None:
+    window = background_free_aperture(stack, valid, u, v, r, noise_sigma)
+    if window is None:
         return _refuse("too close to the image border")
-    big, pad, ring, core, (cu, cv) = cut
-    big, flux = _background_free(big, valid, ring, core)
-    noise = float(noise_sigma) * math.sqrt(core.sum() * 2.0)
+    big, flux, noise, pad, (ox, oy) = window
     f = flux[valid]
     c0, c1, c2 = _three_levels(f)
     step = 0.5 * (c2 - c0)
@@ -417,6 +431,5 @@ def decode_pair(
         off_mid = math.inf if cb is None else math.hypot(cb[0] - mid[0], cb[1] - mid[1])
         if off_mid > cfg.max_both_px:
             return _refuse(f"both-on centroid {off_mid:.2f} px from the pair's midpoint: not two LEDs", excl)
-    ox, oy = cu - pad, cv - pad
     return PairResult(ids, ((uv[0][0] + ox, uv[0][1] + oy), (uv[1][0] + ox, uv[1][1] + oy)),
                       (sig[0], sig[1]), excl, rule=rule)

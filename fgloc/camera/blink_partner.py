@@ -40,10 +40,9 @@ from fgloc.camera.blink_decoder import sample_stack
 from fgloc.camera.blink_groups import _levels, led_levels
 from fgloc.camera.blink_pairs import (
     PairConfig,
-    _background_free,
     _rotation_table,
+    background_free_aperture,
     count_and_singles,
-    cut_aperture,
     exclusive_centroids,
 )
 from fgloc.camera.led_detection import DetectorConfig, detect_led
@@ -135,17 +134,15 @@ def decode_partner(
     if n not in (2, 3):
         raise ValueError(f"one or two known partners ({len(known)})")
     r = pc.radius_px if n == 2 else pc.group_radius_px
-    cut = cut_aperture(stack, u, v, r)
-    if cut is None:
-        return _refuse("too close to the image border")
-    big, pad, ring, core, (cu, cv) = cut
 
     def off_and_one(f: np.ndarray) -> tuple[float, float]:
         lv = _levels(f, n + 1)
         return float(lv[0]), float(lv[1])
 
-    big, flux = _background_free(big, valid, ring, core, off_and_one)
-    noise = float(noise_sigma) * math.sqrt(core.sum() * 2.0)
+    window = background_free_aperture(stack, valid, u, v, r, noise_sigma, off_and_one)
+    if window is None:
+        return _refuse("too close to the image border")
+    big, flux, noise, pad, (ox, oy) = window
     fitted = led_levels(flux, valid, n, pc, noise, pc.min_snr if n == 2 else pc.group_min_snr, ideal=True)
     if isinstance(fitted, str):
         return _refuse(fitted)
@@ -172,7 +169,6 @@ def decode_partner(
     if isinstance(found, str):
         return _refuse(found, excl)
     uv, sig = found
-    ox, oy = cu - pad, cv - pad
     for (j, (cu_j, cv_j)) in zip(anchored, uv[1:]):
         ku, kv = known[j - 1][1]
         off = math.hypot(cu_j + ox - ku, cv_j + oy - kv)
