@@ -142,6 +142,10 @@ class Variant:
     partner_any: bool = False  #: every crowded group may leave one member unread (upper bound only)
     #: the same for crowded groups of exactly three (two read in rounds, the third decoded); 0: off
     partner_group_rate: float | tuple[tuple[float, float], ...] = 0.0
+    #: radio rounds: "class" (class-major), "view" (each camera's round views shared across classes,
+    #: it stays on a view while its classes take turns: field_plan_radio.view_major_round_time) or
+    #: "best" (the cheaper of the two on the clock)
+    round_order: str = "class"
 
 
 _SEQUENTIAL: dict[tuple[int, int, int, RigTiming], SequentialTime] = {}
@@ -243,9 +247,16 @@ def run(n_motes: int, n_cams: int, timing: RigTiming, miss_rate: float, seed: in
     cache: dict[tuple[str, bool], tuple[list[RefinePass], int, float, int]] = {}
 
     def plan(radio_cams: tuple[str, ...]) -> dict[str, object]:
-        """Refinement (and radio separation for ``radio_cams``) priced on the clock."""
+        """Refinement (and radio separation for ``radio_cams``) priced on the clock; with
+        ``round_order`` "best" the cheaper of the class- and view-major rounds."""
+        orders = ("class", "view") if variant.round_order == "best" else (variant.round_order,)
+        return min((plan_order(radio_cams, o) for o in (orders if radio_cams else ("class",))),
+                   key=lambda pl: pl["coded"].time.total)  # type: ignore[attr-defined]
+
+    def plan_order(radio_cams: tuple[str, ...], order: str) -> dict[str, object]:
         sep = radio_separation(intr, pts, views, SEPARATION_PX, radio_cams, fields, needed,
-                               partner=partner_eligible, partner_ok=partner_ok) if radio_cams else None
+                               partner=partner_eligible, partner_ok=partner_ok,
+                               stations=order == "view") if radio_cams else None
         refine: dict[str, list[RefinePass]] = {}
         unresolved = n_refine = 0
         refine_retry = 0.0
@@ -274,8 +285,8 @@ def run(n_motes: int, n_cams: int, timing: RigTiming, miss_rate: float, seed: in
             resync_s=RESYNC_S if variant.sync else None, radio_rounds=sep.rounds if sep else None,
             pause_broadcasts=sep.pause_broadcasts if sep else 3,
             radio_retry_fraction=radio_retry if variant.retry_refinement else 0.0,
-            round_frames=round_k or None)
-        return {"coded": coded, "unresolved": unresolved, "refine_retry": refine_retry, "radio_cams": radio_cams,
+            round_frames=round_k or None, round_order=order)
+        return {"coded": coded, "round_order": order if sep else "-", "unresolved": unresolved, "refine_retry": refine_retry, "radio_cams": radio_cams,
                 "classes": sep.classes if sep else 0, "round_views": n_round, "radio_retry": radio_retry}
 
     if variant.separate == "zoom":
@@ -292,12 +303,15 @@ def run(n_motes: int, n_cams: int, timing: RigTiming, miss_rate: float, seed: in
     if key not in _SEQUENTIAL:  # the same in every variant
         _SEQUENTIAL[key] = sequential_survey_time(bearings, intr, searches, timing)
     seq = _SEQUENTIAL[key]
+    radio_cams = ",".join(chosen["radio_cams"]) or "-"  # type: ignore[arg-type]
+    if chosen["round_order"] == "view":
+        radio_cams += " (view-major)"
     return {
         "seq": seq.time.total, "seq_desc": seq.time.describe(), "coded": coded.time.total,  # type: ignore[dict-item]
         "coded_desc": coded.time.describe(), "views": sum(coded.views.values()) / n_cams,  # type: ignore[dict-item]
         "L": book.length, "K": k + variant.extend * book.length, "refine": coded.refinements, "retry": retry_views,
         "refine_retry": chosen["refine_retry"], "missing": seq.not_found,  # type: ignore[dict-item]
-        "unresolved": chosen["unresolved"], "radio_cams": ",".join(chosen["radio_cams"]) or "-",  # type: ignore
+        "unresolved": chosen["unresolved"], "radio_cams": radio_cams,  # type: ignore[dict-item]
         "classes": chosen["classes"], "round_views": chosen["round_views"],  # type: ignore[dict-item]
         "radio_retry": chosen["radio_retry"],  # type: ignore[dict-item]
         "round_K": round_k if chosen["radio_cams"] else 0,  # type: ignore[dict-item]
@@ -372,6 +386,11 @@ def main() -> None:
                     "decoded; scripts/blink_montecarlo.py --groups --partner), per bound on the nearest fourth mote")
     ap.add_argument("--partner-any", action="store_true",
                     help="with --partner-decode 1: every crowded group leaves one member unread (upper bound)")
+    ap.add_argument("--round-order", default="class", choices=("class", "view", "best"),
+                    help="with --separate radio|best: class-major rounds (each class in turn, every camera visiting "
+                    "its views), view-major (each camera's round views shared across the classes; it stays on a "
+                    "view while the classes it needs there take turns, one pause update per class change), or the "
+                    "cheaper of the two on the clock; default class")
     ap.add_argument("--need", type=int, default=0,
                     help="refine a mote only where fewer than this many other cameras resolve it (0: always)")
     ap.add_argument("--old", action="store_true", help="the previous plan: rotation-free book, burst retries of "
@@ -386,7 +405,7 @@ def main() -> None:
                       extend=args.extend, continuous_retry=not args.burst_retry,
                       retry_refinement=not args.no_refine_retry, zoom_out=args.zoom_out, need=args.need,
                       share_tiles=not args.separate_tiles, pick_ladder=not args.fixed_ladder,
-                      separate=args.separate, round_miss_rate=args.round_miss_rate)
+                      separate=args.separate, round_miss_rate=args.round_miss_rate, round_order=args.round_order)
     if args.round_frames:
         try:
             variant = replace(variant, round_frames=round_frames_of(args.round_frames))

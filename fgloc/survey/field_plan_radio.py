@@ -39,6 +39,7 @@ from fgloc.survey.clock import (
     RigTiming,
     Settle,
     Slew,
+    Wait,
     parallel,
     price,
 )
@@ -47,8 +48,10 @@ from fgloc.survey.view_planner import (
     RadioRound,
     colour_conflicts,
     conflict_pairs,
+    nearest_first,
     neighbour_px,
     plan_radio_rounds,
+    plan_round_stations,
 )
 
 
@@ -77,9 +80,9 @@ def coded_view_ops(views: Sequence[tuple[float, float]], frames_per_view: int, r
 def radio_round_time(
     rounds: dict[str, list[RadioRound]], start: dict[str, tuple[float, float]], frames_per_view: int,
     timing: RigTiming, pause_broadcasts: int = 3, retry_fraction: float = 0.0, retry_frames: int | None = None,
-    extend_frames: int = 0, round_frames: int | None = None,
+    extend_frames: int = 0, round_frames: int | None = None, order: str = "class",
 ) -> tuple[FieldTime, dict[str, tuple[float, float]], int]:
-    """Price radio separation: for each colour class in turn, one pause update
+    """Price radio separation (class-major, the default ``order``): for each colour class in turn, one pause update
     (``pause_broadcasts`` broadcasts: the bitmap packets times their repeats) pauses every
     other class's conflicting motes and resumes this class's; then every camera, at the
     wide zoom, slews to its round's views (:class:`RadioRound`) and records each
@@ -91,8 +94,16 @@ def radio_round_time(
     default): each round view records ``round_frames`` samples instead of ``frames_per_view
     + extend_frames`` (the class's candidates are known, :mod:`fgloc.camera.blink_candidates`);
     its retries are priced as given (``retry_frames``: the recording goes on).
+    ``order="view"`` (view-major): each camera stays on a view while the classes it needs
+    there take turns (:func:`view_major_round_time`); the rounds should then share their
+    views across classes (:func:`fgloc.survey.view_planner.plan_round_stations`).
     Returns the field time, each camera's head position after its last round, and the
     number of pause updates sent."""
+    if order == "view":
+        return view_major_round_time(rounds, start, frames_per_view, timing, pause_broadcasts, retry_fraction,
+                                     retry_frames, extend_frames, round_frames)
+    if order != "class":
+        raise ValueError(f"round order must be 'class' or 'view' ({order!r})")
     total = ZERO
     here = dict(start)
     seen = dict.fromkeys(rounds, 0)
@@ -118,6 +129,103 @@ def radio_round_time(
     return total, here, updates
 
 
+@dataclass(frozen=True)
+class RoundSlot:
+    """One slot of view-major rounds: the lit colour class, the cameras that move to a new
+    station during it, and the station each recording camera records this class at."""
+
+    colour: int
+    moves: dict[str, tuple[float, float]]  #: camera -> the station it moves to in this slot
+    records: dict[str, tuple[float, float]]  #: camera -> the station it records at (this slot's class)
+
+
+def view_major_slots(rounds: dict[str, list[RadioRound]], start: dict[str, tuple[float, float]]) -> list[RoundSlot]:
+    """Schedule view-major rounds: the jobs are each camera's (view, class) pairs of ``rounds``;
+    a camera visits its distinct views (*stations*) in nearest-first order from ``start`` and
+    stays on each until every class it needs there has been recorded.
+
+    Pauses are global, so every camera sees the same class: in each slot the class is the one
+    the most cameras need at their current station (ties: the class already lit, then the
+    lowest), every such camera records it there, and a camera whose station is done moves on
+    to its next one within the slot (moving needs no particular class). Every job lands in
+    exactly one slot."""
+    stations: dict[str, list[tuple[float, float]]] = {}
+    jobs: dict[str, dict[tuple[float, float], set[int]]] = {}
+    for cam, rs in rounds.items():
+        need: dict[tuple[float, float], set[int]] = {}
+        for rr in rs:
+            for v in rr.views:
+                need.setdefault(v, set()).add(rr.colour)
+        if need:
+            jobs[cam] = need
+            stations[cam] = nearest_first(list(need), start[cam])
+    current: dict[str, tuple[float, float] | None] = dict.fromkeys(jobs)
+    slots: list[RoundSlot] = []
+    lit = -1
+    while any(any(need.values()) for need in jobs.values()):
+        moves: dict[str, tuple[float, float]] = {}
+        for cam in jobs:
+            at = current[cam]
+            if (at is None or not jobs[cam][at]) and stations[cam]:
+                current[cam] = moves[cam] = stations[cam].pop(0)
+        wants = {cam: jobs[cam][at] if (at := current[cam]) is not None else set() for cam in jobs}
+        classes = sorted(set().union(*wants.values()))
+        lit = max(classes, key=lambda c: (sum(c in w for w in wants.values()), c == lit, -c))
+        records = {}
+        for cam, w in wants.items():
+            if lit in w:
+                w.discard(lit)
+                records[cam] = current[cam]
+        slots.append(RoundSlot(lit, moves, records))  # type: ignore[arg-type]
+    return slots
+
+
+def view_major_round_time(
+    rounds: dict[str, list[RadioRound]], start: dict[str, tuple[float, float]], frames_per_view: int,
+    timing: RigTiming, pause_broadcasts: int = 3, retry_fraction: float = 0.0, retry_frames: int | None = None,
+    extend_frames: int = 0, round_frames: int | None = None,
+) -> tuple[FieldTime, dict[str, tuple[float, float]], int]:
+    """Price radio separation in view-major order (the slots of :func:`view_major_slots`).
+
+    A slot lasts its slowest camera (barrier, as the class-major rounds). A camera that moves
+    slews, settles and reads its position; a change of class costs one pause update
+    (``pause_broadcasts``) and, for a recording camera that does not move, one frame period
+    before its burst (the first sample may straddle the LEDs' switch; a camera that moves
+    settles longer than that). Recording and retries as :func:`radio_round_time`
+    (``round_frames``, ``retry_fraction`` rounded on the camera's running count of round
+    views). Returns the field time, each camera's head position at the end, and the number
+    of pause updates."""
+    here = dict(start)
+    seen = dict.fromkeys(rounds, 0)
+    burst = frames_per_view + extend_frames if round_frames is None else round_frames
+    retry = Frames(burst) if retry_frames is None else Frames(retry_frames, "frames", True)
+    total, lit, updates = ZERO, -1, 0
+    for slot in view_major_slots(rounds, start):
+        change = slot.colour != lit
+        lanes = []
+        for cam in rounds:
+            ops: list[Op] = []
+            if cam in slot.moves:
+                to = slot.moves[cam]
+                ops += [Slew(math.remainder(to[0] - here[cam][0], 2 * math.pi), to[1] - here[cam][1]), Settle(),
+                        PositionRead()]
+                here[cam] = to
+            if cam in slot.records:
+                if change and cam not in slot.moves:
+                    ops.append(Wait(timing.camera.frame_period_s))
+                before = round(retry_fraction * seen[cam])
+                seen[cam] += 1
+                ops += [Frames(burst), *[retry] * (round(retry_fraction * seen[cam]) - before)]
+            if ops:
+                lanes.append(price([replace(o, phase="separate") for o in ops], timing))
+        if change:
+            total = total + price([Radio(broadcast=pause_broadcasts)], timing)
+            updates += 1
+        total = total + parallel(lanes)
+        lit = slot.colour
+    return total, here, updates
+
+
 @dataclass
 class RadioSeparation:
     """Plan of a radio separation (:func:`radio_separation`)."""
@@ -138,6 +246,7 @@ def radio_separation(
     needed: dict[str, np.ndarray | None] | None = None, lamps: dict[str, np.ndarray] | None = None,
     addresses: Sequence[int] | None = None, repeats: int = 3, margin_px: float = 12.0,
     partner: dict[str, np.ndarray] | None = None, partner_ok: dict[str, np.ndarray] | None = None,
+    stations: bool = False,
 ) -> RadioSeparation:
     """Separate crowded motes in time instead of by zoom.
 
@@ -152,7 +261,9 @@ def radio_separation(
     left to zoom refinement (``leftover``), as are all crowded motes of cameras not in
     ``radio_cameras``. ``addresses`` (default 1..N) price the pause update: the bitmap
     packets covering the conflicting motes' address range (``pause_packets`` of
-    ``drivers/tinyos/blink.py``, 192 addresses each), each sent ``repeats`` times."""
+    ``drivers/tinyos/blink.py``, 192 addresses each), each sent ``repeats`` times.
+    ``stations``: each camera's round views are shared across the classes
+    (:func:`fgloc.survey.view_planner.plan_round_stations`), for the view-major order."""
     cams = list(pan_tilt)
     n = len(next(iter(pan_tilt.values())))
     needed = needed or {}
@@ -192,8 +303,9 @@ def radio_separation(
         colour, mine = cover_colour(n, cam_pairs, mine, {c: partner.get(c, np.zeros(n, bool)) for c in mine},
                                     None if partner_ok is None else
                                     {c: partner_ok.get(c, np.zeros(n, bool)) for c in mine})
-    rounds = {c: plan_radio_rounds(intr, pan_tilt[c], views[c], colour, mine[c], margin_px,
-                                   views[c][-1] if views[c] else (0.0, 0.0)) for c in mine}
+    plan = plan_round_stations if stations else plan_radio_rounds
+    rounds = {c: plan(intr, pan_tilt[c], views[c], colour, mine[c], margin_px,
+                      views[c][-1] if views[c] else (0.0, 0.0)) for c in mine}
     addr = np.arange(1, n + 1) if addresses is None else np.asarray(addresses, int)
     involved = addr[colour >= 0]
     span = int(involved.max()) - int(involved.min()) + 1 if involved.size else 0

@@ -61,11 +61,13 @@ from fgloc.survey.clock import (
     price,
     sum_times,
 )
-from fgloc.survey.field_plan_radio import (  # noqa: F401  (RadioSeparation, radio_separation: re-exported)
+from fgloc.survey.field_plan_radio import (  # noqa: F401  (RadioSeparation, radio_separation, view-major rounds: re-exported)
     RadioSeparation,
     coded_view_ops,
     radio_round_time,
     radio_separation,
+    view_major_round_time,
+    view_major_slots,
 )
 from fgloc.survey.view_planner import RadioRound, RefinePass, conflict_pairs
 
@@ -187,7 +189,7 @@ def coded_survey_time(
     extend_frames: int = 0, retry_frames: int | None = None, refine_retry_fraction: float = 0.0,
     zoom_out: bool = True, resync_s: float | None = None,
     radio_rounds: dict[str, list[RadioRound]] | None = None, pause_broadcasts: int = 3,
-    radio_retry_fraction: float = 0.0, round_frames: int | None = None,
+    radio_retry_fraction: float = 0.0, round_frames: int | None = None, round_order: str = "class",
 ) -> CodedTime:
     """Price the coded survey (see the module docstring). ``refine[camera]`` are its refinement
     passes (ascending zoom): zoom in to each pass's level, record its views, and after the
@@ -206,13 +208,15 @@ def coded_survey_time(
     pass and the refinement. Every camera finishes its wide pass before the first pause,
     each round waits for the slowest camera, and one resume update precedes the
     refinement (see :func:`_coded_with_rounds`). ``round_frames``: short rounds, each round
-    view records that many samples (:func:`radio_round_time`; None: as a wide view)."""
+    view records that many samples (:func:`radio_round_time`; None: as a wide view).
+    ``round_order``: "class" (each class in turn, every camera visiting its views) or "view"
+    (each camera stays on a view while its classes take turns, :func:`view_major_round_time`)."""
     refine = refine or {}
     if radio_rounds and any(rr.views for rs in radio_rounds.values() for rr in rs):
         return _coded_with_rounds(views, n_motes, frames_per_view, timing, retry_fraction, refine, broadcast_start,
                                   start_broadcasts, restarts, extend_frames, retry_frames, refine_retry_fraction,
                                   zoom_out, resync_s, radio_rounds, pause_broadcasts, radio_retry_fraction,
-                                  round_frames)
+                                  round_frames, round_order)
     lanes = []
     for cam, vs in views.items():
         ops = coded_view_ops(vs, frames_per_view, retry_fraction, vs[0] if vs else (0.0, 0.0), extend_frames,
@@ -236,7 +240,7 @@ def _coded_with_rounds(
     retry_fraction: float, refine: dict[str, list[RefinePass]], broadcast_start: bool, start_broadcasts: int,
     restarts: int, extend_frames: int, retry_frames: int | None, refine_retry_fraction: float, zoom_out: bool,
     resync_s: float | None, radio_rounds: dict[str, list[RadioRound]], pause_broadcasts: int,
-    radio_retry_fraction: float, round_frames: int | None = None,
+    radio_retry_fraction: float, round_frames: int | None = None, round_order: str = "class",
 ) -> CodedTime:
     """:func:`coded_survey_time` with radio separation: wide pass (parallel lanes), the rounds
     (:func:`radio_round_time`), one resume update if any refinement follows, then the
@@ -248,7 +252,7 @@ def _coded_with_rounds(
                                          extend_frames, retry_frames), timing))
         here[cam] = vs[-1] if vs else (0.0, 0.0)
     rounds, here, _ = radio_round_time(radio_rounds, here, frames_per_view, timing, pause_broadcasts,
-                                       radio_retry_fraction, retry_frames, extend_frames, round_frames)
+                                       radio_retry_fraction, retry_frames, extend_frames, round_frames, round_order)
     ref = [price(refinement_ops(refine.get(cam, []), frames_per_view, here[cam], refine_retry_fraction,
                                 extend_frames, retry_frames, zoom_out), timing) for cam in views]
     resume = price([Radio(broadcast=pause_broadcasts)], timing) if any(r.total > 0 for r in ref) else ZERO

@@ -77,10 +77,10 @@ def plan_views(
             break
         chosen.append(best)
         todo &= ~cov[best]
-    return _order([(float(cand[i, 0]), float(cand[i, 1])) for i in chosen], start)
+    return nearest_first([(float(cand[i, 0]), float(cand[i, 1])) for i in chosen], start)
 
 
-def _order(views: list[tuple[float, float]], start: tuple[float, float]) -> list[tuple[float, float]]:
+def nearest_first(views: list[tuple[float, float]], start: tuple[float, float]) -> list[tuple[float, float]]:
     """``views`` in nearest-neighbour order from ``start`` (angles between view directions)."""
     order: list[tuple[float, float]] = []
     here = pan_tilt_bearing(*start)
@@ -162,7 +162,7 @@ def plan_refinement(
                 todo &= ~(cov & (assigned < li) & (assigned >= 0))
         for li in sorted(plans):
             if plans[li]:
-                views = _order(plans[li], here)
+                views = nearest_first(plans[li], here)
                 passes.append(RefinePass(levels[li], views, int((assigned == li).sum())))
                 here = views[-1]
         done |= assigned >= 0
@@ -270,9 +270,53 @@ def plan_radio_rounds(
             fresh = plan_views(intr, pt[mine], margin_px, start=here)
             if len(fresh) < len(chosen):
                 chosen = fresh
-        picked = _order(chosen, here)
+        picked = nearest_first(chosen, here)
         counts = (tuple(int(x) for x in (coverage(intr, pt, np.array(picked), margin_px) & mine).sum(axis=1))
                   if picked else ())
         rounds.append(RadioRound(c, picked, counts))
         here = picked[-1] if picked else here
+    return rounds
+
+
+def plan_round_stations(
+    intr: CameraIntrinsics, pan_tilt: np.ndarray, views: list[tuple[float, float]], colour: np.ndarray,
+    targets: np.ndarray, margin_px: float = 12.0, start: tuple[float, float] = (0.0, 0.0),
+) -> list[RadioRound]:
+    """Radio rounds whose views are shared across colour classes (*stations*), for the
+    view-major order (:func:`fgloc.survey.field_plan_radio.radio_round_time` ``order="view"``):
+    one set of wide-zoom views covers the camera's ``targets`` of every class (a greedy cover
+    over its wide ``views``, or :func:`plan_views` around the targets when that needs fewer),
+    and each class is read at the fewest of these stations that cover its targets (greedy).
+    Returned as :func:`plan_radio_rounds` does (one :class:`RadioRound` per class, ascending),
+    but the same station appears, as the identical (pan, tilt) tuple, in every class it
+    serves, so a camera can stay on it while the classes take turns."""
+    pt = np.asarray(pan_tilt, dtype=float)
+    if not views:
+        return []
+    mine = np.asarray(targets, dtype=bool) & (colour >= 0)
+    cov = coverage(intr, pt, np.array(views), margin_px)
+    todo = mine & cov.any(axis=0)
+    chosen: list[tuple[float, float]] = []
+    while todo.any():
+        best = int(np.argmax((cov & todo).sum(axis=1)))
+        chosen.append(views[best])
+        todo &= ~cov[best]
+    if mine.any():
+        fresh = plan_views(intr, pt[mine], margin_px, start=start)
+        if len(fresh) < len(chosen):
+            chosen = fresh
+    stations = nearest_first(chosen, start)
+    at = coverage(intr, pt, np.array(stations), margin_px) if stations else np.zeros((0, len(pt)), bool)
+    rounds = []
+    for c in range(int(colour.max()) + 1 if colour.size else 0):
+        left = mine & (colour == c) & (at.any(axis=0) if len(stations) else False)
+        picked: list[int] = []
+        counts: list[int] = []
+        while left.any():
+            best = int(np.argmax((at & left).sum(axis=1)))
+            picked.append(best)
+            counts.append(int((at[best] & left).sum()))
+            left &= ~at[best]
+        keep = sorted(range(len(picked)), key=lambda i: picked[i])  # visiting order of the stations
+        rounds.append(RadioRound(c, [stations[picked[i]] for i in keep], tuple(counts[i] for i in keep)))
     return rounds
