@@ -21,8 +21,8 @@ one of its group, no other mote within 4 px of any) and is decoded with group de
 resolved when all three motes are read within 2 px (keys ``grp_*``).
 ``--pairs N``: each view also holds N crowded pairs (two motes closer than 4 px in the
 view's pixels, field pixels for ``--fields``: the field plan's criterion; separation
-``4 sqrt(U)`` px, as for uniformly scattered motes, in a random direction; no third mote
-within 6 px of the pair's centre) and is decoded with pair decoding on
+``4 sqrt(U)`` px, as for uniformly scattered motes, in a random direction; no other mote
+within 4 px of either LED: :func:`blink_crowds.pair_pixels`) and is decoded with pair decoding on
 (:mod:`fgloc.camera.blink_pairs`). A *pair decode* is one such pair; it is resolved when
 both its motes are read within 2 px; mislabels are counted over all readings as above.
 
