@@ -44,8 +44,8 @@ seeded draws, so the pair draws do not change).
 radio-round view records K' samples (as few as L + 2) and labels its blobs against the
 class's candidates (:mod:`fgloc.camera.blink_candidates`: in a round only that class is
 lit, with known IDs and predicted directions); round views are retried, continuing by one
-code length, at the candidate miss rate Q measured by ``scripts/blink_montecarlo.py
---candidates``. Off by default: every figure without it is unchanged.
+code length, at the candidate miss rate Q measured by
+``scripts/blink_candidates_montecarlo.py --candidates``. Off by default: every figure without it is unchanged.
 
 ``--partner-decode RATE --partner-group-decode RATE`` (cover rounds, with ``--separate
 radio|best``; ``PX:RATE,...,inf:RATE`` tables as above): a crowded group of exactly two
@@ -54,6 +54,16 @@ by the known-partner decoder (:mod:`fgloc.camera.blink_partner`) with the measur
 (``scripts/blink_montecarlo.py --pairs|--groups --partner``); a failure is read in the
 first later round it fits (:mod:`fgloc.survey.field_plan_cover`). ``--partner-any`` with
 ``--partner-decode 1``: every crowded group leaves one member (an upper bound). Off by default.
+
+``--round-order view`` (with ``--separate radio|best``): view-major rounds. Each camera's
+round views are shared across the colour classes (stations,
+:func:`fgloc.survey.view_planner.plan_round_stations`) and the camera stays on a station
+while the classes it needs there take turns, one lit class per slot
+(:func:`fgloc.survey.field_plan_radio.view_major_slots`): fewer slews, more pause updates.
+``best``: the cheaper of class- and view-major on the clock. Default ``class``.
+
+``--seeds N``: N seeded scenes per size (seeds 0..N-1) and, after the per-scene rows, the
+median and range of the speed-up over them.
 
 ``--old`` prices the previous plan (rotation-free book, burst retries of wide views only,
 separate tiles on the fixed ladder, zoom-out). The sequential column is the same in
@@ -133,7 +143,7 @@ class Variant:
     #: short rounds: radio-round views record this many samples, labelled against the class's
     #: candidates (blink_candidates); 0: off (a round view records K like a wide view)
     round_frames: tuple[int, int] = (0, 0)  #: (a, b): a L + b samples; (0, 0): off
-    #: isolated miss rate of a short-round view (blink_montecarlo.py --candidates); None: the wide rate
+    #: isolated miss rate of a short-round view (blink_candidates_montecarlo.py --candidates); None: the wide rate
     round_miss_rate: float | None = None
     #: cover rounds: share of crowded groups of exactly two whose unread member the known-partner
     #: decoder reads from the wide view once the other was read in a round (blink_montecarlo.py
@@ -307,6 +317,7 @@ def run(n_motes: int, n_cams: int, timing: RigTiming, miss_rate: float, seed: in
     if chosen["round_order"] == "view":
         radio_cams += " (view-major)"
     return {
+        "motes": n_motes, "cameras": n_cams,
         "seq": seq.time.total, "seq_desc": seq.time.describe(), "coded": coded.time.total,  # type: ignore[dict-item]
         "coded_desc": coded.time.describe(), "views": sum(coded.views.values()) / n_cams,  # type: ignore[dict-item]
         "L": book.length, "K": k + variant.extend * book.length, "refine": coded.refinements, "retry": retry_views,
@@ -374,8 +385,8 @@ def main() -> None:
                     "candidates (fgloc.camera.blink_candidates): a count or a L + b in code lengths L (e.g. L+2, 2L+2); "
                     "default off")
     ap.add_argument("--round-miss-rate", type=float, default=None, metavar="Q",
-                    help="with --round-frames: isolated miss rate of a short-round view (scripts/blink_montecarlo.py "
-                    "--candidates); default: --miss-rate")
+                    help="with --round-frames: isolated miss rate of a short-round view (scripts/"
+                    "blink_candidates_montecarlo.py --candidates); default: --miss-rate")
     ap.add_argument("--partner-decode", default="", metavar="RATE|PX:RATE,...,inf:RATE",
                     help="cover rounds (with --separate radio|best): a crowded group of exactly two needs only one "
                     "member read in a radio round, the other decoded from the wide view by the known-partner decoder "
@@ -398,7 +409,10 @@ def main() -> None:
     ap.add_argument("--periods", type=int, default=3, help="code periods recorded per view (K = periods x L + 2)")
     ap.add_argument("--levels", default="0.111,0.333,1", help="refinement zoom ladder (fractions, ascending)")
     ap.add_argument("--sizes", default="100x2,100x4,1000x2,1000x4", help="scenes, motes x cameras")
+    ap.add_argument("--seeds", type=int, default=1, help="seeded scenes per size (0..N-1); summary of the speed-ups")
     args = ap.parse_args()
+    if args.seeds < 1:
+        ap.error(f"--seeds: at least 1 ({args.seeds})")
     levels = tuple(float(x) for x in args.levels.split(","))
     timing = RigTiming(head=HEAD_MODELS[args.head], camera=CameraTiming(frame_rate_hz=args.fps))
     variant = Variant(fields=not args.frames, broadcast=not args.unicast, sync=args.sync,
@@ -438,23 +452,33 @@ def main() -> None:
     print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for size in args.sizes.split(","):
         n, c = (int(x) for x in size.split("x"))
-        r = run(n, c, timing, args.miss_rate, variant=variant, levels=levels, periods=args.periods)
-        print(f"| {n} | {c} | {r['seq']:.1f} | {r['coded']:.1f} | {r['seq'] / r['coded']:.1f}x | {r['L']} | "
-              f"{r['K']} | {r['rate']:.2f} | {r['views']:.1f} | {r['refine']} | {r['retry']:.2f} / "
-              f"{r['refine_retry']:.2f} | {r['unresolved']} | {r['radio_cams']} | {r['classes']} | "
-              f"{r['round_views']} ({r['radio_retry']:.2f}) |")
-        print(f"|   | sequential phases: {r['seq_desc']} (not found {r['missing']}) |||||||||||")
-        print(f"|   | coded phases: {r['coded_desc']} |||||||||||")
-        if r["round_K"]:
-            print(f"|   | short rounds: {r['round_K']} samples per round view, candidate miss rate "
-                  f"{variant.round_miss_rate if variant.round_miss_rate is not None else args.miss_rate} |||||||||||")
-        if variant.pair_rate:
-            print(f"|   | pair decoding: {r['pairs']} crowded pairs of exactly two over the cameras "
-                  f"({r['pairs_third8']} with a third mote within 8 px), {r['pairs_resolved']} resolved; "
-                  f"{r['crowded']} crowded mote-views |||||||||||")
-        if variant.group_rate:
-            print(f"|   | group decoding: {r['groups']} crowded groups of exactly three over the cameras "
-                  f"({r['groups_fourth8']} with a fourth mote within 8 px), {r['groups_resolved']} resolved |||||||||||")
+        speedups = [report(run(n, c, timing, args.miss_rate, seed, variant, levels, args.periods), variant, args)
+                    for seed in range(args.seeds)]
+        if args.seeds > 1:
+            print(f"|   | {n} x {c} over seeds 0..{args.seeds - 1}: speed-up median {np.median(speedups):.1f}x "
+                  f"(range {min(speedups):.1f}-{max(speedups):.1f}x) |||||||||||")
+
+
+def report(r: dict[str, float], variant: Variant, args: argparse.Namespace) -> float:
+    """Print one scene's rows; returns its speed-up."""
+    n, c = r["motes"], r["cameras"]
+    print(f"| {n} | {c} | {r['seq']:.1f} | {r['coded']:.1f} | {r['seq'] / r['coded']:.1f}x | {r['L']} | "
+          f"{r['K']} | {r['rate']:.2f} | {r['views']:.1f} | {r['refine']} | {r['retry']:.2f} / "
+          f"{r['refine_retry']:.2f} | {r['unresolved']} | {r['radio_cams']} | {r['classes']} | "
+          f"{r['round_views']} ({r['radio_retry']:.2f}) |")
+    print(f"|   | sequential phases: {r['seq_desc']} (not found {r['missing']}) |||||||||||")
+    print(f"|   | coded phases: {r['coded_desc']} |||||||||||")
+    if r["round_K"]:
+        print(f"|   | short rounds: {r['round_K']} samples per round view, candidate miss rate "
+              f"{variant.round_miss_rate if variant.round_miss_rate is not None else args.miss_rate} |||||||||||")
+    if variant.pair_rate:
+        print(f"|   | pair decoding: {r['pairs']} crowded pairs of exactly two over the cameras "
+              f"({r['pairs_third8']} with a third mote within 8 px), {r['pairs_resolved']} resolved; "
+              f"{r['crowded']} crowded mote-views |||||||||||")
+    if variant.group_rate:
+        print(f"|   | group decoding: {r['groups']} crowded groups of exactly three over the cameras "
+              f"({r['groups_fourth8']} with a fourth mote within 8 px), {r['groups_resolved']} resolved |||||||||||")
+    return r["seq"] / r["coded"]
 
 
 if __name__ == "__main__":
