@@ -21,6 +21,14 @@ noise) with time. Seeded: the same ``rng`` state gives the same frames.
   stamped with the new time); timestamps carry ``timestamp_jitter_s`` Gaussian
   jitter; the head vibrates by ``jitter_px`` (Gaussian, per frame, all spots); the
   global brightness varies by ``ambient_sd`` (fraction, per frame).
+* **Rolling shutter** (``readout_s``, default 0: a CCD such as the EVI-D100's exposes every
+  row at once): row ``v`` starts its exposure ``v / height x readout_s`` after row 0, so
+  an LED (or lamp) is sampled at its centre row's time. The few rows of one spot differ
+  by ``rows / height x readout_s`` (0.35 ms for 5 of 480 rows at a 33 ms readout, against
+  a 2 ms exposure): that spread within a spot is left out.
+* **Rate fall** (``rate_fall_s``, default None): from ``t_start + rate_fall_s`` on the
+  camera delivers only every second frame, as a camera falling from 60 to 30 Hz (or a
+  grabber that cannot keep up) does.
 
 Frames are grayscale uint8 (H, W); timestamps are seconds on the camera host's clock.
 """
@@ -61,6 +69,8 @@ class BlinkRenderConfig:
     glint_on: float = 0.3
     glint_stay: float = 0.6
     glint_sigma_px: float = 1.5
+    readout_s: float = 0.0  #: rolling shutter: delay of the last row's exposure after the first's
+    rate_fall_s: float | None = None  #: from this long after the start on, every second frame is lost
 
 
 @dataclass(frozen=True)
@@ -139,6 +149,11 @@ def _flicker_mean(t: np.ndarray, exposure: float, freq: float, depth: float, pha
     return 1.0 + depth * (np.sin(w * (t + exposure) + phase) - np.sin(w * t + phase)) / (w * exposure)
 
 
+def _row_delay(v: float, height: int, readout_s: float) -> float:
+    """Seconds after row 0 at which row ``v`` (pixels, clipped to the image) starts its exposure."""
+    return min(max(float(v), 0.0), float(height - 1)) / height * readout_s
+
+
 def render_view(
     camera: RenderedCamera, intr: CameraIntrinsics, pan: float, tilt: float,
     motes: Sequence[BlinkingMote], n_frames: int, rng: np.random.Generator,
@@ -157,13 +172,14 @@ def render_view(
         pts = np.array([m.position for m in motes], dtype=float)
         uv, front = base_to_pixel(intr, camera.base_directions(pts), pan, tilt)
         for k in np.flatnonzero(front & in_image(intr, uv, -10.0)).tolist():
-            flux = c.led_flux * motes[k].on_fraction(t, c.exposure_s)
+            flux = c.led_flux * motes[k].on_fraction(t + _row_delay(uv[k, 1], h, c.readout_s), c.exposure_s)
             spots.append((float(uv[k, 0]), float(uv[k, 1]), flux, c.led_sigma_px))
     if statics is not None and len(statics):
         uv, front = base_to_pixel(intr, camera.base_directions(np.asarray(statics, float)), pan, tilt)
         for k in np.flatnonzero(front & in_image(intr, uv, -10.0)).tolist():
             phase = rng.uniform(0.0, 2.0 * math.pi)
-            flux = c.static_flux * _flicker_mean(t, c.exposure_s, 2.0 * c.mains_hz, c.flicker_depth, phase)
+            flux = c.static_flux * _flicker_mean(t + _row_delay(uv[k, 1], h, c.readout_s), c.exposure_s,
+                                                 2.0 * c.mains_hz, c.flicker_depth, phase)
             spots.append((float(uv[k, 0]), float(uv[k, 1]), flux, c.static_sigma_px))
     for _ in range(c.glints):
         on = np.zeros(n_frames, dtype=bool)
@@ -176,12 +192,13 @@ def render_view(
         spots.append((rng.uniform(5.0, w - 6.0), rng.uniform(5.0, h - 6.0), level * on, c.glint_sigma_px))
     frames: list[tuple[float, np.ndarray]] = []
     previous: np.ndarray | None = None
+    fallen = n_frames if c.rate_fall_s is None else int(np.searchsorted(t - t_start, c.rate_fall_s - 1e-12))
     for i in range(n_frames):
         drop, dup = rng.random() < c.drop_rate, rng.random() < c.duplicate_rate
         du, dv = rng.normal(0.0, c.jitter_px, size=2)
         gain = 1.0 + c.ambient_sd * rng.standard_normal()
         stamp = float(t[i] + c.timestamp_jitter_s * rng.standard_normal())
-        if drop:
+        if drop or (i >= fallen and (i - fallen) % 2 == 1):
             continue
         if dup and previous is not None:
             frames.append((stamp, previous.copy()))

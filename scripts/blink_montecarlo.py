@@ -29,6 +29,11 @@ both its motes are read within 2 px; mislabels are counted over all readings as 
     OPENBLAS_NUM_THREADS=1 .venv/bin/python scripts/blink_montecarlo.py --trials 250 [--fields] [--sync] [--slide 1]
         [--pairs 40 [--time-decode]] [--groups 20] [--partner]
 
+``--readout S``: a rolling shutter whose last row starts its exposure S seconds after the
+first (a CMOS camera; the modelled heads are CCDs, 0). ``--rate-fall S``: from S seconds
+after the start of each recording every second frame is lost (a camera falling from 60 to
+30 Hz). Both are render options of :class:`fgloc.drivers.blink_frames.BlinkRenderConfig`.
+
 ``--partner`` (with ``--pairs`` or ``--groups``): each crowd's last mote is also decoded by
 the known-partner decoder (:mod:`fgloc.camera.blink_partner`), the others known
 (:func:`blink_crowds.partner_stats`; margins 3 and 2 on the same views). The pair, group
@@ -70,7 +75,7 @@ from fgloc.survey.field_plans import frames_for  # noqa: E402
 def trial(seed: int, n_motes: int, book_size: int, glints: int, fields: bool = False,
           frames: int | None = None, extend: int = 0, sync: bool = False, resync_s: float = 10.0,
           slide: int = 0, pairs: int = 0, time_decode: bool = False, groups: int = 0,
-          partner: bool = False) -> dict[str, float]:
+          partner: bool = False, readout_s: float = 0.0, rate_fall_s: float | None = None) -> dict[str, float]:
     """One view. ``frames`` recorded (default 3L + 2); with ``extend`` > 0 the recording
     goes on for ``extend`` more frames and the whole stack is decoded again (keys ``ext_*``):
     the retry of a view whose motes were missed, without moving the head. ``slide``:
@@ -79,7 +84,9 @@ def trial(seed: int, n_motes: int, book_size: int, glints: int, fields: bool = F
     crowded pairs more, decoded with pair decoding (keys ``pair_*``). ``time_decode``: the
     first window is decoded once more without pair decoding, both timed (keys ``t_off``,
     ``t_on``, seconds). ``partner``: each crowded pair (group) is also decoded by the
-    known-partner decoder given one (two) of its motes (keys ``ptn_*``, :func:`blink_crowds.partner_stats`)."""
+    known-partner decoder given one (two) of its motes (keys ``ptn_*``, :func:`blink_crowds.partner_stats`).
+    ``readout_s``, ``rate_fall_s``: rolling shutter and rate fall of the video
+    (:class:`fgloc.drivers.blink_frames.BlinkRenderConfig`)."""
     rng = np.random.default_rng(seed)
     book = sync_code_book(book_size) if sync else code_book(book_size)
     intr, head_pan, head_tilt = view_camera(rng, fields)
@@ -99,7 +106,7 @@ def trial(seed: int, n_motes: int, book_size: int, glints: int, fields: bool = F
     k0 = frames if frames is not None else frames_for(book.length)
     ext = max(extend, slide * book.length)
     stack, cfg, t_start, timing = render_motes(rng, intr, head_pan, head_tilt, pts, ids, book, glints, fields,
-                                               sync, resync_s, k0 + ext)
+                                               sync, resync_s, k0 + ext, readout_s, rate_fall_s)
     truth = {int(i): uv[k] for k, i in enumerate(ids)}
     dmin = np.sqrt(((uv[:, None, :] - uv[None, :, :]) ** 2).sum(-1)) + np.diag(np.full(n_motes, np.inf))
     isolated = dmin.min(axis=1) >= 4.0  # no other mote within 4 px: the field plan's criterion
@@ -172,7 +179,16 @@ def main() -> None:
                     "(fgloc.camera.blink_partner), the others known")
     ap.add_argument("--time-decode", action="store_true",
                     help="also decode each first window without pair decoding; print both medians (s per view)")
+    ap.add_argument("--readout", type=float, default=0.0, metavar="S",
+                    help="rolling shutter: the last row starts its exposure S seconds after the first (default 0: CCD)")
+    ap.add_argument("--rate-fall", type=float, default=None, metavar="S",
+                    help="from S seconds after the start of each recording every second frame is lost (a camera "
+                    "falling from 60 to 30 Hz); default never")
     args = ap.parse_args()
+    if not 0.0 <= args.readout <= 1.0:
+        ap.error(f"--readout: seconds in [0, 1] ({args.readout})")
+    if args.rate_fall is not None and args.rate_fall < 0.0:
+        ap.error(f"--rate-fall: seconds >= 0 ({args.rate_fall})")
     if args.partner and not (args.pairs or args.groups) or args.partner and (args.sync or args.slide):
         ap.error("--partner: with --pairs or --groups, rotation-free book, no --slide")
     if args.pairs and args.groups:  # their statistics index the motes of one kind of crowd per view
@@ -183,7 +199,7 @@ def main() -> None:
     for k in range(args.trials):
         for key, v in trial(args.seed + k, args.motes, args.book, args.glints, args.fields, args.frames,
                              args.extend, args.sync, args.resync, args.slide, args.pairs, args.time_decode,
-                             args.groups, args.partner).items():
+                             args.groups, args.partner, args.readout, args.rate_fall).items():
             if key in times:
                 times[key].append(v)
             else:
@@ -195,7 +211,9 @@ def main() -> None:
     print(f"{video_label(args.fields)}: "
           f"{args.trials} views x {args.motes} motes ({'synchronized' if args.sync else 'rotation-free'} book "
           f"{args.book}, L = {book.length}), {args.glints} glints/view, "
-          f"{dt:.0f} s")
+          + (f"rolling shutter {1e3 * args.readout:.1f} ms, " if args.readout else "")
+          + (f"every second frame lost from {args.rate_fall:g} s, " if args.rate_fall is not None else "")
+          + f"{dt:.0f} s")
     for prefix, k in [("", k0)] + ([("ext_", k0 + args.extend)] if args.extend else []) + (
             [("sl_", k0 + args.slide * book.length)] if args.slide else []):
         miss = d - tot[prefix + "correct"] - tot[prefix + "mislabelled"]

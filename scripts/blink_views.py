@@ -45,13 +45,14 @@ def video_label(fields: bool) -> str:
 
 def render_motes(rng: np.random.Generator, intr: CameraIntrinsics, head_pan: float, head_tilt: float,
                  pts: np.ndarray, ids: np.ndarray, book: CodeBook, glints: int, fields: bool, sync: bool,
-                 resync_s: float, n_frames: int
+                 resync_s: float, n_frames: int, readout_s: float = 0.0, rate_fall_s: float | None = None,
                  ) -> tuple[list[tuple[float, np.ndarray]], BlinkRenderConfig, float, SyncTiming | None]:
     """Render one view of the motes ``ids`` (book indices) at ``pts`` (base frame) with the
-    disturbances of the module docstring: (frames, render config, recording start s, sync timing)."""
+    disturbances of the module docstring: (frames, render config, recording start s, sync timing).
+    ``readout_s``, ``rate_fall_s``: rolling shutter and rate fall (:class:`BlinkRenderConfig`)."""
     pos = {f"n{int(i)}": pts[k] for k, i in enumerate(ids)}
     codes = {f"n{int(i)}": book.bits(int(i)) for i in ids}
-    cfg = BlinkRenderConfig(glints=glints, duplicate_rate=0.01)
+    cfg = BlinkRenderConfig(glints=glints, duplicate_rate=0.01, readout_s=readout_s, rate_fall_s=rate_fall_s)
     if fields:  # twice the rate; each field collects the light of every second row: half the flux
         cfg = replace(cfg, frame_rate_hz=2.0 * cfg.frame_rate_hz, led_flux=0.5 * cfg.led_flux,
                       static_flux=0.5 * cfg.static_flux,
