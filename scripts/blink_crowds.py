@@ -12,6 +12,7 @@ mote's true pixel.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -85,17 +86,20 @@ def print_pairs(tot: dict[str, float], p: str) -> None:
     npx, nsx = max(tot[p + "pair_n_px"], 1), max(tot[p + "single_n_px"], 1)
     print(f"  pair decodes {n:.0f}: resolved {res:.0f} ({res / max(n, 1):.2%}),"
           f" one of two read {tot[p + 'pair_one']:.0f}")
-    print("  resolved by separation: " + ", ".join(
-        f"{SEP_BINS[b]:.0f}-{SEP_BINS[b + 1]:.0f} px {tot[f'{p}pair_res_b{b}'] / max(tot[f'{p}pair_n_b{b}'], 1):.1%}"
-        f" of {tot[f'{p}pair_n_b{b}']:.0f}" for b in range(len(SEP_BINS) - 1)))
-    print("  resolved by nearest third mote: " + ", ".join(
-        f"{THIRD_BINS[b]:.0f}-{THIRD_BINS[b + 1]:.0f} px {tot[f'{p}pair_res_t{b}'] / max(tot[f'{p}pair_n_t{b}'], 1):.1%}"
-        f" of {tot[f'{p}pair_n_t{b}']:.0f}" for b in range(len(THIRD_BINS) - 1)))
+    print("  resolved by separation: " + by_bins(tot, p, SEP_BINS, "pair_res_b", "pair_n_b"))
+    print("  resolved by nearest third mote: " + by_bins(tot, p, THIRD_BINS, "pair_res_t", "pair_n_t"))
     print(f"  centroid error RMS, u / v (px): pair LEDs {math.sqrt(tot[p + 'pair_sq_u'] / npx):.3f} / "
           f"{math.sqrt(tot[p + 'pair_sq_v'] / npx):.3f} ({npx:.0f}); isolated single LEDs "
           f"{math.sqrt(tot[p + 'single_sq_u'] / nsx):.3f} / {math.sqrt(tot[p + 'single_sq_v'] / nsx):.3f} ({nsx:.0f})")
     print(f"  pair angle error RMS, pan (x cos tilt) / tilt: {math.degrees(math.sqrt(tot[p + 'pair_sq_x'] / npx)):.5f}"
           f" / {math.degrees(math.sqrt(tot[p + 'pair_sq_y'] / npx)):.5f} deg")
+
+
+def by_bins(tot: dict[str, float], p: str, bins: Sequence[float], resolved: str, count: str) -> str:
+    """``"A-B px R% of N, ..."``: per bin of ``bins`` (px), the share of the summed ``tot`` keys
+    ``p + count + bin`` that ``p + resolved + bin`` resolved."""
+    return ", ".join(f"{bins[b]:.0f}-{bins[b + 1]:.0f} px {tot[f'{p}{resolved}{b}'] / max(tot[f'{p}{count}{b}'], 1):.1%}"
+                     f" of {tot[f'{p}{count}{b}']:.0f}" for b in range(len(bins) - 1))
 
 
 FOURTH_BINS = THIRD_BINS  #: bins (px) of the nearest fourth mote to any LED of a group
@@ -134,9 +138,7 @@ def print_groups(tot: dict[str, float], p: str) -> None:
     npx = max(tot[p + "grp_n_px"], 1)
     print(f"  group decodes {n:.0f}: resolved {res:.0f} ({res / max(n, 1):.2%}),"
           f" partly read (1 or 2 of 3) {tot[p + 'grp_partial']:.0f}")
-    print("  resolved by nearest fourth mote: " + ", ".join(
-        f"{FOURTH_BINS[b]:.0f}-{FOURTH_BINS[b + 1]:.0f} px {tot[f'{p}grp_res_t{b}'] / max(tot[f'{p}grp_n_t{b}'], 1):.1%}"
-        f" of {tot[f'{p}grp_n_t{b}']:.0f}" for b in range(len(FOURTH_BINS) - 1)))
+    print("  resolved by nearest fourth mote: " + by_bins(tot, p, FOURTH_BINS, "grp_res_t", "grp_n_t"))
     print(f"  centroid error RMS, u / v (px): group LEDs {math.sqrt(tot[p + 'grp_sq_u'] / npx):.3f} / "
           f"{math.sqrt(tot[p + 'grp_sq_v'] / npx):.3f} ({npx:.0f}); angle error RMS, pan (x cos tilt) / tilt: "
           f"{math.degrees(math.sqrt(tot[p + 'grp_sq_x'] / npx)):.5f} / {math.degrees(math.sqrt(tot[p + 'grp_sq_y'] / npx)):.5f} deg")
@@ -213,13 +215,9 @@ def print_partner(tot: dict[str, float]) -> None:
               f"({tot[p + 'ok'] / max(n, 1):.2%}), mislabelled {tot[p + 'mislabelled']:.0f}, no refused blob at the "
               f"known pixel {tot[p + 'noblob']:.0f}; wrong known partner labelled {tot[p + 'wrong_labelled']:.0f} of "
               f"{tot[p + 'wrong_n']:.0f}")
-        print("    resolved by nearest other mote: " + ", ".join(
-            f"{THIRD_BINS[b]:.0f}-{THIRD_BINS[b + 1]:.0f} px {tot[f'{p}ok_t{b}'] / max(tot[f'{p}n_t{b}'], 1):.1%}"
-            f" of {tot[f'{p}n_t{b}']:.0f}" for b in range(len(THIRD_BINS) - 1)))
+        print("    resolved by nearest other mote: " + by_bins(tot, p, THIRD_BINS, "ok_t", "n_t"))
         print(f"    among those the blind decoder left unresolved: {tot[p + 'cond_ok']:.0f} of {tot[p + 'cond_n']:.0f} "
-              f"({tot[p + 'cond_ok'] / max(tot[p + 'cond_n'], 1):.2%}); by nearest other mote: " + ", ".join(
-            f"{THIRD_BINS[b]:.0f}-{THIRD_BINS[b + 1]:.0f} px {tot[f'{p}cok_t{b}'] / max(tot[f'{p}cn_t{b}'], 1):.1%}"
-            f" of {tot[f'{p}cn_t{b}']:.0f}" for b in range(len(THIRD_BINS) - 1)))
+              f"({tot[p + 'cond_ok'] / max(tot[p + 'cond_n'], 1):.2%}); by nearest other mote: " + by_bins(tot, p, THIRD_BINS, "cok_t", "cn_t"))
 
 
 def _add_errors(st: dict, prefix: str, r: DecodedReading, uv: tuple[float, float], pan: float, tilt: float) -> None:

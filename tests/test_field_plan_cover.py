@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import importlib.util
 import itertools
 import subprocess
 import sys
@@ -106,19 +105,10 @@ def test_radio_separation_with_partner_reads_one_of_a_pair() -> None:
     assert sum(len(r.views) for r in on.rounds["a"]) <= 2 and sum(sum(r.view_targets) for r in on.rounds["a"]) == 2
 
 
-def _field_time() -> ModuleType:
-    spec = importlib.util.spec_from_file_location("field_time_cover", ROOT / "scripts" / "field_time.py")
-    assert spec is not None and spec.loader is not None
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = mod
-    spec.loader.exec_module(mod)
-    return mod
-
-
-def test_field_time_lever_off_unchanged_and_upper_bound_shorter() -> None:
+def test_field_time_lever_off_unchanged_and_upper_bound_shorter(field_time: ModuleType) -> None:
     from fgloc.survey.clock import EVI_D100, CameraTiming, RigTiming
     from fgloc.survey.field_plans import pair_rate_table
-    ft = _field_time()
+    ft = field_time
     timing = RigTiming(head=EVI_D100, camera=CameraTiming(frame_rate_hz=30000.0 / 1001.0))
     base = ft.Variant(separate="radio", pair_rate=pair_rate_table("6:0.023,8:0.296,12:0.449,inf:0.473"),
                       round_frames=(1, 2), round_miss_rate=0.2552)

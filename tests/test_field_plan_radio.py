@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import importlib.util
 import math
 import subprocess
 import sys
@@ -24,15 +23,6 @@ D10 = math.radians(10.0)
 VIEWS = {"a": [(0.0, 0.0), (D10, 0.0)], "b": [(0.0, 0.0)]}
 ROUNDS = {"a": [RadioRound(0, [(0.0, 0.0)], (2,)), RadioRound(1, [(D10, 0.0)], (2,))],
           "b": [RadioRound(0, [], ()), RadioRound(1, [(0.0, 0.0)], (3,))]}
-
-
-def _field_time() -> ModuleType:
-    spec = importlib.util.spec_from_file_location("field_time_script", ROOT / "scripts" / "field_time.py")
-    assert spec is not None and spec.loader is not None
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = mod  # dataclasses look their module up
-    spec.loader.exec_module(mod)
-    return mod
 
 
 def test_names_are_re_exported() -> None:
@@ -63,8 +53,8 @@ def test_short_round_view_priced_at_k_prime_by_hand() -> None:
     assert t_burst.total == pytest.approx(6 * 0.01 + pan10 + short + b_round1)
 
 
-def test_field_time_without_the_lever_is_unchanged_and_the_lever_shortens_rounds() -> None:
-    ft = _field_time()
+def test_field_time_without_the_lever_is_unchanged_and_the_lever_shortens_rounds(field_time: ModuleType) -> None:
+    ft = field_time
     timing = RigTiming(head=EVI_D100, camera=CameraTiming(frame_rate_hz=30000.0 / 1001.0))
     base = ft.Variant(separate="radio")
     off = ft.run(100, 2, timing, 0.1257, variant=base)

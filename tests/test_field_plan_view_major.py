@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import importlib.util
 import math
 import subprocess
 import sys
@@ -26,15 +25,6 @@ S0, S1 = (0.0, 0.0), (D10, 0.0)
 #: camera a needs classes 0 and 1 at S0 and class 1 at S1; camera b class 1 at S0
 ROUNDS = {"a": [RadioRound(0, [S0], (2,)), RadioRound(1, [S0, S1], (1, 2))],
           "b": [RadioRound(0, [], ()), RadioRound(1, [S0], (3,))]}
-
-
-def _field_time() -> ModuleType:
-    spec = importlib.util.spec_from_file_location("field_time_script_vm", ROOT / "scripts" / "field_time.py")
-    assert spec is not None and spec.loader is not None
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = mod  # dataclasses look their module up
-    spec.loader.exec_module(mod)
-    return mod
 
 
 def test_view_major_slots_priced_by_hand() -> None:
@@ -112,8 +102,8 @@ def test_stations_are_shared_across_classes_and_cover_every_class() -> None:
     assert len(stations) <= len({v for rr in per_class for v in rr.views})
 
 
-def test_field_time_round_order_best_is_the_cheaper_and_view_major_pays_at_100x2() -> None:
-    ft = _field_time()
+def test_field_time_round_order_best_is_the_cheaper_and_view_major_pays_at_100x2(field_time: ModuleType) -> None:
+    ft = field_time
     timing = RigTiming(head=EVI_D100, camera=CameraTiming(frame_rate_hz=30000.0 / 1001.0))
     base = ft.Variant(separate="radio", pair_rate=((6.0, 0.023), (8.0, 0.296), (12.0, 0.449), (math.inf, 0.473)),
                       round_frames=(1, 2), round_miss_rate=0.2552)

@@ -230,6 +230,22 @@ def colour_conflicts(n: int, pairs: np.ndarray) -> np.ndarray:
     return colour
 
 
+def greedy_cover(cov: np.ndarray, targets: np.ndarray, counts: dict[int, int] | None = None) -> list[int]:
+    """Rows of ``cov`` ((V, M) bool: view v covers target m) that together cover every coverable
+    target of ``targets`` ((M,) bool), greedily (most still uncovered first; ties: the lowest
+    row), in the order picked. ``counts``, when given, receives per picked row the targets it
+    was picked for (each target counted once)."""
+    todo = np.asarray(targets, dtype=bool) & (cov.any(axis=0) if len(cov) else False)
+    picked: list[int] = []
+    while todo.any():
+        best = int(np.argmax((cov & todo).sum(axis=1)))
+        picked.append(best)
+        if counts is not None:
+            counts[best] = int((cov[best] & todo).sum())
+        todo &= ~cov[best]
+    return picked
+
+
 @dataclass(frozen=True)
 class RadioRound:
     """One colour class of a radio separation, seen by one camera: the wide views it records
@@ -259,13 +275,7 @@ def plan_radio_rounds(
     here = start
     for c in range(int(colour.max()) + 1 if colour.size else 0):
         mine = np.asarray(targets, dtype=bool) & (colour == c)
-        cov = coverage(intr, pt, np.array(views), margin_px)
-        todo = mine & cov.any(axis=0)
-        chosen: list[tuple[float, float]] = []
-        while todo.any():
-            best = int(np.argmax((cov & todo).sum(axis=1)))
-            chosen.append(views[best])
-            todo &= ~cov[best]
+        chosen = [views[i] for i in greedy_cover(coverage(intr, pt, np.array(views), margin_px), mine)]
         if replan and mine.any():
             fresh = plan_views(intr, pt[mine], margin_px, start=here)
             if len(fresh) < len(chosen):
@@ -294,13 +304,7 @@ def plan_round_stations(
     if not views:
         return []
     mine = np.asarray(targets, dtype=bool) & (colour >= 0)
-    cov = coverage(intr, pt, np.array(views), margin_px)
-    todo = mine & cov.any(axis=0)
-    chosen: list[tuple[float, float]] = []
-    while todo.any():
-        best = int(np.argmax((cov & todo).sum(axis=1)))
-        chosen.append(views[best])
-        todo &= ~cov[best]
+    chosen = [views[i] for i in greedy_cover(coverage(intr, pt, np.array(views), margin_px), mine)]
     if mine.any():
         fresh = plan_views(intr, pt[mine], margin_px, start=start)
         if len(fresh) < len(chosen):
@@ -309,14 +313,8 @@ def plan_round_stations(
     at = coverage(intr, pt, np.array(stations), margin_px) if stations else np.zeros((0, len(pt)), bool)
     rounds = []
     for c in range(int(colour.max()) + 1 if colour.size else 0):
-        left = mine & (colour == c) & (at.any(axis=0) if len(stations) else False)
-        picked: list[int] = []
-        counts: list[int] = []
-        while left.any():
-            best = int(np.argmax((at & left).sum(axis=1)))
-            picked.append(best)
-            counts.append(int((at[best] & left).sum()))
-            left &= ~at[best]
-        keep = sorted(range(len(picked)), key=lambda i: picked[i])  # visiting order of the stations
-        rounds.append(RadioRound(c, [stations[picked[i]] for i in keep], tuple(counts[i] for i in keep)))
+        counts: dict[int, int] = {}
+        greedy_cover(at, mine & (colour == c), counts)
+        keep = sorted(counts)  # visiting order of the stations
+        rounds.append(RadioRound(c, [stations[i] for i in keep], tuple(counts[i] for i in keep)))
     return rounds
