@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from fgloc.camera.blink_codes import code_book
-from fgloc.camera.blink_decoder import decode_view
+from fgloc.camera.blink_decoder import decode_view, unsampled_positions
 from fgloc.camera.intrinsics import CameraIntrinsics
 from fgloc.camera.pixel_angles import pixel_to_pan_tilt
 from fgloc.core.geometry import pan_tilt_bearing
@@ -100,3 +100,10 @@ def test_rate_fall_leaves_odd_bits_unread_and_nothing_is_guessed(seed: int) -> N
                                                                    r.v - uv[ids.index(r.index)][1]) <= 2.0
                                      for r in res.readings)
     assert len(res.readings) == 0
+    assert res.unsampled == L // 2  # the decode says why: half the bit positions never seen
+
+
+def test_a_full_rate_view_leaves_no_position_unsampled() -> None:
+    frames, *_, pan, tilt = _view(0, BlinkRenderConfig(), 3 * L + 2)
+    assert decode_view(frames, 1 / 29.97, BOOK, INTR, pan, tilt).unsampled == 0
+    assert unsampled_positions(np.array([0, 2, 4, 6]), 8) == 4 and unsampled_positions(np.arange(9), 8) == 0

@@ -123,9 +123,19 @@ class ViewDecode:
     refused: tuple[RefusedBlob, ...]
     samples: int
     erased: int
+    #: bit positions (sample index modulo L) no delivered sample fell on: a word needs them all.
+    #: L / 2 when every second frame is lost (a camera fallen to half rate; L is even).
+    unsampled: int = 0
 
     def ambiguous(self) -> list[RefusedBlob]:
         return [r for r in self.refused if r.kind == "ambiguous"]
+
+
+def unsampled_positions(sample_index: np.ndarray, length: int) -> int:
+    """How many of the ``length`` bit positions no sample of ``sample_index`` (frame-period
+    indices of the delivered samples) falls on, positions taken modulo ``length``."""
+    idx = np.asarray(sample_index, dtype=np.int64)
+    return length - len(np.unique(idx[idx >= 0] % length)) if length > 0 else 0
 
 
 def sample_stack(frames: Sequence[tuple[float, np.ndarray]], period: float) -> tuple[np.ndarray, np.ndarray]:
@@ -278,8 +288,9 @@ def decode_view(
         raise ValueError("a synchronized book needs sync timing, a rotation-free book none")
     stack, valid = sample_stack(frames, period)
     n = int(valid.size)
+    unsampled = unsampled_positions(np.flatnonzero(valid), book.length)
     if valid.sum() < book.length:
-        return ViewDecode((), (), n, int(n - valid.sum()))
+        return ViewDecode((), (), n, int(n - valid.sum()), unsampled)
     positions, shifts = _fold_positions(frames, period, n, book.length, sync)
     good = stack[valid]
     det = detect_led(good.max(axis=0), good.min(axis=0), cfg.detector)
@@ -325,7 +336,7 @@ def decode_view(
             refused.append(RefusedBlob(rd.u, rd.v, "duplicate", f"code {code} decoded from {counts[code]} blobs", code))
         else:
             readings.append(rd)
-    return ViewDecode(tuple(readings), tuple(refused), n, int(n - valid.sum()))
+    return ViewDecode(tuple(readings), tuple(refused), n, int(n - valid.sum()), unsampled)
 
 
 def decode_windows(
@@ -382,7 +393,7 @@ def decode_windows(
                    for o in left)
         if not read and not seen:
             left.append(rf)
-    return ViewDecode(readings, tuple(left), n, n - len(set(idx.tolist())))
+    return ViewDecode(readings, tuple(left), n, n - len(set(idx.tolist())), unsampled_positions(idx, book.length))
 
 
 #: refusal reasons of blobs that may be two LEDs: all but the image border (a pair blinks
