@@ -63,7 +63,7 @@ from blink_crowds import (  # noqa: E402
 )
 from blink_views import add_view_arguments, render_motes, video_label, view_camera  # noqa: E402
 
-from fgloc.camera.blink_codes import code_book, sync_code_book  # noqa: E402
+from fgloc.camera.blink_codes import CodeBookError, code_book, sync_code_book  # noqa: E402
 from fgloc.camera.blink_decoder import decode_view, decode_windows  # noqa: E402
 from fgloc.camera.blink_pairs import PairConfig  # noqa: E402
 from fgloc.camera.pixel_angles import pixel_to_pan_tilt  # noqa: E402
@@ -75,7 +75,8 @@ from fgloc.survey.field_plans import frames_for  # noqa: E402
 def trial(seed: int, n_motes: int, book_size: int, glints: int, fields: bool = False,
           frames: int | None = None, extend: int = 0, sync: bool = False, resync_s: float = 10.0,
           slide: int = 0, pairs: int = 0, time_decode: bool = False, groups: int = 0,
-          partner: bool = False, readout_s: float = 0.0, rate_fall_s: float | None = None) -> dict[str, float]:
+          partner: bool = False, readout_s: float = 0.0, rate_fall_s: float | None = None,
+          length: int | None = None) -> dict[str, float]:
     """One view. ``frames`` recorded (default 3L + 2); with ``extend`` > 0 the recording
     goes on for ``extend`` more frames and the whole stack is decoded again (keys ``ext_*``):
     the retry of a view whose motes were missed, without moving the head. ``slide``:
@@ -86,9 +87,10 @@ def trial(seed: int, n_motes: int, book_size: int, glints: int, fields: bool = F
     ``t_on``, seconds). ``partner``: each crowded pair (group) is also decoded by the
     known-partner decoder given one (two) of its motes (keys ``ptn_*``, :func:`blink_crowds.partner_stats`).
     ``readout_s``, ``rate_fall_s``: rolling shutter and rate fall of the video
-    (:class:`fgloc.drivers.blink_frames.BlinkRenderConfig`)."""
+    (:class:`fgloc.drivers.blink_frames.BlinkRenderConfig`). ``length``: the book's word length
+    (default the shortest that holds ``book_size`` words)."""
     rng = np.random.default_rng(seed)
-    book = sync_code_book(book_size) if sync else code_book(book_size)
+    book = sync_code_book(book_size, length) if sync else code_book(book_size, length)
     intr, head_pan, head_tilt = view_camera(rng, fields)
     uv = np.column_stack([rng.uniform(15, intr.width - 15, n_motes), rng.uniform(15, intr.height - 15, n_motes)])
     n_single = n_motes
@@ -184,7 +186,13 @@ def main() -> None:
     ap.add_argument("--rate-fall", type=float, default=None, metavar="S",
                     help="from S seconds after the start of each recording every second frame is lost (a camera "
                     "falling from 60 to 30 Hz); default never")
+    ap.add_argument("--length", type=int, default=None, metavar="L",
+                    help="word length of the book (default: the shortest that holds --book words)")
     args = ap.parse_args()
+    try:
+        (sync_code_book if args.sync else code_book)(args.book, args.length)
+    except CodeBookError as exc:
+        ap.error(f"--length: {exc}")
     if not 0.0 <= args.readout <= 1.0:
         ap.error(f"--readout: seconds in [0, 1] ({args.readout})")
     if args.rate_fall is not None and args.rate_fall < 0.0:
@@ -199,14 +207,14 @@ def main() -> None:
     for k in range(args.trials):
         for key, v in trial(args.seed + k, args.motes, args.book, args.glints, args.fields, args.frames,
                              args.extend, args.sync, args.resync, args.slide, args.pairs, args.time_decode,
-                             args.groups, args.partner, args.readout, args.rate_fall).items():
+                             args.groups, args.partner, args.readout, args.rate_fall, args.length).items():
             if key in times:
                 times[key].append(v)
             else:
                 tot[key] = tot.get(key, 0.0) + v
     dt = time.perf_counter() - t0
     d = tot["decodes"]
-    book = sync_code_book(args.book) if args.sync else code_book(args.book)
+    book = sync_code_book(args.book, args.length) if args.sync else code_book(args.book, args.length)
     k0 = args.frames if args.frames is not None else frames_for(book.length)
     print(f"{video_label(args.fields)}: "
           f"{args.trials} views x {args.motes} motes ({'synchronized' if args.sync else 'rotation-free'} book "
