@@ -52,6 +52,15 @@ class CodedSettings:
     #: ``"on"``: refused blobs are also tried as two LEDs and labelled by both code words when
     #: that is unique (:mod:`fgloc.camera.blink_pairs`; rotation-free books); ``"off"``: not
     pairs: str = "on"
+    #: radio-separation rounds (``separate "radio"``): ``"short"`` records ``L + 2`` samples per
+    #: round view and labels each blob against the round's candidates (the lit class's motes with
+    #: their predicted pixels, :func:`fgloc.camera.blink_candidates.decode_candidates`); a retry
+    #: continues by ``L``. ``"full"``: ``3L + 2`` samples decoded blind, as a wide view
+    rounds: str = "full"
+    #: radio-separation round order: ``"class"`` (every camera records a class's views, a barrier,
+    #: the next class) or ``"view"`` (each camera visits its round views once, the base station
+    #: cycling the classes each view needs; :mod:`fgloc.survey.coded_view_major`)
+    round_order: str = "class"
 
 
 @dataclass
