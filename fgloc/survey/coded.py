@@ -259,7 +259,9 @@ class CodedSurvey:
                         got = worker.call(lambda h: h.position())
                         head = (float(got[0]), float(got[1]))  # type: ignore[index]
                         self._head_at[camera] = head
-                    cont = video if self.settings.retry == "continue" and attempt > 0 else None
+                    # a short round view always goes on recording (the candidates label any sample count)
+                    goes_on = self.settings.retry == "continue" or candidates is not None
+                    cont = video if goes_on and attempt > 0 else None
                     rec, video = self._record(runner, camera, vid, attempt, target, head, zoom,
                                               self._lane_start(camera), cont, candidates)
                 except CameraFailed as exc:
