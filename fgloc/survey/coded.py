@@ -43,8 +43,10 @@ Levers (:class:`CodedSettings`, chosen by rig.json ``"coded"`` or ``fgloc survey
 is ``retry "burst"``, ``probe "off"``, ``fallback "blobs"``, ``pairs "off"``
 (:data:`~fgloc.survey.coded_levers.LEGACY`). Not by default: ``separate "radio"`` (colour
 classes paused by bitmap between the wide pass and the refinement,
-:mod:`fgloc.survey.coded_separation`; every camera's wide pass, each round, then the
-refinement are barriers) and ``video "fields"``. The journal's header records the levers a
+:mod:`fgloc.survey.coded_separation`; by default short rounds labelled against the lit
+class, :mod:`fgloc.survey.coded_rounds`, in view-major order,
+:mod:`fgloc.survey.coded_view_major`; every camera's wide pass, the rounds (class-major:
+each round), then the refinement are barriers) and ``video "fields"``. The journal's header records the levers a
 survey started with (``coded``); ``--resume`` runs with them
 (:func:`~fgloc.survey.coded_levers.coded_settings`).
 

@@ -3,7 +3,7 @@ remembered by the journal, and the predicted fallback.
 
 rig.json ``"coded"`` (optional) and ``fgloc survey --coded KEY=VALUE`` choose them
 (:func:`coded_settings`; a new survey's defaults are :class:`~fgloc.survey.coded_settings.CodedSettings`'s,
-the measured fastest: continue, predicted, probe on, pairs on):
+the measured fastest: continue, predicted, probe on, pairs on, short view-major rounds):
 
 * ``retry``: ``"burst"`` | ``"continue"`` (a retry goes on recording L frames, sliding windows);
 * ``separate``: ``"zoom"`` | ``"radio"`` (crowded motes paused by colour class first,
@@ -12,9 +12,9 @@ the measured fastest: continue, predicted, probe on, pairs on):
 * ``video``: ``"frames"`` | ``"fields"`` (interlaced fields at 59.94 Hz);
 * ``probe``: ``"off"`` | ``"on"`` (a view whose first L + 2 frames show no blob stops there);
 * ``pairs``: ``"off"`` | ``"on"`` (refused blobs decoded as two LEDs, :mod:`fgloc.camera.blink_pairs`);
-* ``rounds``: ``"full"`` | ``"short"`` (radio rounds record L + 2 samples labelled against the
+* ``rounds``: ``"short"`` | ``"full"`` (radio rounds record L + 2 samples labelled against the
   round's candidates, :mod:`fgloc.survey.coded_rounds`);
-* ``round_order``: ``"class"`` | ``"view"`` (radio rounds class by class with a barrier each,
+* ``round_order``: ``"view"`` | ``"class"`` (radio rounds class by class with a barrier each,
   or view by view cycling the classes, :mod:`fgloc.survey.coded_view_major`);
 * ``levels``: the refinement zoom ladder, ascending fractions of the optical range.
 

@@ -55,12 +55,14 @@ class CodedSettings:
     #: radio-separation rounds (``separate "radio"``): ``"short"`` records ``L + 2`` samples per
     #: round view and labels each blob against the round's candidates (the lit class's motes with
     #: their predicted pixels, :func:`fgloc.camera.blink_candidates.decode_candidates`); a retry
-    #: continues by ``L``. ``"full"``: ``3L + 2`` samples decoded blind, as a wide view
-    rounds: str = "full"
+    #: continues by ``L``. ``"full"``: ``3L + 2`` samples decoded blind, as a wide view (the
+    #: default of journals written before this lever, :data:`~fgloc.survey.coded_levers.LEGACY`)
+    rounds: str = "short"
     #: radio-separation round order: ``"class"`` (every camera records a class's views, a barrier,
     #: the next class) or ``"view"`` (each camera visits its round views once, the base station
-    #: cycling the classes each view needs; :mod:`fgloc.survey.coded_view_major`)
-    round_order: str = "class"
+    #: cycling the classes each view needs; :mod:`fgloc.survey.coded_view_major`). Both defaults
+    #: measured faster (docs/blink-codes.md, "Short and view-major rounds, measured")
+    round_order: str = "view"
 
 
 @dataclass
