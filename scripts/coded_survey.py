@@ -54,10 +54,25 @@ from fgloc.files.journal import read_journal  # noqa: E402
 from fgloc.files.rig_config import parse_rig  # noqa: E402
 from fgloc.solve.joint import solve_survey  # noqa: E402
 from fgloc.survey.clock import FieldTime, price, sum_times  # noqa: E402
+from fgloc.survey.coded import CodedSurvey  # noqa: E402
 from fgloc.survey.coded_clock import ClockSink, CountingLeds, clocked_opener, node_field_time, rig_timing  # noqa: E402
 from fgloc.survey.session import OpenedRig, run_survey  # noqa: E402
 
 EXAMPLE = ROOT / "examples" / "rig-simulated.json"
+
+_STATS: list = []  # each coded run's CodedStats (the priced rounds, classes, pause updates)
+
+
+def _keeping_stats(run_coded):  # noqa: ANN001, ANN202
+    def run_and_keep(self, runner):  # noqa: ANN001, ANN202
+        try:
+            return run_coded(self, runner)
+        finally:
+            _STATS.append(self.stats)
+    return run_and_keep
+
+
+CodedSurvey.run = _keeping_stats(CodedSurvey.run)  # type: ignore[method-assign]
 
 
 def rig_for(seed: int, motes: int, width: int, mode: str, fx: float | None = None, repeatability_deg: float = 0.0,
@@ -204,6 +219,8 @@ def run(seed: int, motes: int, width: int, mode: str, out: Path, fx: float | Non
     extra: dict = {}
     if mode != "sequential":
         extra["breakdown"] = breakdown(rig, sim, state)
+        stats = _STATS[-1]
+        extra["rounds"] = (stats.rounds_s, stats.classes, stats.pause_updates, stats.round_views)
         first = sum(1 for key in state.views if key[2] == 0)
         q = (len(state.views) - first) / max(first, 1)
         extra["planner"] = planner_prediction(rig, InProcessRig(rig), q)
@@ -270,6 +287,12 @@ def _report(name: str, rows: dict[str, list[dict]], args: argparse.Namespace) ->
         print(f"  seed {k}: coded {r['field'].describe()}; recordings first+again: {cams}; fallback nodes "
               f"{b['fallback_nodes']} ({b['fallback_s']:.1f} s summed); planner's price for this rig "
               f"{r['planner']:.1f} s (separation 4 px; 6 px: {r['planner6']:.1f} s)")
+    rounds = [r["rounds"] for r in rows[name]]
+    if any(classes for _, classes, _, _ in rounds):
+        print(f"  radio rounds: priced median {statistics.median(t for t, *_ in rounds):.1f} s (seeds "
+              f"{' '.join(f'{t:.1f}' for t, *_ in rounds)} s; rounds' lanes and pause updates); classes "
+              f"{' '.join(str(k) for _, k, _, _ in rounds)}; pause updates {sum(u for _, _, u, _ in rounds)}; "
+              f"round views {sum(v for *_, v in rounds)}")
     ratio = [c["rms"] / s["rms"] for c, s in zip(rows[name], rows["sequential"])]
     speed = [s["field"].total / c["field"].total for c, s in zip(rows[name], rows["sequential"])]
     print(f"coded / sequential: RMS ratio median {statistics.median(ratio):.3f} (range {min(ratio):.3f}-{max(ratio):.3f}); "

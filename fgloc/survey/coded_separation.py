@@ -194,6 +194,7 @@ def run_separation(coded: CodedSurvey, runner: SurveyRunner, pool: ThreadPoolExe
             blobs = {c: [(uv, head) for uv, head, _ in coded.unexplained(coded.wide_records[c])] for c in cams}
             intr = {c: coded.intrinsics_at(c, coded.survey_zoom[c]) for c in cams}
             plan = plan_separation(intr, blobs, predicted, unread, RADIUS_PX, CONFLICT_PX)
+    before = coded.stages.total + coded.radio_s
     if plan is not None and plan.classes and coded.settings.round_order == "view":
         from fgloc.survey.coded_view_major import run_view_major
 
@@ -222,6 +223,7 @@ def run_separation(coded: CodedSurvey, runner: SurveyRunner, pool: ThreadPoolExe
             pump(futures)
             coded.next_stage()
         coded.pause(set())  # every mote blinks again for the refinement
+    coded.stats.rounds_s = coded.stages.total + coded.radio_s - before
     futures = [pool.submit(_refine_after, coded, runner, c, plan, failed[c]) for c in cams]
     pump(futures)
 

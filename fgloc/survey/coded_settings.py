@@ -82,4 +82,5 @@ class CodedStats:
     classes: int = 0  #: radio separation: colour classes (rounds)
     round_views: int = 0  #: radio separation: views recorded in rounds
     pause_updates: int = 0  #: radio separation: pause-by-bitmap updates sent
+    rounds_s: float = 0.0  #: radio separation: priced field time of the rounds (their lanes and pause updates)
     failed_views: list[str] = field(default_factory=list)
