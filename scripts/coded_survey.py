@@ -13,7 +13,8 @@ Reported per mode: predicted field time (median over seeds, and per phase for th
 seed), readings decoded in views and measured by the fallback, mislabelled readings (a
 decoded reading whose nearest visible node bearing is another node's), readings more than
 0.05 deg from their node's bearing, and the RMS node position error of the joint solve
-(baseline units).
+(baseline units); with radio separation also the priced rounds alone (their lanes and pause
+updates, ``CodedStats.rounds_s``), colour classes, pause updates and round recordings.
 
 ``--repeatability-deg`` > 0 gives the rig that head repeatability (rig.json
 ``head_repeatability_deg``, part of ``sigma_deg``): the simulated heads settle with a seeded
