@@ -13,7 +13,8 @@ Reported per mode: predicted field time (median over seeds, and per phase for th
 seed), readings decoded in views and measured by the fallback, mislabelled readings (a
 decoded reading whose nearest visible node bearing is another node's), readings more than
 0.05 deg from their node's bearing, and the RMS node position error of the joint solve
-(baseline units).
+(baseline units); with radio separation also the priced rounds alone (their lanes and pause
+updates, ``CodedStats.rounds_s``), colour classes, pause updates and round recordings.
 
 ``--repeatability-deg`` > 0 gives the rig that head repeatability (rig.json
 ``head_repeatability_deg``, part of ``sigma_deg``): the simulated heads settle with a seeded
@@ -26,6 +27,8 @@ bounds (independent nodes assumed), and per seed, with the mean of the seeds' AN
 so they are not independent samples). Usage::
 
     OPENBLAS_NUM_THREADS=1 python scripts/coded_survey.py --seeds 5 --motes 30 [--repeatability-deg 0.07]
+    OPENBLAS_NUM_THREADS=1 python scripts/coded_survey.py --coded '{"separate": "radio"}' \
+        --coded '{"separate": "radio", "rounds": "short"}'   # two lever sets side by side
 """
 
 from __future__ import annotations
@@ -52,10 +55,25 @@ from fgloc.files.journal import read_journal  # noqa: E402
 from fgloc.files.rig_config import parse_rig  # noqa: E402
 from fgloc.solve.joint import solve_survey  # noqa: E402
 from fgloc.survey.clock import FieldTime, price, sum_times  # noqa: E402
+from fgloc.survey.coded import CodedSurvey  # noqa: E402
 from fgloc.survey.coded_clock import ClockSink, CountingLeds, clocked_opener, node_field_time, rig_timing  # noqa: E402
 from fgloc.survey.session import OpenedRig, run_survey  # noqa: E402
 
 EXAMPLE = ROOT / "examples" / "rig-simulated.json"
+
+_STATS: list = []  # each coded run's CodedStats (the priced rounds, classes, pause updates)
+
+
+def _keeping_stats(run_coded):  # noqa: ANN001, ANN202
+    def run_and_keep(self, runner):  # noqa: ANN001, ANN202
+        try:
+            return run_coded(self, runner)
+        finally:
+            _STATS.append(self.stats)
+    return run_and_keep
+
+
+CodedSurvey.run = _keeping_stats(CodedSurvey.run)  # type: ignore[method-assign]
 
 
 def rig_for(seed: int, motes: int, width: int, mode: str, fx: float | None = None, repeatability_deg: float = 0.0,
@@ -202,6 +220,8 @@ def run(seed: int, motes: int, width: int, mode: str, out: Path, fx: float | Non
     extra: dict = {}
     if mode != "sequential":
         extra["breakdown"] = breakdown(rig, sim, state)
+        stats = _STATS[-1]
+        extra["rounds"] = (stats.rounds_s, stats.classes, stats.pause_updates, stats.round_views)
         first = sum(1 for key in state.views if key[2] == 0)
         q = (len(state.views) - first) / max(first, 1)
         extra["planner"] = planner_prediction(rig, InProcessRig(rig), q)
@@ -228,18 +248,23 @@ def main() -> None:
     ap.add_argument("--fx", type=float, default=None, help="focal length, px (default width / 2: 90 deg wide)")
     ap.add_argument("--repeatability-deg", type=float, default=0.0,
                     help="head repeatability (rig.json head_repeatability_deg, part of sigma_deg 0.1)")
-    ap.add_argument("--coded", default="{}", help='rig.json "coded" levers as JSON, e.g. '
-                    '\'{"retry": "continue", "fallback": "predicted", "separate": "radio"}\'')
+    ap.add_argument("--coded", action="append", default=None,
+                    help='rig.json "coded" levers as JSON, e.g. \'{"retry": "continue", "fallback": "predicted", '
+                    '"separate": "radio"}\'; repeated: each set of levers is its own coded survey of the same '
+                    'scenes, side by side against one sequential run per seed')
     ap.add_argument("--field-boxes", action="store_true",
                     help="each camera searches a box around its visible nodes (rig.json cameras[].search, 5 deg "
                          "margin; all pans for a camera that sees across the +-180 deg seam), both surveys")
     args = ap.parse_args()
-    coded = json.loads(args.coded)
-    rows: dict[str, list[dict]] = {"sequential": [], "coded": []}
+    levers = [json.loads(c) for c in (args.coded or ["{}"])]
+    names = ["coded"] if len(levers) == 1 else [f"coded {json.dumps(c, separators=(',', ':'))}" for c in levers]
+    rows: dict[str, list[dict]] = {"sequential": [], **{n: [] for n in names}}
     with tempfile.TemporaryDirectory() as tmp:
         for seed in range(1, args.seeds + 1):
-            for mode in rows:
-                rows[mode].append(run(seed, args.motes, args.width, mode, Path(tmp) / f"{mode}{seed}", args.fx,
+            rows["sequential"].append(run(seed, args.motes, args.width, "sequential", Path(tmp) / f"sequential{seed}",
+                                          args.fx, args.repeatability_deg, None, args.field_boxes))
+            for i, (name, coded) in enumerate(zip(names, levers)):
+                rows[name].append(run(seed, args.motes, args.width, "coded", Path(tmp) / f"coded{i}-{seed}", args.fx,
                                       args.repeatability_deg, coded, args.field_boxes))
     for mode, rs in rows.items():
         med = statistics.median
@@ -249,36 +274,49 @@ def main() -> None:
               f"{sum(r['views'] for r in rs)} recordings), missing visible pairs {sum(r['missing'] for r in rs)}, "
               f"mislabelled {sum(r['wrong'] for r in rs)}, > 0.05 deg off {sum(r['far'] for r in rs)}; "
               f"RMS position error median {med(r['rms'] for r in rs):.5f}")
-    for k, r in enumerate(rows["coded"], start=1):
+    for name in names:
+        _report(name, rows, args)
+
+
+def _report(name: str, rows: dict[str, list[dict]], args: argparse.Namespace) -> None:
+    """Per-seed breakdown, speed-up, RMS ratio and accuracy of the coded survey ``name``."""
+    print(f"{name}:")
+    for k, r in enumerate(rows[name], start=1):
         b = r["breakdown"]
         cams = "; ".join(f"{c}: " + ", ".join(f"{kind} {n0}+{n1} ({fr} frames)" for kind, (n0, n1, fr) in sorted(v.items()))
                          for c, v in b["cameras"].items())
         print(f"  seed {k}: coded {r['field'].describe()}; recordings first+again: {cams}; fallback nodes "
               f"{b['fallback_nodes']} ({b['fallback_s']:.1f} s summed); planner's price for this rig "
               f"{r['planner']:.1f} s (separation 4 px; 6 px: {r['planner6']:.1f} s)")
-    ratio = [c["rms"] / s["rms"] for c, s in zip(rows["coded"], rows["sequential"])]
-    speed = [s["field"].total / c["field"].total for c, s in zip(rows["coded"], rows["sequential"])]
+    rounds = [r["rounds"] for r in rows[name]]
+    if any(classes for _, classes, _, _ in rounds):
+        print(f"  radio rounds: priced median {statistics.median(t for t, *_ in rounds):.1f} s (seeds "
+              f"{' '.join(f'{t:.1f}' for t, *_ in rounds)} s; rounds' lanes and pause updates); classes "
+              f"{' '.join(str(k) for _, k, _, _ in rounds)}; pause updates {sum(u for _, _, u, _ in rounds)}; "
+              f"round views {sum(v for *_, v in rounds)}")
+    ratio = [c["rms"] / s["rms"] for c, s in zip(rows[name], rows["sequential"])]
+    speed = [s["field"].total / c["field"].total for c, s in zip(rows[name], rows["sequential"])]
     print(f"coded / sequential: RMS ratio median {statistics.median(ratio):.3f} (range {min(ratio):.3f}-{max(ratio):.3f}); "
           f"field-time speed-up median {statistics.median(speed):.2f}x (range {min(speed):.2f}-{max(speed):.2f})")
     print(f"accuracy over {args.seeds} seeds, head repeatability {args.repeatability_deg} deg "
-          f"({sum(r['named_views'] for r in rows['coded'])} views named in the coded survey.json files):")
-    for name, mode, key in (("sequential", "sequential", ""), ("coded, views solved", "coded", ""),
-                            ("coded, views ignored", "coded", "_iv")):
+          f"({sum(r['named_views'] for r in rows[name])} views named in the coded survey.json files):")
+    for label, mode, key in (("sequential", "sequential", ""), ("coded, views solved", name, ""),
+                             ("coded, views ignored", name, "_iv")):
         rs = rows[mode]
-        print(anees_line(name, [e for r in rs for e in r["err" + key]], [v for r in rs for v in r["nees" + key]]))
+        print(anees_line(label, [e for r in rs for e in r["err" + key]], [v for r in rs for v in r["nees" + key]]))
         per_seed = [float(np.mean(r["nees" + key])) for r in rs]
         half = 1.96 * statistics.stdev(per_seed) / math.sqrt(len(per_seed)) if len(per_seed) > 1 else float("nan")
         print(f"    per-seed ANEES {' '.join(f'{a:.2f}' for a in per_seed)}; mean {statistics.mean(per_seed):.2f} "
               f"+- {half:.2f} (95 %, seeds as independent samples: a scene's nodes share its pose errors)")
-    print(f"  pooled RMS ratio coded / sequential: views solved {_ratio(rows, 'err'):.3f}, "
-          f"views ignored {_ratio(rows, 'err_iv'):.3f}")
+    print(f"  pooled RMS ratio coded / sequential: views solved {_ratio(rows, 'err', name):.3f}, "
+          f"views ignored {_ratio(rows, 'err_iv', name):.3f}")
 
 
-def _ratio(rows: dict[str, list[dict]], key: str) -> float:
-    """Pooled RMS of the coded survey's ``key`` errors over the sequential survey's."""
+def _ratio(rows: dict[str, list[dict]], key: str, name: str = "coded") -> float:
+    """Pooled RMS of the coded survey ``name``'s ``key`` errors over the sequential survey's."""
     def rms(errs: list[float]) -> float:
         return float(np.sqrt(np.mean(np.square(errs))))
-    return rms([e for r in rows["coded"] for e in r[key]]) / rms([e for r in rows["sequential"] for e in r["err"]])
+    return rms([e for r in rows[name] for e in r[key]]) / rms([e for r in rows["sequential"] for e in r["err"]])
 
 
 if __name__ == "__main__":

@@ -34,7 +34,7 @@ from fgloc.survey.session import run_survey
 from tests.test_survey_coded import EXAMPLE, clean_cuts, coded_rig, opened, parsed, view_records
 
 NEW_DEFAULTS = {"retry": "continue", "separate": "zoom", "fallback": "predicted", "video": "frames", "probe": "on",
-                "pairs": "on"}
+                "pairs": "on", "rounds": "short", "round_order": "view"}
 
 
 def lines_of(path: Path) -> list[bytes]:
@@ -204,7 +204,7 @@ def read_journal_header_only(coded: dict | None):
 @pytest.fixture(scope="module")
 def every_lever_journal(tmp_path_factory) -> list[dict]:
     """The records of a real coded survey whose journal holds every lever field: default levers
-    plus radio separation (16 motes: continuations, probes, pair readings, rounds)."""
+    plus radio separation (16 motes: continuations, probes, pair readings, short rounds)."""
     out = tmp_path_factory.mktemp("levers")
     data = coded_rig(16, width=160)
     data["coded"] = {"separate": "radio"}
@@ -216,9 +216,9 @@ def every_lever_journal(tmp_path_factory) -> list[dict]:
 def test_a_real_coded_journal_with_every_lever_field_validates(every_lever_journal, tmp_path):
     records = every_lever_journal
     views = [r for r in records if r["type"] == "view"]
-    present = {k for r in views for k in ("continued", "probe", "round", "lit") if k in r}
+    present = {k for r in views for k in ("continued", "probe", "round", "lit", "candidates") if k in r}
     present |= {"partner" for r in views for x in r["readings"] if "partner" in x}
-    assert present == {"continued", "probe", "round", "lit", "partner"}
+    assert present == {"continued", "probe", "round", "lit", "candidates", "partner"}
     assert set(records[0]["coded"]) == {*CHOICES, "levels"} and records[0]["coded"]["separate"] == "radio"
     for r in records:
         kind = r["type"]
@@ -266,7 +266,7 @@ def test_a_bad_lever_value_fails_validation(every_lever_journal, tmp_path, where
 def test_rig_json_with_every_lever_validates_and_a_bad_value_fails():
     data = json.loads(EXAMPLE.read_text())
     data["coded"] = {"retry": "burst", "separate": "radio", "fallback": "blobs", "video": "fields", "probe": "off",
-                     "pairs": "off", "levels": [0.25, 0.5, 1.0]}
+                     "pairs": "off", "rounds": "full", "round_order": "class", "levels": [0.25, 0.5, 1.0]}
     check(data, "rig", "rig.json", RigConfigError)
     parse_rig(data, str(EXAMPLE), EXAMPLE.parent)
     for key, bad, problem in (("retry", "again", "coded.retry: expected one of burst, continue, got 'again'"),

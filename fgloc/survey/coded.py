@@ -43,8 +43,10 @@ Levers (:class:`CodedSettings`, chosen by rig.json ``"coded"`` or ``fgloc survey
 is ``retry "burst"``, ``probe "off"``, ``fallback "blobs"``, ``pairs "off"``
 (:data:`~fgloc.survey.coded_levers.LEGACY`). Not by default: ``separate "radio"`` (colour
 classes paused by bitmap between the wide pass and the refinement,
-:mod:`fgloc.survey.coded_separation`; every camera's wide pass, each round, then the
-refinement are barriers) and ``video "fields"``. The journal's header records the levers a
+:mod:`fgloc.survey.coded_separation`; by default short rounds labelled against the lit
+class, :mod:`fgloc.survey.coded_rounds`, in view-major order,
+:mod:`fgloc.survey.coded_view_major`; every camera's wide pass, the rounds (class-major:
+each round), then the refinement are barriers) and ``video "fields"``. The journal's header records the levers a
 survey started with (``coded``); ``--resume`` runs with them
 (:func:`~fgloc.survey.coded_levers.coded_settings`).
 
@@ -100,6 +102,7 @@ from fgloc.survey.coded_clock import SequentialClock
 from fgloc.survey.coded_radio import pause_motes, start_codes, stop_codes
 from fgloc.survey.coded_readings import field_intrinsics
 from fgloc.survey.coded_recording import Frame, record_view
+from fgloc.survey.coded_rounds import RoundCandidates, retry_wanted
 from fgloc.survey.coded_settings import CodedSettings, CodedStats
 from fgloc.survey.coded_views import (
     distinct_directions,
@@ -167,6 +170,7 @@ class CodedSurvey:
         self.remaining: dict[str, int] = {}  # camera -> unexplained blobs and failed views after its last rung
         self.blobs: dict[str, list[tuple[float, float]] | None] = {}  # their directions (None: a view failed)
         self._continue_at: dict[tuple[str, str], float] = {}  # (camera, view) -> clock s its recording ends
+        self._head_at: dict[str, tuple[float, float] | None] = {}  # camera -> read-back head of its last view
         self.final_blobs: dict[str, np.ndarray] = {}  # camera -> (M, 2) directions of its unexplained blobs
         self.here: dict[str, tuple[float, float]] = {}  # camera -> head (pan, tilt) after its last view
         self.wide_records: dict[str, list[dict[str, Any] | None]] = {}
@@ -198,9 +202,10 @@ class CodedSurvey:
     # ----- one camera
     def _record(self, runner: SurveyRunner, camera: str, vid: str, attempt: int, target: tuple[float, float],
                 head: tuple[float, float], zoom: float, t_start: float,
-                before: list[Frame] | None = None) -> tuple[dict[str, Any], list[Frame]]:
+                before: list[Frame] | None = None,
+                candidates: RoundCandidates | None = None) -> tuple[dict[str, Any], list[Frame]]:
         """One recording of a view and its journal record (:func:`fgloc.survey.coded_recording.record_view`)."""
-        return record_view(self, runner, camera, vid, attempt, target, head, zoom, t_start, before)
+        return record_view(self, runner, camera, vid, attempt, target, head, zoom, t_start, before, candidates)
 
     def _commit(self, runner: SurveyRunner, record: dict[str, Any]) -> None:
         """Journal one view (the commit of all its readings), then apply it to the state."""
@@ -224,13 +229,20 @@ class CodedSurvey:
                         f"({r['u']:.1f}, {r['v']:.1f}) px: {r['reason']}")
 
     def _visit(self, runner: SurveyRunner, camera: str, vid: str, target: tuple[float, float], zoom: float,
-               here: tuple[float, float], extra: dict[str, Any] | None = None) -> dict[str, Any] | None:
+               here: tuple[float, float] | None, extra: dict[str, Any] | None = None,
+               candidates: RoundCandidates | None = None,
+               head: tuple[float, float] | None = None) -> dict[str, Any] | None:
         """Record one view (and its second recording when needed) unless journaled; prices it
-        on the camera's lane. Returns the view's last record (None: the camera failed)."""
+        on the camera's lane. Returns the view's last record (None: the camera failed).
+        ``candidates``: a short round view (:mod:`fgloc.survey.coded_rounds`). ``here`` None:
+        the head is already at ``target`` (view-major rounds: the same view, another class),
+        ``head`` its read-back angles if this process read them (None: read them on recording)."""
         worker, lane = runner.workers[camera], self.lanes[camera]
-        lane += [Slew(math.remainder(target[0] - here[0], 2 * math.pi), target[1] - here[1]), Settle(),
-                 PositionRead()]
-        head: tuple[float, float] | None = None
+        if here is not None:
+            lane += [Slew(math.remainder(target[0] - here[0], 2 * math.pi), target[1] - here[1]), Settle(),
+                     PositionRead()]
+            head = None
+        self._head_at[camera] = head
         last = None
         video: list[Frame] | None = None  # this process's frames of the view (a resumed view has none)
         for attempt in range(1 + self.settings.retries):
@@ -248,9 +260,12 @@ class CodedSurvey:
                         worker.call(go)
                         got = worker.call(lambda h: h.position())
                         head = (float(got[0]), float(got[1]))  # type: ignore[index]
-                    cont = video if self.settings.retry == "continue" and attempt > 0 else None
+                        self._head_at[camera] = head
+                    # a short round view always goes on recording (the candidates label any sample count)
+                    goes_on = self.settings.retry == "continue" or candidates is not None
+                    cont = video if goes_on and attempt > 0 else None
                     rec, video = self._record(runner, camera, vid, attempt, target, head, zoom,
-                                              self._lane_start(camera), cont)
+                                              self._lane_start(camera), cont, candidates)
                 except CameraFailed as exc:
                     self.stats.failed_views.append(f"{camera}/{vid}")
                     logger.warning(f"{camera} view {vid}: camera error, view not recorded: {exc}")
@@ -261,7 +276,7 @@ class CodedSurvey:
                 video = None  # journaled before a resume: its video is gone, a retry is a new burst
             lane.append(Frames(int(rec.get("frames", self.frames)), "frames", bool(rec.get("continued"))))
             last = rec
-            if not needs_second_recording(rec):
+            if not (retry_wanted(rec) if candidates is not None else needs_second_recording(rec)):
                 break
         return last
 

@@ -3,7 +3,7 @@ remembered by the journal, and the predicted fallback.
 
 rig.json ``"coded"`` (optional) and ``fgloc survey --coded KEY=VALUE`` choose them
 (:func:`coded_settings`; a new survey's defaults are :class:`~fgloc.survey.coded_settings.CodedSettings`'s,
-the measured fastest: continue, predicted, probe on, pairs on):
+the measured fastest: continue, predicted, probe on, pairs on, short view-major rounds):
 
 * ``retry``: ``"burst"`` | ``"continue"`` (a retry goes on recording L frames, sliding windows);
 * ``separate``: ``"zoom"`` | ``"radio"`` (crowded motes paused by colour class first,
@@ -12,6 +12,10 @@ the measured fastest: continue, predicted, probe on, pairs on):
 * ``video``: ``"frames"`` | ``"fields"`` (interlaced fields at 59.94 Hz);
 * ``probe``: ``"off"`` | ``"on"`` (a view whose first L + 2 frames show no blob stops there);
 * ``pairs``: ``"off"`` | ``"on"`` (refused blobs decoded as two LEDs, :mod:`fgloc.camera.blink_pairs`);
+* ``rounds``: ``"short"`` | ``"full"`` (radio rounds record L + 2 samples labelled against the
+  round's candidates, :mod:`fgloc.survey.coded_rounds`);
+* ``round_order``: ``"view"`` | ``"class"`` (radio rounds class by class with a barrier each,
+  or view by view cycling the classes, :mod:`fgloc.survey.coded_view_major`);
 * ``levels``: the refinement zoom ladder, ascending fractions of the optical range.
 
 **Resume rule.** A coded survey's journal header records the levers it started with
@@ -20,7 +24,9 @@ value or ``--coded`` flag that names a lever with another value is refused in on
 flag or file, the lever, both values), never mixed in. A journal without recorded levers
 (written before they were recorded, or started as a sequential survey) resumes with
 :data:`LEGACY` (the defaults before this rule) overridden by rig.json and the flags, exactly as
-it resumed before.
+it resumed before. A lever added after a journal was written (``rounds``, ``round_order``) and
+so missing from its recorded levers resumes with its :data:`LEGACY` value, the only one the
+survey that wrote it knew.
 
 Angles radians.
 """
@@ -52,10 +58,14 @@ FALLBACK_MODES = ("blobs", "predicted")
 VIDEO_MODES = ("frames", "fields")
 PROBE_MODES = ("off", "on")
 PAIRS_MODES = ("off", "on")
+ROUNDS_MODES = ("full", "short")
+ROUND_ORDERS = ("class", "view")
 CHOICES = {"retry": RETRY_MODES, "separate": SEPARATE_MODES, "fallback": FALLBACK_MODES, "video": VIDEO_MODES,
-           "probe": PROBE_MODES, "pairs": PAIRS_MODES}
-#: the defaults before the journal recorded the levers: a journal without recorded levers resumes with these
-LEGACY: dict[str, Any] = {"retry": "burst", "separate": "zoom", "fallback": "blobs", "video": "frames", "probe": "off", "pairs": "off"}
+           "probe": PROBE_MODES, "pairs": PAIRS_MODES, "rounds": ROUNDS_MODES, "round_order": ROUND_ORDERS}
+#: the defaults before the journal recorded the levers: a journal without recorded levers resumes with these,
+#: and a lever a journal's header does not record (added after it was written) resumes with its value here
+LEGACY: dict[str, Any] = {"retry": "burst", "separate": "zoom", "fallback": "blobs", "video": "frames", "probe": "off",
+                          "pairs": "off", "rounds": "full", "round_order": "class"}
 PREDICTED_RADIUS = math.radians(3.0)  #: a blob this close to a mote's predicted direction may hide it
 
 
@@ -71,7 +81,7 @@ def settings_record(settings: CodedSettings) -> dict[str, Any]:
 def coded_settings(rig: RigConfig, overrides: Mapping[str, str] | None = None,
                    journal: JournalState | None = None, journal_path: str | os.PathLike[str] = "journal") -> CodedSettings:
     """The coded-survey levers: rig.json ``"coded": {"retry": ..., "separate": ..., "fallback": ...,
-    "video": ..., "probe": ..., "pairs": ..., "levels": [zoom, ...]}`` (each optional), each
+    "video": ..., "probe": ..., "pairs": ..., "rounds": ..., "round_order": ..., "levels": [zoom, ...]}`` (each optional), each
     overridden by ``overrides`` (the CLI's ``--coded KEY=VALUE``), over the base levers:
     :class:`~fgloc.survey.coded_settings.CodedSettings`'s defaults for a new survey (``journal`` None);
     for a resumed ``journal`` its header's recorded levers (a file or flag value that differs:
@@ -108,7 +118,7 @@ def coded_settings(rig: RigConfig, overrides: Mapping[str, str] | None = None,
         explicit["levels"] = (f"{rig.path}: coded.levels", tuple(float(z) for z in levels))
     recorded = None if journal is None else journal.header.coded
     if recorded is not None:  # the levers the survey started with, whatever the defaults are now
-        base = replace(CodedSettings(), **{k: recorded[k] for k in CHOICES if k in recorded})
+        base = replace(CodedSettings(), **{k: recorded.get(k, LEGACY[k]) for k in CHOICES})
         if "levels" in recorded:
             base = replace(base, levels=tuple(float(z) for z in recorded["levels"]))
         for key, (where, value) in explicit.items():

@@ -2,7 +2,8 @@
 
 :func:`record_view` records ``3L + 2`` frames (fields) of a view (or, with the probe,
 ``L + 2`` first and stops there when they show no blob; or, continuing an earlier
-recording, ``L`` more decoded with it in sliding windows), decodes them
+recording, ``L`` more decoded with it in sliding windows; or, a short radio round's view,
+``L + 2`` labelled against the round's candidates, :mod:`fgloc.survey.coded_rounds`), decodes them
 (:func:`fgloc.camera.blink_decoder.decode_view` / :func:`~fgloc.camera.blink_decoder.decode_windows`,
 pairs with :mod:`fgloc.camera.blink_pairs` when the lever is on) and turns each decoded LED
 into a reading (:func:`fgloc.survey.coded_views.coded_observation`). The caller
@@ -17,8 +18,10 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from fgloc.camera.blink_candidates import CandidateDecode
 from fgloc.camera.blink_decoder import ViewDecode, decode_view, decode_windows
 from fgloc.camera.blink_pairs import PairConfig
+from fgloc.survey.coded_rounds import RoundCandidates, decode_round, round_frames
 from fgloc.survey.coded_views import coded_observation, empty_view, on_off_centroid
 from fgloc.survey.runner import SurveyRunner
 
@@ -44,18 +47,22 @@ def grab_frames(coded: CodedSurvey, runner: SurveyRunner, camera: str, count: in
 
 def record_view(coded: CodedSurvey, runner: SurveyRunner, camera: str, vid: str, attempt: int, target: tuple[float, float],
             head: tuple[float, float], zoom: float, t_start: float,
-            before: list[Frame] | None = None) -> tuple[dict[str, Any], list[Frame]]:
+            before: list[Frame] | None = None,
+            candidates: RoundCandidates | None = None) -> tuple[dict[str, Any], list[Frame]]:
     """Record and decode one recording of a view; returns its journal record and the view's
     frames so far. ``before``: this process's frames of the view's earlier recordings, which
     this one continues (L more frames from where they ended, decoded with them in sliding
-    windows); None: a new burst of 3L + 2."""
+    windows); None: a new burst of 3L + 2. ``candidates``: a short round view
+    (:mod:`fgloc.survey.coded_rounds`): a burst of L + 2 (no probe), every recording so far
+    labelled against them."""
     key = f"{vid}/{attempt}"
-    count = coded.book.length if before else coded.frames
+    short = candidates is not None
+    count = coded.book.length if before else (round_frames(coded) if short else coded.frames)
     if before:  # the recording goes on: the next frame period after the last one
         t_start = coded._continue_at[(camera, vid)]
     intr = coded.intrinsics_at(camera, zoom)
     probed = False
-    if not before and coded.settings.probe == "on":
+    if not before and not short and coded.settings.probe == "on":
         # the first L + 2 frames show every blinking mote on and off (each word has both bits in
         # any L samples): a view where they show no blob at all is empty, and the recording stops
         count = coded.book.length + 2
@@ -69,9 +76,13 @@ def record_view(coded: CodedSurvey, runner: SurveyRunner, camera: str, vid: str,
         frames = grab_frames(coded, runner, camera, count, t_start, key)
     coded._continue_at[(camera, vid)] = t_start + count * coded.camera.frame_period_s
     pairs = PairConfig() if coded.settings.pairs == "on" else None
-    if before:
+    dec: ViewDecode | CandidateDecode
+    if short:
+        frames = (before or []) + frames
+        dec = decode_round(coded, frames, intr, head, candidates or [])
+    elif before:
         frames = before + frames
-        dec: ViewDecode = decode_windows(frames, coded.camera.frame_period_s, coded.book, intr, head[0], head[1],
+        dec = decode_windows(frames, coded.camera.frame_period_s, coded.book, intr, head[0], head[1],
                                          coded.frames, coded.book.length, coded.settings.decoder, pairs=pairs)
     else:
         dec = decode_view(frames, coded.camera.frame_period_s, coded.book, intr, head[0], head[1],
@@ -100,4 +111,5 @@ def record_view(coded: CodedSurvey, runner: SurveyRunner, camera: str, vid: str,
     return {"camera": camera, "view": vid, "attempt": attempt, "target": list(target), "head": list(head),
             "zoom": zoom, "frames": count, "erased": dec.erased, "clock_s": t_start, "readings": readings,
             "refused": refused} | ({"continued": True} if before else {}) | (
-                {"probe": coded.book.length + 2} if probed else {}), frames
+                {"probe": coded.book.length + 2} if probed else {}) | (
+                {"candidates": [n for n, _ in candidates or []]} if short else {}), frames

@@ -33,7 +33,7 @@ import logging
 import math
 from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -42,6 +42,7 @@ from fgloc.camera.intrinsics import CameraIntrinsics
 from fgloc.camera.pixel_angles import pan_tilt_to_pixel
 from fgloc.core.geometry import bearing_pan_tilt, pan_tilt_bearing, world_to_base
 from fgloc.core.model import NodeMode, Observation, Survey
+from fgloc.survey.coded_rounds import RoundCandidates, round_candidates
 from fgloc.survey.view_planner import colour_conflicts
 
 if TYPE_CHECKING:
@@ -58,6 +59,8 @@ class SeparationPlan:
     colour: dict[str, int]  #: node -> colour class (crowded motes only)
     crowded: dict[str, dict[str, tuple[float, float]]]  #: camera -> node -> predicted (pan, tilt)
     unplaced: dict[str, set[str]]  #: camera -> motes it did not read whose direction is unknown
+    #: camera -> node -> predicted (pan, tilt) of every placed node (short rounds' candidates)
+    predicted: Mapping[str, Mapping[str, tuple[float, float]]] = field(default_factory=dict)
 
     @property
     def classes(self) -> int:
@@ -148,7 +151,8 @@ def plan_separation(intr: Mapping[str, CameraIntrinsics], blobs: Mapping[str, li
         edges += [(index[names[a]], index[names[b]]) for a, b in zip(i.tolist(), j.tolist())]
     colour = colour_conflicts(len(nodes), np.array(edges, dtype=int).reshape(-1, 2))
     # crowded motes in no conflict (their partner unplaced, or predicted apart) read in the first class
-    return SeparationPlan({n: max(int(colour[index[n]]), 0) for n in nodes}, crowded, unplaced)
+    return SeparationPlan({n: max(int(colour[index[n]]), 0) for n in nodes}, crowded, unplaced,
+                          {c: dict(p) for c, p in predicted.items()})
 
 
 # ----- the rounds, run by the coded survey ------------------------------------------------------------------
@@ -190,7 +194,16 @@ def run_separation(coded: CodedSurvey, runner: SurveyRunner, pool: ThreadPoolExe
             blobs = {c: [(uv, head) for uv, head, _ in coded.unexplained(coded.wide_records[c])] for c in cams}
             intr = {c: coded.intrinsics_at(c, coded.survey_zoom[c]) for c in cams}
             plan = plan_separation(intr, blobs, predicted, unread, RADIUS_PX, CONFLICT_PX)
-    if plan is not None and plan.classes:
+    before = coded.stages.total + coded.radio_s
+    if plan is not None and plan.classes and coded.settings.round_order == "view":
+        from fgloc.survey.coded_view_major import run_view_major
+
+        logger.info(f"radio separation: {len(plan.colour)} crowded motes in {plan.classes} colour classes, "
+                    "view-major")
+        coded.stats.classes = plan.classes
+        run_view_major(coded, runner, pool, pump, plan)
+        coded.pause(set())  # every mote blinks again for the refinement
+    elif plan is not None and plan.classes:
         logger.info(f"radio separation: {len(plan.colour)} crowded motes in {plan.classes} colour classes")
         coded.stats.classes = plan.classes
         for k in range(plan.classes):
@@ -205,19 +218,23 @@ def run_separation(coded: CodedSurvey, runner: SurveyRunner, pool: ThreadPoolExe
                 views = [into_search_box(p, t, s.pan_min, s.pan_max, s.tilt_min, s.tilt_max) for p, t in plan_views(
                     coded.intrinsics_at(c, coded.survey_zoom[c]), np.array(mine), coded.settings.margin_px,
                     start=coded.here[c], tilt_limits=(s.tilt_min, s.tilt_max))]
-                futures.append(pool.submit(_round, coded, runner, c, k, views, lit))
+                cands = round_candidates(lit, plan.predicted.get(c, {})) if coded.settings.rounds == "short" else None
+                futures.append(pool.submit(_round, coded, runner, c, k, views, lit, cands))
             pump(futures)
             coded.next_stage()
         coded.pause(set())  # every mote blinks again for the refinement
+    coded.stats.rounds_s = coded.stages.total + coded.radio_s - before
     futures = [pool.submit(_refine_after, coded, runner, c, plan, failed[c]) for c in cams]
     pump(futures)
 
 
 def _round(coded: CodedSurvey, runner: SurveyRunner, camera: str, k: int, views: list[tuple[float, float]],
-           lit: list[str]) -> None:
+           lit: list[str], candidates: RoundCandidates | None) -> None:
+    """One camera's views of round ``k`` (class-major; view ids ``s<k>-<j>``)."""
     zoom0 = coded.survey_zoom[camera]
     for j, target in enumerate(views):
-        coded._visit(runner, camera, f"s{k}-{j:03d}", target, zoom0, coded.here[camera], {"round": k, "lit": lit})
+        coded._visit(runner, camera, f"s{k}-{j:03d}", target, zoom0, coded.here[camera], {"round": k, "lit": lit},
+                     candidates)
         coded.here[camera] = target
     coded.stats.views += len(views)
     coded.stats.round_views += len(views)

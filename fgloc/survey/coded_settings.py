@@ -52,6 +52,17 @@ class CodedSettings:
     #: ``"on"``: refused blobs are also tried as two LEDs and labelled by both code words when
     #: that is unique (:mod:`fgloc.camera.blink_pairs`; rotation-free books); ``"off"``: not
     pairs: str = "on"
+    #: radio-separation rounds (``separate "radio"``): ``"short"`` records ``L + 2`` samples per
+    #: round view and labels each blob against the round's candidates (the lit class's motes with
+    #: their predicted pixels, :func:`fgloc.camera.blink_candidates.decode_candidates`); a retry
+    #: continues by ``L``. ``"full"``: ``3L + 2`` samples decoded blind, as a wide view (the
+    #: default of journals written before this lever, :data:`~fgloc.survey.coded_levers.LEGACY`)
+    rounds: str = "short"
+    #: radio-separation round order: ``"class"`` (every camera records a class's views, a barrier,
+    #: the next class) or ``"view"`` (each camera visits its round views once, the base station
+    #: cycling the classes each view needs; :mod:`fgloc.survey.coded_view_major`). Both defaults
+    #: measured faster (docs/blink-codes.md, "Short and view-major rounds, measured")
+    round_order: str = "view"
 
 
 @dataclass
@@ -71,4 +82,5 @@ class CodedStats:
     classes: int = 0  #: radio separation: colour classes (rounds)
     round_views: int = 0  #: radio separation: views recorded in rounds
     pause_updates: int = 0  #: radio separation: pause-by-bitmap updates sent
+    rounds_s: float = 0.0  #: radio separation: priced field time of the rounds (their lanes and pause updates)
     failed_views: list[str] = field(default_factory=list)
