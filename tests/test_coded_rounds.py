@@ -33,8 +33,8 @@ from fgloc.survey.clock import Frames, PositionRead, Slew, Wait, op_time
 from fgloc.survey.coded import CodedSurvey
 from fgloc.survey.coded_levers import LEGACY, coded_settings
 from fgloc.survey.coded_rounds import ROUND_RADIUS_PX, decode_round, round_frames
-from fgloc.survey.coded_view_major import Slot, view_major_schedule
 from fgloc.survey.session import run_survey
+from fgloc.survey.view_planner import Slot, view_major_schedule
 from tests.test_survey_coded import check_labels, clean_cuts, coded_rig, opened, parsed, view_records
 from tests.test_survey_coded_levers import lever_rig, survey_reads_every_visible_pair
 

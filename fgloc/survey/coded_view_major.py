@@ -12,7 +12,7 @@ cycles the classes that view needs.
 one of the camera's crowded motes of class ``k`` is first covered (``margin_px`` inside
 the image, in plan order) by view ``j``.
 
-**Schedule** (:func:`view_major_schedule`, a pure function of the jobs, so a resume
+**Schedule** (:func:`fgloc.survey.view_planner.view_major_schedule`, a pure function of the jobs, so a resume
 re-plans it exactly). Pauses are global, so the cameras must agree on the lit class. The
 schedule is a list of slots; each slot lights one class, and every camera whose *current*
 view (its first view with a job left) needs that class records it in that slot; the
@@ -36,9 +36,8 @@ Angles radians; lane times seconds.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
-from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -46,45 +45,12 @@ import numpy as np
 from fgloc.survey.clock import PositionRead, Settle, Slew, Wait, price
 from fgloc.survey.coded_rounds import round_candidates
 from fgloc.survey.coded_views import into_search_box
-from fgloc.survey.view_planner import coverage, plan_views
+from fgloc.survey.view_planner import coverage, plan_views, view_major_schedule
 
 if TYPE_CHECKING:
     from fgloc.survey.coded import CodedSurvey
     from fgloc.survey.coded_separation import SeparationPlan
     from fgloc.survey.runner import SurveyRunner
-
-
-@dataclass(frozen=True)
-class Slot:
-    """One lit class and the cameras recording it: camera -> index of its view."""
-
-    lit: int
-    views: dict[str, int]
-
-
-def view_major_schedule(needs: Mapping[str, Sequence[set[int] | frozenset[int]]]) -> list[Slot]:
-    """The slots (module docstring, "Schedule") for ``needs``: camera -> per view, in visiting
-    order, the classes that view needs."""
-    left = {c: [set(v) for v in views] for c, views in needs.items()}
-    at = {c: 0 for c in left}
-    slots: list[Slot] = []
-    lit: int | None = None
-    while True:
-        for c in left:  # skip views with nothing (left) to record
-            while at[c] < len(left[c]) and not left[c][at[c]]:
-                at[c] += 1
-        current = {c: left[c][at[c]] for c in sorted(left) if at[c] < len(left[c])}
-        if not current:
-            return slots
-        demand: dict[int, int] = {}
-        for classes in current.values():
-            for k in classes:
-                demand[k] = demand.get(k, 0) + 1
-        k = max(demand, key=lambda x: (demand[x], x == lit, -x))
-        slots.append(Slot(k, {c: at[c] for c, classes in current.items() if k in classes}))
-        for c in slots[-1].views:
-            left[c][at[c]].discard(k)
-        lit = k
 
 
 def round_views(coded: CodedSurvey, plan: SeparationPlan, camera: str) -> tuple[list[tuple[float, float]], list[set[int]]]:

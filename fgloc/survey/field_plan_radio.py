@@ -52,6 +52,7 @@ from fgloc.survey.view_planner import (
     neighbour_px,
     plan_radio_rounds,
     plan_round_stations,
+    view_major_schedule,
 )
 
 
@@ -142,42 +143,32 @@ class RoundSlot:
 def view_major_slots(rounds: dict[str, list[RadioRound]], start: dict[str, tuple[float, float]]) -> list[RoundSlot]:
     """Schedule view-major rounds: the jobs are each camera's (view, class) pairs of ``rounds``;
     a camera visits its distinct views (*stations*) in nearest-first order from ``start`` and
-    stays on each until every class it needs there has been recorded.
-
-    Pauses are global, so every camera sees the same class: in each slot the class is the one
-    the most cameras need at their current station (ties: the class already lit, then the
-    lowest), every such camera records it there, and a camera whose station is done moves on
-    to its next one within the slot (moving needs no particular class). Every job lands in
-    exactly one slot."""
+    stays on each until every class it needs there has been recorded. The slots are those of
+    :func:`fgloc.survey.view_planner.view_major_schedule` (the integrated survey's schedule);
+    a camera moves to its next station in the slot after its last recording at the current one
+    (moving needs no particular class), and to its first station in the first slot."""
     stations: dict[str, list[tuple[float, float]]] = {}
-    jobs: dict[str, dict[tuple[float, float], set[int]]] = {}
+    needs: dict[str, list[set[int]]] = {}
     for cam, rs in rounds.items():
         need: dict[tuple[float, float], set[int]] = {}
         for rr in rs:
             for v in rr.views:
                 need.setdefault(v, set()).add(rr.colour)
         if need:
-            jobs[cam] = need
             stations[cam] = nearest_first(list(need), start[cam])
-    current: dict[str, tuple[float, float] | None] = dict.fromkeys(jobs)
-    slots: list[RoundSlot] = []
-    lit = -1
-    while any(any(need.values()) for need in jobs.values()):
-        moves: dict[str, tuple[float, float]] = {}
-        for cam in jobs:
-            at = current[cam]
-            if (at is None or not jobs[cam][at]) and stations[cam]:
-                current[cam] = moves[cam] = stations[cam].pop(0)
-        wants = {cam: jobs[cam][at] if (at := current[cam]) is not None else set() for cam in jobs}
-        classes = sorted(set().union(*wants.values()))
-        lit = max(classes, key=lambda c: (sum(c in w for w in wants.values()), c == lit, -c))
-        records = {}
-        for cam, w in wants.items():
-            if lit in w:
-                w.discard(lit)
-                records[cam] = current[cam]
-        slots.append(RoundSlot(lit, moves, records))  # type: ignore[arg-type]
-    return slots
+            needs[cam] = [need[v] for v in stations[cam]]
+    schedule = view_major_schedule(needs)
+    moves: list[dict[str, tuple[float, float]]] = [{} for _ in schedule]
+    if schedule:
+        moves[0] = {cam: vs[0] for cam, vs in stations.items()}
+    left = {cam: [len(n) for n in needs[cam]] for cam in needs}
+    for s, slot in enumerate(schedule):
+        for cam, j in slot.views.items():
+            left[cam][j] -= 1
+            if not left[cam][j] and j + 1 < len(stations[cam]) and s + 1 < len(schedule):
+                moves[s + 1][cam] = stations[cam][j + 1]
+    return [RoundSlot(slot.lit, moves[s], {cam: stations[cam][j] for cam, j in slot.views.items()})
+            for s, slot in enumerate(schedule)]
 
 
 def view_major_round_time(

@@ -18,6 +18,7 @@ counted, not chased.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -318,3 +319,41 @@ def plan_round_stations(
         keep = sorted(counts)  # visiting order of the stations
         rounds.append(RadioRound(c, [stations[i] for i in keep], tuple(counts[i] for i in keep)))
     return rounds
+
+
+@dataclass(frozen=True)
+class Slot:
+    """One slot of view-major radio rounds: the lit class and the cameras recording it (camera ->
+    index of its view)."""
+
+    lit: int
+    views: dict[str, int]
+
+
+def view_major_schedule(needs: Mapping[str, Sequence[set[int] | frozenset[int]]]) -> list[Slot]:
+    """View-major radio rounds: the slots for ``needs`` (camera -> per view, in visiting
+    order, the classes that view needs). Pauses are global, so the cameras agree on the lit
+    class: each slot lights one class, and every camera whose *current* view (its first
+    view with a class left) needs it records it there; the others wait. The class of a
+    slot serves the most cameras (ties: the class lit already, then the lowest). Every
+    (camera, view, class) job lands in exactly one slot."""
+    left = {c: [set(v) for v in views] for c, views in needs.items()}
+    at = {c: 0 for c in left}
+    slots: list[Slot] = []
+    lit: int | None = None
+    while True:
+        for c in left:  # skip views with nothing (left) to record
+            while at[c] < len(left[c]) and not left[c][at[c]]:
+                at[c] += 1
+        current = {c: left[c][at[c]] for c in sorted(left) if at[c] < len(left[c])}
+        if not current:
+            return slots
+        demand: dict[int, int] = {}
+        for classes in current.values():
+            for k in classes:
+                demand[k] = demand.get(k, 0) + 1
+        k = max(demand, key=lambda x: (demand[x], x == lit, -x))
+        slots.append(Slot(k, {c: at[c] for c, classes in current.items() if k in classes}))
+        for c in slots[-1].views:
+            left[c][at[c]].discard(k)
+        lit = k
