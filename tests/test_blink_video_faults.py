@@ -107,3 +107,30 @@ def test_a_full_rate_view_leaves_no_position_unsampled() -> None:
     frames, *_, pan, tilt = _view(0, BlinkRenderConfig(), 3 * L + 2)
     assert decode_view(frames, 1 / 29.97, BOOK, INTR, pan, tilt).unsampled == 0
     assert unsampled_positions(np.array([0, 2, 4, 6]), 8) == 4 and unsampled_positions(np.arange(9), 8) == 0
+
+
+def test_survey_warns_once_per_camera_of_a_steady_frame_loss(caplog: pytest.LogCaptureFixture) -> None:
+    from types import SimpleNamespace
+
+    from fgloc.survey.clock import CameraTiming
+    from fgloc.survey.coded_recording import check_steady_loss
+    from fgloc.survey.coded_settings import CodedStats
+
+    timing = CameraTiming()
+    coded = SimpleNamespace(book=BOOK, camera=timing, stats=CodedStats())
+    period = timing.frame_period_s
+    img = np.zeros((2, 2), np.uint8)
+    rng = np.random.default_rng(4)
+    full = [(100.0 + k * period, img) for k in range(3 * L + 2) if rng.random() > 0.05]  # 5 % random drops
+    half = [(100.0 + k * period, img) for k in range(0, 3 * L + 2, 2)]
+    short = [(100.0 + k * period, img) for k in range(0, L + 2, 2)]  # too short to tell
+    with caplog.at_level("WARNING", logger="fgloc.survey.coded_recording"):
+        check_steady_loss(coded, "cam0", "w000", full)  # type: ignore[arg-type]
+        check_steady_loss(coded, "cam0", "w001", short)  # type: ignore[arg-type]
+        assert coded.stats.rate_fall_views == 0 and not caplog.records
+        for vid in ("w002", "w003"):
+            check_steady_loss(coded, "cam0", vid, half)  # type: ignore[arg-type]
+        check_steady_loss(coded, "cam1", "w000", half)  # type: ignore[arg-type]
+    assert coded.stats.rate_fall_views == 3 and coded.stats.rate_fall_cameras == ["cam0", "cam1"]
+    warned = [r.getMessage() for r in caplog.records]
+    assert len(warned) == 2 and warned[0].startswith(f"cam0 view w002: {L // 2} of the {L} bit positions got no frame")

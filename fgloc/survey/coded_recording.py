@@ -13,13 +13,14 @@ Angles radians; pixels OpenCV convention; times survey-clock seconds.
 
 from __future__ import annotations
 
+import logging
 import time
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from fgloc.camera.blink_candidates import CandidateDecode
-from fgloc.camera.blink_decoder import ViewDecode, decode_view, decode_windows
+from fgloc.camera.blink_decoder import ViewDecode, decode_view, decode_windows, unsampled_positions
 from fgloc.camera.blink_pairs import PairConfig
 from fgloc.survey.coded_rounds import RoundCandidates, decode_round, round_frames
 from fgloc.survey.coded_views import coded_observation, empty_view, on_off_centroid
@@ -29,6 +30,7 @@ if TYPE_CHECKING:
     from fgloc.survey.coded import CodedSurvey
 
 Frame = tuple[float, np.ndarray]
+logger = logging.getLogger(__name__)
 
 
 def grab_frames(coded: CodedSurvey, runner: SurveyRunner, camera: str, count: int, t_start: float, key: str) -> list[Frame]:
@@ -87,6 +89,7 @@ def record_view(coded: CodedSurvey, runner: SurveyRunner, camera: str, vid: str,
     else:
         dec = decode_view(frames, coded.camera.frame_period_s, coded.book, intr, head[0], head[1],
                           coded.settings.decoder, pairs=pairs)
+    check_steady_loss(coded, camera, vid, frames)
     readings, refused = [], [{"kind": r.kind, "u": r.u, "v": r.v, "reason": r.reason} for r in dec.refused]
     st = runner.state
     taken: set[str] = set()
@@ -113,3 +116,23 @@ def record_view(coded: CodedSurvey, runner: SurveyRunner, camera: str, vid: str,
             "refused": refused} | ({"continued": True} if before else {}) | (
                 {"probe": coded.book.length + 2} if probed else {}) | (
                 {"candidates": [n for n, _ in candidates or []]} if short else {}), frames
+
+
+def check_steady_loss(coded: CodedSurvey, camera: str, vid: str, frames: list[Frame]) -> None:
+    """Count, and warn once per camera, a recording of at least ``2L`` frame periods that left
+    half the bit positions or more without a sample (:func:`unsampled_positions`): frames are
+    lost at a steady rate, as by a camera fallen from 60 to 30 Hz, and an even-length word is
+    then never read (docs/blink-codes.md, "Video faults"). Random drops leave none."""
+    length, period = coded.book.length, coded.camera.frame_period_s
+    if len(frames) < 2 or frames[-1][0] - frames[0][0] < (2 * length - 1.5) * period:
+        return
+    idx = np.rint((np.array([t for t, _ in frames]) - frames[0][0]) / period).astype(np.int64)
+    gap = unsampled_positions(idx, length)
+    if 2 * gap < length:
+        return
+    coded.stats.rate_fall_views += 1
+    if camera not in coded.stats.rate_fall_cameras:
+        coded.stats.rate_fall_cameras.append(camera)
+        logger.warning(f"{camera} view {vid}: {gap} of the {length} bit positions got no frame: frames are lost at a "
+                       f"steady rate (a camera at half its frame rate?); its motes cannot be read and go to retries "
+                       f"and the fallback. Check the camera's video rate")

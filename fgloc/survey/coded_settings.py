@@ -84,3 +84,7 @@ class CodedStats:
     pause_updates: int = 0  #: radio separation: pause-by-bitmap updates sent
     rounds_s: float = 0.0  #: radio separation: priced field time of the rounds (their lanes and pause updates)
     failed_views: list[str] = field(default_factory=list)
+    #: recordings that left half the bit positions or more unsampled (frames lost at a steady
+    #: rate, e.g. a camera fallen to half rate: an even-length word cannot be read there)
+    rate_fall_views: int = 0
+    rate_fall_cameras: list[str] = field(default_factory=list)  #: cameras warned of it (once each)
