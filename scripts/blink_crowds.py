@@ -42,7 +42,7 @@ def pair_pixels(rng: np.random.Generator, others: np.ndarray, n: int, width: int
     return np.vstack(out)
 
 
-def pair_stats(readings: tuple, ids: np.ndarray, uv: np.ndarray, truth: dict, n_single: int, found: set,
+def pair_stats(readings: tuple, ids: np.ndarray, uv: np.ndarray, n_single: int, found: set,
                isolated: np.ndarray, pans: np.ndarray, tilts: np.ndarray) -> dict[str, float]:
     """Pair decodes of one view: resolved pairs (per separation bin), by which rule, and the
     pixel and angle errors of their readings; pixel errors of isolated single readings."""
@@ -105,7 +105,7 @@ def by_bins(tot: dict[str, float], p: str, bins: Sequence[float], resolved: str,
 FOURTH_BINS = THIRD_BINS  #: bins (px) of the nearest fourth mote to any LED of a group
 
 
-def group_stats(readings: tuple, ids: np.ndarray, uv: np.ndarray, truth: dict, g0: int, found: set,
+def group_stats(readings: tuple, ids: np.ndarray, uv: np.ndarray, g0: int, found: set,
                 pans: np.ndarray, tilts: np.ndarray) -> dict[str, float]:
     """Group decodes of one view (rows ``g0``.. in threes): resolved groups (all three read
     within 2 px as a group), by the nearest fourth mote, partial groups, and the pixel and

@@ -147,10 +147,10 @@ def trial(seed: int, n_motes: int, book_size: int, glints: int, fields: bool = F
                 mislabelled += 1
         iso_missed = sum(1 for k, i in enumerate(ids) if isolated[k] and int(i) not in found)
         if groups:
-            out.update({prefix + k: v for k, v in group_stats(res.readings, ids, uv, truth, g0, found,
+            out.update({prefix + k: v for k, v in group_stats(res.readings, ids, uv, g0, found,
                                                                pans, tilts).items()})
         if pairs:
-            out.update({prefix + k: v for k, v in pair_stats(res.readings, ids, uv, truth, n_single, found,
+            out.update({prefix + k: v for k, v in pair_stats(res.readings, ids, uv, n_single, found,
                                                               isolated, pans, tilts).items()})
         if partner and not prefix:
             plain = decode_view(within(k0), 1.0 / cfg.frame_rate_hz, book, intr, head_pan, head_tilt)
