@@ -90,6 +90,7 @@ from fgloc.survey.field_plans import (
     coded_survey_time,
     frames_for,
     group_decoding,
+    near_decoding,
     pair_decoding,
     pair_rate_table,
     radio_separation,
@@ -98,7 +99,7 @@ from fgloc.survey.field_plans import (
 )
 from fgloc.survey.view_planner import RefinePass, coverage, needed_from, neighbour_px, plan_refinement, plan_views
 
-SEPARATION_PX = 4.0
+SEPARATION_PX = 4.0  #: crowds (pairs, groups of three) are motes closer than this at the wide zoom
 
 
 def cameras(n: int, height: float = 0.1) -> dict[str, CameraPose]:
@@ -156,6 +157,13 @@ class Variant:
     #: it stays on a view while its classes take turns: field_plan_radio.view_major_round_time) or
     #: "best" (the cheaper of the two on the clock)
     round_order: str = "class"
+    #: the blind decoder reads a mote as isolated when no other lies this close (px) at the wide
+    #: zoom; 4 (the default, every earlier table) is the crowd criterion; a larger value with
+    #: ``near_rate`` prices the measured read rate of motes whose neighbour lies between 4 px and it
+    separation_px: float = SEPARATION_PX
+    #: share of those motes the blind decoder reads (blink_near_montecarlo.py), or a table by
+    #: the nearest neighbour's distance; 0: none is read (all refined or separated)
+    near_rate: float | tuple[tuple[float, float], ...] = 0.0
 
 
 _SEQUENTIAL: dict[tuple[int, int, int, RigTiming], SequentialTime] = {}
@@ -197,13 +205,16 @@ def run(n_motes: int, n_cams: int, timing: RigTiming, miss_rate: float, seed: in
         views[c] = plan_views(intr, region)
         pts[c] = np.column_stack(bearing_pan_tilt(bearings[c]))
         retry_views += _retry_fraction(intr, pts[c], views[c], miss_rate) / n_cams
-    resolved = {c: neighbour_px(pts[c], intr, fields) >= SEPARATION_PX for c in cams}
+    sep = variant.separation_px
+    resolved = {c: neighbour_px(pts[c], intr, fields) >= sep for c in cams}
+    near_rng = np.random.default_rng([seed, 20])  # its own stream: the other draws stay as they were
+    near = {c: near_decoding(intr, pts[c], SEPARATION_PX, sep, variant.near_rate, near_rng, fields) for c in cams}
     pair_rng = np.random.default_rng([seed, 16])
     pairs = {c: pair_decoding(intr, pts[c], SEPARATION_PX, variant.pair_rate, pair_rng, fields) for c in cams}
     group_rng = np.random.default_rng([seed, 17])  # its own stream: the pair draws stay as they were
     groups = {c: group_decoding(intr, pts[c], SEPARATION_PX, variant.group_rate, group_rng, fields) for c in cams}
     for c in cams:
-        resolved[c] = resolved[c] | pairs[c].resolved | groups[c].resolved
+        resolved[c] = resolved[c] | pairs[c].resolved | groups[c].resolved | near[c]
     needed: dict[str, np.ndarray | None] = (
         dict(needed_from(resolved, variant.need)) if variant.need else {c: None for c in cams})
     if variant.pair_rate:  # pair-decoded motes need nothing more from that camera
@@ -211,6 +222,9 @@ def run(n_motes: int, n_cams: int, timing: RigTiming, miss_rate: float, seed: in
                   for c in cams}
     if variant.group_rate:  # group-decoded motes too
         needed = {c: (np.ones(n_motes, bool) if needed[c] is None else needed[c]) & ~groups[c].resolved  # type: ignore[operator]
+                  for c in cams}
+    if sep > SEPARATION_PX:  # motes read in the wide view though a neighbour lies within sep
+        needed = {c: (np.ones(n_motes, bool) if needed[c] is None else needed[c]) & ~near[c]  # type: ignore[operator]
                   for c in cams}
     partner_eligible: dict[str, np.ndarray] | None = None
     partner_ok: dict[str, np.ndarray] | None = None
@@ -243,7 +257,7 @@ def run(n_motes: int, n_cams: int, timing: RigTiming, miss_rate: float, seed: in
         """The cheapest ladder's refinement of camera ``c``: passes, lost, retry fraction, views."""
         best = math.inf
         for ladder in (LADDERS if variant.pick_ladder else (levels,)):
-            passes, lost = plan_refinement(intr, pts[c], SEPARATION_PX, ladder, start=views[c][-1],
+            passes, lost = plan_refinement(intr, pts[c], sep, ladder, start=views[c][-1],
                                            field_rows=fields, needed=need_c, share_tiles=variant.share_tiles)
             nv = sum(len(rp.views) for rp in passes)
             q = sum(_retry_fraction(intr.at_zoom(rp.zoom), pts[c], rp.views, miss_rate) * len(rp.views)
@@ -264,15 +278,15 @@ def run(n_motes: int, n_cams: int, timing: RigTiming, miss_rate: float, seed: in
                    key=lambda pl: pl["coded"].time.total)  # type: ignore[attr-defined]
 
     def plan_order(radio_cams: tuple[str, ...], order: str) -> dict[str, object]:
-        sep = radio_separation(intr, pts, views, SEPARATION_PX, radio_cams, fields, needed,
-                               partner=partner_eligible, partner_ok=partner_ok,
-                               stations=order == "view") if radio_cams else None
+        rs = radio_separation(intr, pts, views, sep, radio_cams, fields, needed,
+                              partner=partner_eligible, partner_ok=partner_ok,
+                              stations=order == "view") if radio_cams else None
         refine: dict[str, list[RefinePass]] = {}
         unresolved = n_refine = 0
         refine_retry = 0.0
         for c in cams:
-            need_c = needed[c] if sep is None or c not in radio_cams else sep.leftover[c]
-            key = (c, sep is not None and c in radio_cams)  # a camera's leftover depends on it alone
+            need_c = needed[c] if rs is None or c not in radio_cams else rs.leftover[c]
+            key = (c, rs is not None and c in radio_cams)  # a camera's leftover depends on it alone
             if key not in cache:
                 cache[key] = zoom_refine(c, need_c)
             refine[c], lost_c, q_c, nv_c = cache[key]
@@ -281,10 +295,10 @@ def run(n_motes: int, n_cams: int, timing: RigTiming, miss_rate: float, seed: in
             n_refine += nv_c
         refine_retry /= max(n_refine, 1)
         radio_retry, n_round = 0.0, 0
-        if sep is not None:
+        if rs is not None:
             q_round = miss_rate if variant.round_miss_rate is None else variant.round_miss_rate
-            for c, rs in sep.rounds.items():
-                for rr in rs:
+            for c, rounds in rs.rounds.items():
+                for rr in rounds:
                     radio_retry += sum(1.0 - (1.0 - q_round) ** m for m in rr.view_targets)
                     n_round += len(rr.views)
             radio_retry /= max(n_round, 1)
@@ -292,12 +306,12 @@ def run(n_motes: int, n_cams: int, timing: RigTiming, miss_rate: float, seed: in
             views, n_motes, k, coded_timing, retry_fraction=retry_views, refine=refine,
             broadcast_start=variant.broadcast, start_broadcasts=3, extend_frames=extend, retry_frames=retry_frames,
             refine_retry_fraction=refine_retry if variant.retry_refinement else 0.0, zoom_out=variant.zoom_out,
-            resync_s=RESYNC_S if variant.sync else None, radio_rounds=sep.rounds if sep else None,
-            pause_broadcasts=sep.pause_broadcasts if sep else 3,
+            resync_s=RESYNC_S if variant.sync else None, radio_rounds=rs.rounds if rs else None,
+            pause_broadcasts=rs.pause_broadcasts if rs else 3,
             radio_retry_fraction=radio_retry if variant.retry_refinement else 0.0,
             round_frames=round_k or None, round_order=order)
-        return {"coded": coded, "round_order": order if sep else "-", "unresolved": unresolved, "refine_retry": refine_retry, "radio_cams": radio_cams,
-                "classes": sep.classes if sep else 0, "round_views": n_round, "radio_retry": radio_retry}
+        return {"coded": coded, "round_order": order if rs else "-", "unresolved": unresolved, "refine_retry": refine_retry, "radio_cams": radio_cams,
+                "classes": rs.classes if rs else 0, "round_views": n_round, "radio_retry": radio_retry}
 
     if variant.separate == "zoom":
         choices: list[tuple[str, ...]] = [()]
@@ -334,7 +348,7 @@ def run(n_motes: int, n_cams: int, timing: RigTiming, miss_rate: float, seed: in
         "groups": sum(len(g.groups) for g in groups.values()),
         "groups_resolved": sum(g.resolved_groups for g in groups.values()),
         "groups_fourth8": sum(int((g.fourth_px < 8.0).sum()) for g in groups.values()),
-        "crowded": sum(int((~(neighbour_px(pts[c], intr, fields) >= SEPARATION_PX)).sum()) for c in cams),
+        "crowded": sum(int((~(neighbour_px(pts[c], intr, fields) >= sep)).sum()) for c in cams),
     }
 
 
@@ -402,6 +416,14 @@ def main() -> None:
                     "its views), view-major (each camera's round views shared across the classes; it stays on a "
                     "view while the classes it needs there take turns, one pause update per class change), or the "
                     "cheaper of the two on the clock; default class")
+    ap.add_argument("--separation", type=float, default=SEPARATION_PX, metavar="PX",
+                    help="a mote is isolated (read as such in the wide view) when no other lies within PX px at the "
+                    "wide zoom; default 4 (the crowd criterion of every earlier table); the blind decoder's measured "
+                    "separation is ~8 px (scripts/blink_near_montecarlo.py)")
+    ap.add_argument("--near-decode", default="", metavar="RATE|PX:RATE,...,inf:RATE",
+                    help="with --separation above 4: the share of motes whose nearest neighbour lies 4 px to "
+                    "--separation away that the blind decoder still reads (blink_near_montecarlo.py), or per bound "
+                    "on that distance; default 0")
     ap.add_argument("--need", type=int, default=0,
                     help="refine a mote only where fewer than this many other cameras resolve it (0: always)")
     ap.add_argument("--old", action="store_true", help="the previous plan: rotation-free book, burst retries of "
@@ -413,13 +435,18 @@ def main() -> None:
     args = ap.parse_args()
     if args.seeds < 1:
         ap.error(f"--seeds: at least 1 ({args.seeds})")
+    if not SEPARATION_PX <= args.separation <= 64.0:
+        ap.error(f"--separation: px in [{SEPARATION_PX:g}, 64] ({args.separation})")
+    if args.near_decode and args.separation <= SEPARATION_PX:
+        ap.error(f"--near-decode: needs --separation above {SEPARATION_PX:g} px ({args.near_decode})")
     levels = tuple(float(x) for x in args.levels.split(","))
     timing = RigTiming(head=HEAD_MODELS[args.head], camera=CameraTiming(frame_rate_hz=args.fps))
     variant = Variant(fields=not args.frames, broadcast=not args.unicast, sync=args.sync,
                       extend=args.extend, continuous_retry=not args.burst_retry,
                       retry_refinement=not args.no_refine_retry, zoom_out=args.zoom_out, need=args.need,
                       share_tiles=not args.separate_tiles, pick_ladder=not args.fixed_ladder,
-                      separate=args.separate, round_miss_rate=args.round_miss_rate, round_order=args.round_order)
+                      separate=args.separate, round_miss_rate=args.round_miss_rate, round_order=args.round_order,
+                      separation_px=args.separation)
     if args.round_frames:
         try:
             variant = replace(variant, round_frames=round_frames_of(args.round_frames))
@@ -431,7 +458,8 @@ def main() -> None:
     for flag, value, name in (("--pair-decode", args.pair_decode, "pair_rate"),
                               ("--group-decode", args.group_decode, "group_rate"),
                               ("--partner-decode", args.partner_decode, "partner_rate"),
-                              ("--partner-group-decode", args.partner_group_decode, "partner_group_rate")):
+                              ("--partner-group-decode", args.partner_group_decode, "partner_group_rate"),
+                              ("--near-decode", args.near_decode, "near_rate")):
         if not value:
             continue
         try:

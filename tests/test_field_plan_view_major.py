@@ -14,7 +14,13 @@ import pytest
 
 from fgloc.camera.intrinsics import CameraIntrinsics
 from fgloc.survey.clock import EVI_D100, CameraTiming, RadioTiming, RigTiming
-from fgloc.survey.field_plans import coded_survey_time, radio_round_time, view_major_round_time, view_major_slots
+from fgloc.survey.field_plans import (
+    coded_survey_time,
+    near_decoding,
+    radio_round_time,
+    view_major_round_time,
+    view_major_slots,
+)
 from fgloc.survey.view_planner import RadioRound, coverage, plan_radio_rounds, plan_round_stations
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -123,3 +129,44 @@ def test_bad_round_order_is_one_line_exit_2() -> None:
                           "--round-order", "diagonal"], capture_output=True, text=True, timeout=120)
     assert res.returncode == 2
     assert "--round-order" in res.stderr.strip().splitlines()[-1] and "Traceback" not in res.stderr
+
+
+def test_near_decoding_draws_only_the_band_at_its_rate() -> None:
+    intr = CameraIntrinsics.from_fov(640, 480, 65.0)
+    px = 1.0 / intr.fx  # one pixel of pan at tilt 0
+    # motes on a line at tilt 0: gaps (px) 3, 5, 7, 20, 20
+    pans = np.cumsum([0.0, 3.0, 5.0, 7.0, 20.0, 20.0]) * px
+    pt = np.column_stack([pans, np.zeros_like(pans)])
+    rng = np.random.default_rng(0)
+    all_band = near_decoding(intr, pt, 4.0, 8.0, 1.0, rng)
+    assert all_band.tolist() == [False, False, True, True, False, False]  # nearest 3, 3, 5, 7, 20, 20 px
+    assert not near_decoding(intr, pt, 4.0, 8.0, 0.0, rng).any()
+    by_table = near_decoding(intr, pt, 4.0, 8.0, ((6.0, 1.0), (math.inf, 0.0)), rng)
+    assert by_table.tolist() == [False, False, True, False, False, False]  # 5 px at rate 1, 7 px at rate 0
+
+
+def test_field_time_decoder_separation_prices_more_crowds(field_time: ModuleType) -> None:
+    ft = field_time
+    timing = RigTiming(head=EVI_D100, camera=CameraTiming(frame_rate_hz=30000.0 / 1001.0))
+    # zoom refinement: a near mote the blind decoder reads needs no tile
+    base = ft.Variant(separate="zoom")
+    plan4 = ft.run(100, 2, timing, 0.1257, variant=base)
+    none_read = ft.run(100, 2, timing, 0.1257, variant=replace(base, separation_px=8.0))
+    some_read = ft.run(100, 2, timing, 0.1257, variant=replace(base, separation_px=8.0, near_rate=0.7))
+    assert none_read["crowded"] > plan4["crowded"] and some_read["crowded"] == none_read["crowded"]
+    assert none_read["coded"] > some_read["coded"] > plan4["coded"]
+    # radio rounds: a read near mote still blinks beside its unread neighbour, so the conflict stays
+    radio = ft.Variant(separate="radio", round_frames=(1, 2), round_miss_rate=0.2552, round_order="best")
+    r4 = ft.run(100, 2, timing, 0.1257, variant=radio)
+    r8 = ft.run(100, 2, timing, 0.1257, variant=replace(radio, separation_px=8.0, near_rate=0.7))
+    assert r8["classes"] >= r4["classes"] and r8["round_views"] > r4["round_views"] and r8["coded"] > r4["coded"]
+
+
+@pytest.mark.parametrize("args", [["--separation", "3"], ["--near-decode", "0.5"],
+                                  ["--separation", "8", "--near-decode", "x"]])
+def test_bad_separation_flags_are_one_line_exit_2(args: list[str]) -> None:
+    res = subprocess.run([sys.executable, str(ROOT / "scripts" / "field_time.py"), "--sizes", "100x2", *args],
+                         capture_output=True, text=True, timeout=120)
+    assert res.returncode == 2
+    last = res.stderr.strip().splitlines()[-1]
+    assert ("--separation" in last or "--near-decode" in last) and "Traceback" not in res.stderr

@@ -69,7 +69,7 @@ from fgloc.survey.field_plan_radio import (  # noqa: F401  (RadioSeparation, rad
     view_major_round_time,
     view_major_slots,
 )
-from fgloc.survey.view_planner import RadioRound, RefinePass, conflict_pairs
+from fgloc.survey.view_planner import RadioRound, RefinePass, conflict_pairs, neighbour_px
 
 
 class ClockedHead:
@@ -343,6 +343,24 @@ def pair_decoding(intr: CameraIntrinsics, pan_tilt: np.ndarray, separation_px: f
     pairs = edges[(degree[edges[:, 0]] == 1) & (degree[edges[:, 1]] == 1)] if edges.size else edges
     resolved, third = _draw_resolved(pairs, pt, intr, separation_px, rate, rng, field_rows)
     return PairDecoding(pairs, resolved, third)
+
+
+def near_decoding(intr: CameraIntrinsics, pan_tilt: np.ndarray, low_px: float, high_px: float,
+                  rate: float | Sequence[tuple[float, float]], rng: np.random.Generator,
+                  field_rows: bool = False) -> np.ndarray:
+    """(N,) bool: the motes whose nearest neighbour lies ``low_px`` to ``high_px`` away at the wide
+    zoom (tangent plane as :func:`fgloc.survey.view_planner.neighbour_px`) that the blind
+    decoder reads there, each drawn (in mote order, one ``rng.random`` each) with ``rate``: a
+    number, or a table ``((max_px, rate), ..., (inf, rate))`` by that distance
+    (:func:`pair_rate_table`), measured by ``scripts/blink_montecarlo.py --near``. Closer than
+    ``low_px`` is a crowd (pair and group decoding); ``high_px`` on is isolated."""
+    d = neighbour_px(np.asarray(pan_tilt, float), intr, field_rows)
+    band = (d >= low_px) & (d < high_px)
+    if isinstance(rate, (int, float)):
+        p = np.full(len(d), float(rate))
+    else:
+        p = np.array([next((r for b, r in rate if t < b), rate[-1][1]) for t in d])
+    return band & (rng.random(len(d)) < p)
 
 
 @dataclass(frozen=True)
