@@ -285,6 +285,10 @@ def test_serialforwarder_forwards_every_packet_to_every_client() -> None:
     client whose command caused it; a command from one client goes to the motes only."""
     with SerialForwarderTwin() as twin, open_mote_network(twin.url, report_timeout=0.5) as a, \
             open_mote_network(twin.url, report_timeout=0.5) as b:
+        deadline = time.monotonic() + 5.0  # the forwarder serves a client once it has read its handshake
+        while twin.clients_ready < 2 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert twin.clients_ready == 2
         assert a.set_led("n1", True)
         seen_by_b = b.link.receive(1.0)
         assert seen_by_b is not None and parse_led_report(seen_by_b) == (1, True)

@@ -155,6 +155,12 @@ class SerialForwarderTwin:
         self._thread.start()
 
     @property
+    def clients_ready(self) -> int:
+        """Connected clients past the handshake: the ones packets are forwarded to."""
+        with self._lock:
+            return len(self._ready)
+
+    @property
     def url(self) -> str:
         return f"tcp://127.0.0.1:{self.port}"
 
