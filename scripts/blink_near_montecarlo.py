@@ -3,7 +3,7 @@
 The field plan (``scripts/field_time.py``) counts a mote as isolated, read in the wide view
 at the isolated miss rate, when no other mote lies within 4 px; closer ones are crowds
 (pair and group decoding, rounds, zoom). This measures what the blind decoder
-(:func:`fgloc.camera.blink_decoder.decode_view`, pair decoding off) reads between: each
+(:func:`fgloc.camera.blink_decoder.decode_view`; pair decoding off, or on with ``--pairs``) reads between: each
 seeded view (the rendered views of ``scripts/blink_views.py``: 640 x 480 at 65 deg, or
 fields, 5 % drops, 1 % repeats, flickering lamps, ``--glints`` glints, drifting mote
 clocks) holds ``--motes`` / 2 pairs of motes ``U(--min-px, --max-px)`` px apart in a
@@ -12,7 +12,7 @@ other mote within 2 x ``--max-px`` of either. A mote is *read* when a reading na
 code within 2 px of it; a reading elsewhere is *mislabelled*. Printed per distance bin:
 the read share, which ``field_time.py --separation PX --near-decode TABLE`` takes.
 
-    OPENBLAS_NUM_THREADS=1 .venv/bin/python scripts/blink_near_montecarlo.py --trials 150 [--fields]
+    OPENBLAS_NUM_THREADS=1 .venv/bin/python scripts/blink_near_montecarlo.py --trials 150 [--fields] [--pairs]
 """
 
 from __future__ import annotations
@@ -30,6 +30,7 @@ from blink_views import add_view_arguments, render_motes, video_label, view_came
 
 from fgloc.camera.blink_codes import code_book  # noqa: E402
 from fgloc.camera.blink_decoder import decode_view  # noqa: E402
+from fgloc.camera.blink_pairs import PairConfig  # noqa: E402
 from fgloc.camera.pixel_angles import pixel_to_pan_tilt  # noqa: E402
 from fgloc.core.geometry import pan_tilt_bearing  # noqa: E402
 from fgloc.survey.field_plans import frames_for  # noqa: E402
@@ -52,8 +53,9 @@ def near_pixels(rng: np.random.Generator, n_pairs: int, width: int, height: int,
 
 
 def trial(seed: int, n_motes: int, book_size: int, glints: int, fields: bool, low: float,
-          high: float) -> tuple[np.ndarray, np.ndarray, int]:
-    """One view: per mote its distance to its partner (px) and whether it was read; mislabels."""
+          high: float, pairs: bool = False) -> tuple[np.ndarray, np.ndarray, int]:
+    """One view: per mote its distance to its partner (px) and whether it was read; mislabels.
+    ``pairs``: decoded with pair decoding on (:mod:`fgloc.camera.blink_pairs`, the survey's default)."""
     rng = np.random.default_rng(seed)
     book = code_book(book_size)
     intr, head_pan, head_tilt = view_camera(rng, fields)
@@ -63,7 +65,8 @@ def trial(seed: int, n_motes: int, book_size: int, glints: int, fields: bool, lo
     ids = rng.choice(book_size, size=len(uv), replace=False)
     frames, cfg, _, _ = render_motes(rng, intr, head_pan, head_tilt, pts, ids, book, glints, fields, False, 10.0,
                                      frames_for(book.length))
-    res = decode_view(frames, 1.0 / cfg.frame_rate_hz, book, intr, head_pan, head_tilt)
+    res = decode_view(frames, 1.0 / cfg.frame_rate_hz, book, intr, head_pan, head_tilt,
+                      pairs=PairConfig() if pairs else None)
     where = {int(i): uv[k] for k, i in enumerate(ids)}
     read = set()
     mislabelled = 0
@@ -82,6 +85,7 @@ def main() -> None:
     add_view_arguments(ap)
     ap.add_argument("--min-px", type=float, default=4.0, help="smallest pair separation (px)")
     ap.add_argument("--max-px", type=float, default=16.0, help="largest pair separation (px)")
+    ap.add_argument("--pairs", action="store_true", help="decode with pair decoding on (the survey's default lever)")
     args = ap.parse_args()
     if not 0.0 < args.min_px < args.max_px <= 64.0:
         ap.error(f"--min-px, --max-px: need 0 < min < max <= 64 ({args.min_px}, {args.max_px})")
@@ -91,13 +95,14 @@ def main() -> None:
     seps, reads, mislabelled = [], [], 0
     for k in range(args.trials):
         sep, read, mis = trial(args.seed + k, args.motes, args.book, args.glints, args.fields, args.min_px,
-                               args.max_px)
+                               args.max_px, args.pairs)
         seps.append(sep)
         reads.append(read)
         mislabelled += mis
     sep, read = np.concatenate(seps), np.concatenate(reads)
     print(f"{video_label(args.fields)}: {args.trials} views x {args.motes} motes in pairs {args.min_px:g}-"
-          f"{args.max_px:g} px apart (book {args.book}), {args.glints} glints/view, {time.perf_counter() - t0:.0f} s")
+          f"{args.max_px:g} px apart (book {args.book}), {args.glints} glints/view, "
+          f"{'pair decoding on, ' if args.pairs else ''}{time.perf_counter() - t0:.0f} s")
     print(f"decodes {len(sep)}: read {read.mean():.2%}, mislabelled {mislabelled}")
     for lo, hi in zip(BINS, BINS[1:]):
         m = (sep >= lo) & (sep < hi)

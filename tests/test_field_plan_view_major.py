@@ -134,15 +134,16 @@ def test_bad_round_order_is_one_line_exit_2() -> None:
 def test_near_decoding_draws_only_the_band_at_its_rate() -> None:
     intr = CameraIntrinsics.from_fov(640, 480, 65.0)
     px = 1.0 / intr.fx  # one pixel of pan at tilt 0
-    # motes on a line at tilt 0: gaps (px) 3, 5, 7, 20, 20
-    pans = np.cumsum([0.0, 3.0, 5.0, 7.0, 20.0, 20.0]) * px
+    # motes on a line at tilt 0: gaps (px) 3 | 20 | 5 | 20 | 7 | 20 | 5, 6 (a crowd of three) | 20
+    pans = np.cumsum([0.0, 3.0, 20.0, 5.0, 20.0, 7.0, 20.0, 5.0, 6.0, 20.0]) * px
     pt = np.column_stack([pans, np.zeros_like(pans)])
     rng = np.random.default_rng(0)
     all_band = near_decoding(intr, pt, 4.0, 8.0, 1.0, rng)
-    assert all_band.tolist() == [False, False, True, True, False, False]  # nearest 3, 3, 5, 7, 20, 20 px
+    # the pairs 5 and 7 px apart, alone within 8 px: drawn; the 3 px pair (a crowd) and the three not
+    assert np.flatnonzero(all_band).tolist() == [2, 3, 4, 5]
     assert not near_decoding(intr, pt, 4.0, 8.0, 0.0, rng).any()
     by_table = near_decoding(intr, pt, 4.0, 8.0, ((6.0, 1.0), (math.inf, 0.0)), rng)
-    assert by_table.tolist() == [False, False, True, False, False, False]  # 5 px at rate 1, 7 px at rate 0
+    assert np.flatnonzero(by_table).tolist() == [2, 3]  # 5 px at rate 1, 7 px at rate 0
 
 
 def test_field_time_decoder_separation_prices_more_crowds(field_time: ModuleType) -> None:

@@ -349,13 +349,22 @@ def near_decoding(intr: CameraIntrinsics, pan_tilt: np.ndarray, low_px: float, h
                   rate: float | Sequence[tuple[float, float]], rng: np.random.Generator,
                   field_rows: bool = False) -> np.ndarray:
     """(N,) bool: the motes whose nearest neighbour lies ``low_px`` to ``high_px`` away at the wide
-    zoom (tangent plane as :func:`fgloc.survey.view_planner.neighbour_px`) that the blind
-    decoder reads there, each drawn (in mote order, one ``rng.random`` each) with ``rate``: a
-    number, or a table ``((max_px, rate), ..., (inf, rate))`` by that distance
-    (:func:`pair_rate_table`), measured by ``scripts/blink_montecarlo.py --near``. Closer than
-    ``low_px`` is a crowd (pair and group decoding); ``high_px`` on is isolated."""
-    d = neighbour_px(np.asarray(pan_tilt, float), intr, field_rows)
-    band = (d >= low_px) & (d < high_px)
+    zoom (tangent plane as :func:`fgloc.survey.view_planner.neighbour_px`) that the decoder
+    reads there, each drawn (in mote order, one ``rng.random`` each) with ``rate``: a number,
+    or a table ``((max_px, rate), ..., (inf, rate))`` by that distance (:func:`pair_rate_table`),
+    measured by ``scripts/blink_near_montecarlo.py`` on pairs with no third mote near. So only
+    a mote whose one neighbour within ``high_px`` has no other there either (a pair alone at
+    ``high_px``) is drawn; a mote in a larger crowd is not read. Closer than ``low_px`` is a
+    crowd (pair and group decoding); ``high_px`` on is isolated."""
+    pt = np.asarray(pan_tilt, float)
+    d = neighbour_px(pt, intr, field_rows)
+    edges = conflict_pairs(pt, intr, high_px, field_rows)
+    degree = np.bincount(edges.ravel(), minlength=len(pt)) if edges.size else np.zeros(len(pt), int)
+    alone = np.zeros(len(pt), bool)
+    if edges.size:
+        two = edges[(degree[edges[:, 0]] == 1) & (degree[edges[:, 1]] == 1)]
+        alone[two.ravel()] = True
+    band = (d >= low_px) & (d < high_px) & alone
     if isinstance(rate, (int, float)):
         p = np.full(len(d), float(rate))
     else:
