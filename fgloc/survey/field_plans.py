@@ -337,12 +337,25 @@ def pair_decoding(intr: CameraIntrinsics, pan_tilt: np.ndarray, separation_px: f
     a third LED near the aperture spoils the pair's levels. Larger groups, and the pairs not drawn,
     are refined as before."""
     pt = np.asarray(pan_tilt, float)
-    n = len(pt)
-    edges = conflict_pairs(pt, intr, separation_px, field_rows)
-    degree = np.bincount(edges.ravel(), minlength=n) if edges.size else np.zeros(n, int)
-    pairs = edges[(degree[edges[:, 0]] == 1) & (degree[edges[:, 1]] == 1)] if edges.size else edges
+    pairs = _pairs_alone(conflict_pairs(pt, intr, separation_px, field_rows), len(pt))
     resolved, third = _draw_resolved(pairs, pt, intr, separation_px, rate, rng, field_rows)
     return PairDecoding(pairs, resolved, third)
+
+
+def _pairs_alone(edges: np.ndarray, n: int) -> np.ndarray:
+    """The edges (E, 2) of a graph on ``n`` vertices whose two ends have no other edge: its
+    connected components of exactly two."""
+    if not edges.size:
+        return edges
+    degree = np.bincount(edges.ravel(), minlength=n)
+    return edges[(degree[edges[:, 0]] == 1) & (degree[edges[:, 1]] == 1)]
+
+
+def _rates(rate: float | Sequence[tuple[float, float]], distances: np.ndarray) -> np.ndarray:
+    """Per distance (px), ``rate`` when a number, else the rate of the first table bound above it."""
+    if isinstance(rate, (int, float)):
+        return np.full(len(distances), float(rate))
+    return np.array([next((r for b, r in rate if t < b), rate[-1][1]) for t in distances])
 
 
 def near_decoding(intr: CameraIntrinsics, pan_tilt: np.ndarray, low_px: float, high_px: float,
@@ -358,18 +371,9 @@ def near_decoding(intr: CameraIntrinsics, pan_tilt: np.ndarray, low_px: float, h
     crowd (pair and group decoding); ``high_px`` on is isolated."""
     pt = np.asarray(pan_tilt, float)
     d = neighbour_px(pt, intr, field_rows)
-    edges = conflict_pairs(pt, intr, high_px, field_rows)
-    degree = np.bincount(edges.ravel(), minlength=len(pt)) if edges.size else np.zeros(len(pt), int)
     alone = np.zeros(len(pt), bool)
-    if edges.size:
-        two = edges[(degree[edges[:, 0]] == 1) & (degree[edges[:, 1]] == 1)]
-        alone[two.ravel()] = True
-    band = (d >= low_px) & (d < high_px) & alone
-    if isinstance(rate, (int, float)):
-        p = np.full(len(d), float(rate))
-    else:
-        p = np.array([next((r for b, r in rate if t < b), rate[-1][1]) for t in d])
-    return band & (rng.random(len(d)) < p)
+    alone[_pairs_alone(conflict_pairs(pt, intr, high_px, field_rows), len(pt)).ravel()] = True
+    return (d >= low_px) & (d < high_px) & alone & (rng.random(len(d)) < _rates(rate, d))
 
 
 @dataclass(frozen=True)
@@ -437,10 +441,6 @@ def _draw_resolved(groups: np.ndarray, pt: np.ndarray, intr: CameraIntrinsics, s
             for s in g:
                 dp = math.remainder(pt[m, 0] - pt[s, 0], 2 * math.pi) * math.cos(0.5 * (pt[m, 1] + pt[s, 1]))
                 nearest[k] = min(nearest[k], math.hypot(dp * intr.fx, (pt[m, 1] - pt[s, 1]) * fy))
-    if isinstance(rate, (int, float)):
-        p = np.full(len(groups), float(rate))
-    else:
-        p = np.array([next((r for b, r in rate if t < b), rate[-1][1]) for t in nearest])
-    hit = rng.random(len(groups)) < p
+    hit = rng.random(len(groups)) < _rates(rate, nearest)
     resolved[groups[hit].ravel()] = True
     return resolved, nearest
