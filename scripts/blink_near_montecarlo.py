@@ -35,7 +35,7 @@ from fgloc.camera.pixel_angles import pixel_to_pan_tilt  # noqa: E402
 from fgloc.core.geometry import pan_tilt_bearing  # noqa: E402
 from fgloc.survey.field_plans import frames_for  # noqa: E402
 
-BINS = (4.0, 5.0, 6.0, 7.0, 8.0, 10.0, 12.0, 16.0)  #: distance bins (px) of the report
+BINS = (1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0, 10.0, 12.0, 16.0)  #: distance bins (px) of the report
 
 
 def near_pixels(rng: np.random.Generator, n_pairs: int, width: int, height: int, low: float,
@@ -52,21 +52,59 @@ def near_pixels(rng: np.random.Generator, n_pairs: int, width: int, height: int,
     return np.array(out)
 
 
+def crowd_pixels(rng: np.random.Generator, n_crowds: int, size: int, width: int, height: int, low: float,
+                 high: float) -> np.ndarray:
+    """(size n_crowds, 2) pixels: crowds of ``size`` motes grown one at a time, each new mote
+    ``U(low, high)`` px from a random earlier member in a random direction and at least
+    ``low`` from every member (so each mote's nearest neighbour lies in [low, high), and the
+    crowd is connected at ``high``: what the field plan calls a crowd of ``size`` alone at
+    ``high``), every mote of another crowd at least 2 x ``high`` away."""
+    out: list[np.ndarray] = []
+    while len(out) < size * n_crowds:
+        crowd = [np.array([rng.uniform(24, width - 24), rng.uniform(24, height - 24)])]
+        while len(crowd) < size:
+            a, s = rng.uniform(0, 2 * math.pi), rng.uniform(low, high)
+            p = crowd[int(rng.integers(len(crowd)))] + s * np.array([math.cos(a), math.sin(a)])
+            if min(float(np.hypot(*(q - p))) for q in crowd) >= low:
+                crowd.append(p)
+        inside = all(8 <= p[0] <= width - 8 and 8 <= p[1] <= height - 8 for p in crowd)
+        if not inside or (out and min(float(np.min(np.hypot(*(np.array(out) - p).T))) for p in crowd) < 2.0 * high):
+            continue
+        out += crowd
+    return np.array(out)
+
+
+def nearest_within(uv: np.ndarray, size: int) -> np.ndarray:
+    """(N,) px from each mote to its nearest neighbour in its own crowd (consecutive ``size`` rows)."""
+    out = np.empty(len(uv))
+    for k in range(0, len(uv), size):
+        c = uv[k:k + size]
+        d = np.hypot(*(c[:, None, :] - c[None, :, :]).transpose(2, 0, 1))
+        np.fill_diagonal(d, np.inf)
+        out[k:k + size] = d.min(axis=1)
+    return out
+
+
 def trial(seed: int, n_motes: int, book_size: int, glints: int, fields: bool, low: float,
-          high: float, pairs: bool = False) -> tuple[np.ndarray, np.ndarray, int]:
-    """One view: per mote its distance to its partner (px) and whether it was read; mislabels.
-    ``pairs``: decoded with pair decoding on (:mod:`fgloc.camera.blink_pairs`, the survey's default)."""
+          high: float, pairs: bool = False, group: int = 2) -> tuple[np.ndarray, np.ndarray, int]:
+    """One view: per mote its distance to its nearest neighbour (px) and whether it was read;
+    mislabels. ``pairs``: decoded with pair decoding on (:mod:`fgloc.camera.blink_pairs`, the
+    survey's default). ``group`` 3 to 5: crowds of that many (:func:`crowd_pixels`) instead of
+    pairs, decoded with group decoding of three LEDs on too (``PairConfig(max_group=3)``)."""
     rng = np.random.default_rng(seed)
     book = code_book(book_size)
     intr, head_pan, head_tilt = view_camera(rng, fields)
-    uv = near_pixels(rng, n_motes // 2, intr.width, intr.height, low, high)
+    if group == 2:
+        uv = near_pixels(rng, n_motes // 2, intr.width, intr.height, low, high)
+    else:
+        uv = crowd_pixels(rng, n_motes // group, group, intr.width, intr.height, low, high)
     pans, tilts = pixel_to_pan_tilt(intr, uv, head_pan, head_tilt)
     pts = pan_tilt_bearing(pans, tilts) * rng.uniform(3.0, 30.0, len(uv))[:, None]
     ids = rng.choice(book_size, size=len(uv), replace=False)
     frames, cfg, _, _ = render_motes(rng, intr, head_pan, head_tilt, pts, ids, book, glints, fields, False, 10.0,
                                      frames_for(book.length))
     res = decode_view(frames, 1.0 / cfg.frame_rate_hz, book, intr, head_pan, head_tilt,
-                      pairs=PairConfig() if pairs else None)
+                      pairs=(PairConfig(max_group=3) if group > 2 else PairConfig()) if pairs else None)
     where = {int(i): uv[k] for k, i in enumerate(ids)}
     read = set()
     mislabelled = 0
@@ -76,7 +114,7 @@ def trial(seed: int, n_motes: int, book_size: int, glints: int, fields: bool, lo
             read.add(r.index)
         else:
             mislabelled += 1
-    sep = np.repeat(np.hypot(*(uv[0::2] - uv[1::2]).T), 2)
+    sep = np.repeat(np.hypot(*(uv[0::2] - uv[1::2]).T), 2) if group == 2 else nearest_within(uv, group)
     return sep, np.array([int(i) in read for i in ids]), mislabelled
 
 
@@ -86,6 +124,9 @@ def main() -> None:
     ap.add_argument("--min-px", type=float, default=4.0, help="smallest pair separation (px)")
     ap.add_argument("--max-px", type=float, default=16.0, help="largest pair separation (px)")
     ap.add_argument("--pairs", action="store_true", help="decode with pair decoding on (the survey's default lever)")
+    ap.add_argument("--group", type=int, choices=(2, 3, 4, 5), default=2,
+                    help="crowd size: 2 (pairs), or 3 to 5 (crowds linked at --max-px; group decoding of three "
+                    "LEDs on too with --pairs)")
     args = ap.parse_args()
     if not 0.0 < args.min_px < args.max_px <= 64.0:
         ap.error(f"--min-px, --max-px: need 0 < min < max <= 64 ({args.min_px}, {args.max_px})")
@@ -95,14 +136,16 @@ def main() -> None:
     seps, reads, mislabelled = [], [], 0
     for k in range(args.trials):
         sep, read, mis = trial(args.seed + k, args.motes, args.book, args.glints, args.fields, args.min_px,
-                               args.max_px, args.pairs)
+                               args.max_px, args.pairs, args.group)
         seps.append(sep)
         reads.append(read)
         mislabelled += mis
     sep, read = np.concatenate(seps), np.concatenate(reads)
-    print(f"{video_label(args.fields)}: {args.trials} views x {args.motes} motes in pairs {args.min_px:g}-"
+    crowd = "pairs" if args.group == 2 else f"crowds of {args.group} (links)"
+    decoding = ("pair decoding on, " if args.group == 2 else "pair and group decoding on, ") if args.pairs else ""
+    print(f"{video_label(args.fields)}: {args.trials} views x {args.motes} motes in {crowd} {args.min_px:g}-"
           f"{args.max_px:g} px apart (book {args.book}), {args.glints} glints/view, "
-          f"{'pair decoding on, ' if args.pairs else ''}{time.perf_counter() - t0:.0f} s")
+          f"{decoding}{time.perf_counter() - t0:.0f} s")
     print(f"decodes {len(sep)}: read {read.mean():.2%}, mislabelled {mislabelled}")
     for lo, hi in zip(BINS, BINS[1:]):
         m = (sep >= lo) & (sep < hi)

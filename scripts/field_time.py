@@ -88,6 +88,7 @@ from fgloc.survey.field_plans import (
     CodedTime,
     SequentialTime,
     coded_survey_time,
+    crowd_decoding,
     frames_for,
     group_decoding,
     near_decoding,
@@ -164,6 +165,11 @@ class Variant:
     #: share of those motes the blind decoder reads (blink_near_montecarlo.py), or a table by
     #: the nearest neighbour's distance; 0: none is read (all refined or separated)
     near_rate: float | tuple[tuple[float, float], ...] = 0.0
+    #: crowds of k motes alone at ``separation_px`` (k, rate or table by each mote's nearest
+    #: neighbour, blink_near_montecarlo.py --group k --pairs): the share of their motes the
+    #: decoder reads in the wide view (field_plans.crowd_decoding); their draws replace the
+    #: pair and group decoders' draws of the crowds within 4 px inside them; (): none is read
+    crowd_rates: tuple[tuple[int, float | tuple[tuple[float, float], ...]], ...] = ()
 
 
 _SEQUENTIAL: dict[tuple[int, int, int, RigTiming], SequentialTime] = {}
@@ -213,8 +219,12 @@ def run(n_motes: int, n_cams: int, timing: RigTiming, miss_rate: float, seed: in
     pairs = {c: pair_decoding(intr, pts[c], SEPARATION_PX, variant.pair_rate, pair_rng, fields) for c in cams}
     group_rng = np.random.default_rng([seed, 17])  # its own stream: the pair draws stay as they were
     groups = {c: group_decoding(intr, pts[c], SEPARATION_PX, variant.group_rate, group_rng, fields) for c in cams}
-    for c in cams:
-        resolved[c] = resolved[c] | pairs[c].resolved | groups[c].resolved | near[c]
+    crowd_rng = np.random.default_rng([seed, 21])
+    crowd = {c: crowd_decoding(intr, pts[c], sep, dict(variant.crowd_rates), crowd_rng, fields) for c in cams}
+    for c in cams:  # a crowd's own measured share replaces the 4 px pair and group draws inside it
+        pairs[c] = replace(pairs[c], resolved=pairs[c].resolved & ~crowd[c][1])
+        groups[c] = replace(groups[c], resolved=groups[c].resolved & ~crowd[c][1])
+        resolved[c] = resolved[c] | pairs[c].resolved | groups[c].resolved | near[c] | crowd[c][0]
     needed: dict[str, np.ndarray | None] = (
         dict(needed_from(resolved, variant.need)) if variant.need else {c: None for c in cams})
     if variant.pair_rate:  # pair-decoded motes need nothing more from that camera
@@ -224,7 +234,7 @@ def run(n_motes: int, n_cams: int, timing: RigTiming, miss_rate: float, seed: in
         needed = {c: (np.ones(n_motes, bool) if needed[c] is None else needed[c]) & ~groups[c].resolved  # type: ignore[operator]
                   for c in cams}
     if sep > SEPARATION_PX:  # motes read in the wide view though a neighbour lies within sep
-        needed = {c: (np.ones(n_motes, bool) if needed[c] is None else needed[c]) & ~near[c]  # type: ignore[operator]
+        needed = {c: (np.ones(n_motes, bool) if needed[c] is None else needed[c]) & ~near[c] & ~crowd[c][0]  # type: ignore[operator]
                   for c in cams}
     partner_eligible: dict[str, np.ndarray] | None = None
     partner_ok: dict[str, np.ndarray] | None = None
@@ -348,6 +358,8 @@ def run(n_motes: int, n_cams: int, timing: RigTiming, miss_rate: float, seed: in
         "groups": sum(len(g.groups) for g in groups.values()),
         "groups_resolved": sum(g.resolved_groups for g in groups.values()),
         "groups_fourth8": sum(int((g.fourth_px < 8.0).sum()) for g in groups.values()),
+        "crowd_motes": sum(int(crowd[c][1].sum()) for c in cams),
+        "crowd_read": sum(int(crowd[c][0].sum()) for c in cams),
         "crowded": sum(int((~(neighbour_px(pts[c], intr, fields) >= sep)).sum()) for c in cams),
     }
 
@@ -424,6 +436,11 @@ def main() -> None:
                     help="with --separation above 4: the share of motes whose nearest neighbour lies 4 px to "
                     "--separation away that the blind decoder still reads (blink_near_montecarlo.py), or per bound "
                     "on that distance; default 0")
+    ap.add_argument("--crowd-decode", action="append", default=[], metavar="K=RATE|K=PX:RATE,...,inf:RATE",
+                    help="with --separation above 4, repeatable: the share of the motes of crowds of K (3 to 5) alone "
+                    "at --separation that the decoder reads in the wide view (blink_near_montecarlo.py --group K "
+                    "--pairs), or per bound on each mote's nearest-neighbour distance; replaces the pair and group "
+                    "decoders' draws inside those crowds; default none")
     ap.add_argument("--need", type=int, default=0,
                     help="refine a mote only where fewer than this many other cameras resolve it (0: always)")
     ap.add_argument("--old", action="store_true", help="the previous plan: rotation-free book, burst retries of "
@@ -439,6 +456,8 @@ def main() -> None:
         ap.error(f"--separation: px in [{SEPARATION_PX:g}, 64] ({args.separation})")
     if args.near_decode and args.separation <= SEPARATION_PX:
         ap.error(f"--near-decode: needs --separation above {SEPARATION_PX:g} px ({args.near_decode})")
+    if args.crowd_decode and args.separation <= SEPARATION_PX:
+        ap.error(f"--crowd-decode: needs --separation above {SEPARATION_PX:g} px ({args.crowd_decode[0]})")
     levels = tuple(float(x) for x in args.levels.split(","))
     timing = RigTiming(head=HEAD_MODELS[args.head], camera=CameraTiming(frame_rate_hz=args.fps))
     variant = Variant(fields=not args.frames, broadcast=not args.unicast, sync=args.sync,
@@ -467,6 +486,17 @@ def main() -> None:
         except ValueError as exc:
             ap.error(f"{flag}: {exc} ({value})")
         variant = replace(variant, **{name: table[0][1] if len(table) == 1 else table})
+    crowd_rates: dict[int, float | tuple[tuple[float, float], ...]] = {}
+    for value in args.crowd_decode:
+        size, _, text = value.partition("=")
+        try:
+            k, table = int(size), pair_rate_table(text)
+            if not 3 <= k <= 5 or k in crowd_rates:
+                raise ValueError(f"crowd size {k}: one of 3, 4, 5, each once")
+        except ValueError as exc:
+            ap.error(f"--crowd-decode: {exc} ({value})")
+        crowd_rates[k] = table[0][1] if len(table) == 1 else table
+    variant = replace(variant, crowd_rates=tuple(sorted(crowd_rates.items())))
     if args.partner_decode:
         variant = replace(variant, partner_any=args.partner_any)
     if args.partner_any and args.partner_decode.strip() not in ("1", "1.0"):
@@ -506,6 +536,10 @@ def report(r: dict[str, float], variant: Variant, args: argparse.Namespace) -> f
     if variant.group_rate:
         print(f"|   | group decoding: {r['groups']} crowded groups of exactly three over the cameras "
               f"({r['groups_fourth8']} with a fourth mote within 8 px), {r['groups_resolved']} resolved |||||||||||")
+    if variant.crowd_rates:
+        print(f"|   | crowd decoding: {r['crowd_motes']} mote-views in crowds of "
+              f"{', '.join(str(k) for k, _ in variant.crowd_rates)} alone at {variant.separation_px:g} px, "
+              f"{r['crowd_read']} read in the wide view |||||||||||")
     return r["seq"] / r["coded"]
 
 

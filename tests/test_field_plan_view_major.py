@@ -16,6 +16,7 @@ from fgloc.camera.intrinsics import CameraIntrinsics
 from fgloc.survey.clock import EVI_D100, CameraTiming, RadioTiming, RigTiming
 from fgloc.survey.field_plans import (
     coded_survey_time,
+    crowd_decoding,
     near_decoding,
     radio_round_time,
     view_major_round_time,
@@ -146,6 +147,41 @@ def test_near_decoding_draws_only_the_band_at_its_rate() -> None:
     assert np.flatnonzero(by_table).tolist() == [2, 3]  # 5 px at rate 1, 7 px at rate 0
 
 
+def test_crowd_decoding_draws_crowds_alone_by_each_motes_nearest_neighbour() -> None:
+    intr = CameraIntrinsics.from_fov(640, 480, 65.0)
+    px = 1.0 / intr.fx
+    # gaps (px): a pair 5 | 20 | a crowd of three 3, 6 | 20 | a crowd of four 5, 5, 7 | 20 | a lone mote
+    pans = np.cumsum([0.0, 5.0, 20.0, 3.0, 6.0, 20.0, 5.0, 5.0, 7.0, 20.0]) * px
+    pt = np.column_stack([pans, np.zeros_like(pans)])
+    read, member = crowd_decoding(intr, pt, 8.0, {3: 1.0, 4: 1.0}, np.random.default_rng(0))
+    assert np.flatnonzero(member).tolist() == [2, 3, 4, 5, 6, 7, 8]  # not the pair, not the lone mote
+    assert (read == member).all()
+    read3, member3 = crowd_decoding(intr, pt, 8.0, {3: 1.0}, np.random.default_rng(0))
+    assert np.flatnonzero(member3).tolist() == [2, 3, 4] and (read3 == member3).all()
+    # by each mote's nearest neighbour: 3 px for motes 2 and 3, 6 px for mote 4
+    table = ((4.0, 0.0), (math.inf, 1.0))
+    by_table, _ = crowd_decoding(intr, pt, 8.0, {3: table}, np.random.default_rng(0))
+    assert np.flatnonzero(by_table).tolist() == [4]
+    # a rate is a rate: over many crowds about that share of the motes is read
+    row = np.cumsum(np.tile([20.0, 5.0, 5.0], 40)) * px  # 40 crowds of three per row, 10 rows 20 px apart
+    many = np.column_stack([np.tile(row, 10), np.repeat(np.arange(10) * 20.0 * px, 120)])
+    half, m = crowd_decoding(intr, many, 8.0, {3: 0.3}, np.random.default_rng(1))
+    assert m.all() and abs(half.mean() - 0.3) < 0.04
+
+
+def test_field_time_crowd_rates_read_crowds_and_replace_their_pair_draws(field_time: ModuleType) -> None:
+    ft = field_time
+    timing = RigTiming(head=EVI_D100, camera=CameraTiming(frame_rate_hz=30000.0 / 1001.0))
+    base = ft.Variant(separate="zoom", separation_px=8.0, near_rate=0.7, pair_rate=1.0)
+    none = ft.run(100, 2, timing, 0.1257, variant=base)
+    every = ft.run(100, 2, timing, 0.1257, variant=replace(base, crowd_rates=((3, 1.0), (4, 1.0))))
+    zero = ft.run(100, 2, timing, 0.1257, variant=replace(base, crowd_rates=((3, 0.0),)))
+    assert every["crowd_motes"] > 0 and every["crowd_read"] == every["crowd_motes"] and zero["crowd_read"] == 0
+    assert every["coded"] < none["coded"]
+    # a 4 px pair inside a crowd of three is the crowd's draw now, not the pair decoder's
+    assert zero["pairs_resolved"] <= none["pairs_resolved"] and zero["coded"] >= none["coded"]
+
+
 def test_field_time_decoder_separation_prices_more_crowds(field_time: ModuleType) -> None:
     ft = field_time
     timing = RigTiming(head=EVI_D100, camera=CameraTiming(frame_rate_hz=30000.0 / 1001.0))
@@ -164,10 +200,13 @@ def test_field_time_decoder_separation_prices_more_crowds(field_time: ModuleType
 
 
 @pytest.mark.parametrize("args", [["--separation", "3"], ["--near-decode", "0.5"],
-                                  ["--separation", "8", "--near-decode", "x"]])
+                                  ["--separation", "8", "--near-decode", "x"], ["--crowd-decode", "3=0.5"],
+                                  ["--separation", "8", "--crowd-decode", "2=0.5"],
+                                  ["--separation", "8", "--crowd-decode", "3=1.5"]])
 def test_bad_separation_flags_are_one_line_exit_2(args: list[str]) -> None:
     res = subprocess.run([sys.executable, str(ROOT / "scripts" / "field_time.py"), "--sizes", "100x2", *args],
                          capture_output=True, text=True, timeout=120)
     assert res.returncode == 2
     last = res.stderr.strip().splitlines()[-1]
-    assert ("--separation" in last or "--near-decode" in last) and "Traceback" not in res.stderr
+    assert ("--separation" in last or "--near-decode" in last or "--crowd-decode" in last)
+    assert args[-1] in last and "Traceback" not in res.stderr

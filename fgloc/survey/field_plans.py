@@ -38,7 +38,7 @@ Angles radians, times seconds.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -399,8 +399,15 @@ def group_decoding(intr: CameraIntrinsics, pan_tilt: np.ndarray, separation_px: 
     --groups``; or a table by the distance to the nearest fourth mote, px, any LED of the
     group), drawn from ``rng``; those motes need no refinement."""
     pt = np.asarray(pan_tilt, float)
-    n = len(pt)
-    edges = conflict_pairs(pt, intr, separation_px, field_rows)
+    groups = np.array(_components(conflict_pairs(pt, intr, separation_px, field_rows), len(pt), 3),
+                      np.int64).reshape(-1, 3)
+    resolved, fourth = _draw_resolved(groups, pt, intr, separation_px, rate, rng, field_rows)
+    return GroupDecoding(groups, resolved, fourth)
+
+
+def _components(edges: np.ndarray, n: int, size: int) -> list[list[int]]:
+    """The connected components of exactly ``size`` vertices (sorted, in ascending order) of
+    the graph on ``n`` vertices with ``edges`` (E, 2)."""
     parent = list(range(n))
 
     def root(i: int) -> int:
@@ -414,9 +421,32 @@ def group_decoding(intr: CameraIntrinsics, pan_tilt: np.ndarray, separation_px: 
     members: dict[int, list[int]] = {}
     for i in {int(v) for v in edges.ravel().tolist()}:
         members.setdefault(root(i), []).append(i)
-    groups = np.array(sorted(sorted(m) for m in members.values() if len(m) == 3), np.int64).reshape(-1, 3)
-    resolved, fourth = _draw_resolved(groups, pt, intr, separation_px, rate, rng, field_rows)
-    return GroupDecoding(groups, resolved, fourth)
+    return sorted(sorted(m) for m in members.values() if len(m) == size)
+
+
+def crowd_decoding(intr: CameraIntrinsics, pan_tilt: np.ndarray, separation_px: float,
+                   rates: Mapping[int, float | Sequence[tuple[float, float]]], rng: np.random.Generator,
+                   field_rows: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """Crowds of ``k`` motes alone at the decoder's separation (connected components of
+    exactly ``k`` in the conflict graph at ``separation_px``, for each ``k`` of ``rates``):
+    which of their motes the decoder reads in the wide view. Each mote is drawn (crowds in
+    ascending ``k``, then component order, then mote order; one ``rng.random`` per mote)
+    with ``rates[k]``: a number, or a table ``((max_px, rate), ..., (inf, rate))`` by its
+    distance to its nearest neighbour (px; :func:`pair_rate_table`), as measured by
+    ``scripts/blink_near_montecarlo.py --group k --pairs`` (pair decoding, and group
+    decoding of three LEDs, on; no other mote within twice the separation). Returns
+    ((N,) bool read, (N,) bool in such a crowd). The draws are per mote, independent:
+    the Monte Carlo measured the read share per mote, not which motes of a crowd are read
+    together."""
+    pt = np.asarray(pan_tilt, float)
+    edges = conflict_pairs(pt, intr, separation_px, field_rows)
+    d = neighbour_px(pt, intr, field_rows)
+    read, member = np.zeros(len(pt), bool), np.zeros(len(pt), bool)
+    for k in sorted(rates):
+        for m in _components(edges, len(pt), k):
+            member[m] = True
+            read[m] = rng.random(k) < _rates(rates[k], d[m])
+    return read, member
 
 
 def _draw_resolved(groups: np.ndarray, pt: np.ndarray, intr: CameraIntrinsics, separation_px: float,
