@@ -9,11 +9,13 @@ from dataclasses import replace
 from pathlib import Path
 from types import ModuleType
 
+import numpy as np
 import pytest
 
+from fgloc.camera.intrinsics import CameraIntrinsics
 from fgloc.survey import field_plan_radio, field_plans
 from fgloc.survey.clock import EVI_D100, CameraTiming, RadioTiming, RigTiming
-from fgloc.survey.field_plans import coded_survey_time, radio_round_time
+from fgloc.survey.field_plans import coded_survey_time, radio_round_time, radio_separation
 from fgloc.survey.view_planner import RadioRound
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -51,6 +53,35 @@ def test_short_round_view_priced_at_k_prime_by_hand() -> None:
     t_burst, _, _ = radio_round_time(ROUNDS, {"a": (D10, 0.0), "b": (0.0, 0.0)}, 20, TIMING, 6, 0.5, None, 0, 7)
     b_round1 = 6 * 0.01 + max(pan10 + short + (0.01 + 7 * 0.02 + 0.04), 0.05 + short)
     assert t_burst.total == pytest.approx(6 * 0.01 + pan10 + short + b_round1)
+
+
+def test_a_read_mote_is_paused_through_the_rounds_and_conflicts_with_nobody() -> None:
+    intr = CameraIntrinsics.from_fov(640, 480, 65.0)
+    px = 1.0 / intr.fx
+    # one camera: a chain 0 - 1 - 2, 5 px apart (0 and 2 are 10 px apart), and a lone mote 3
+    pt = np.column_stack([np.array([0.0, 5.0, 10.0, 60.0]) * px, np.zeros(4)])
+    views = {"a": [(0.0, 0.0)]}
+    every = radio_separation(intr, {"a": pt}, views, 8.0, ("a",))
+    assert every.classes == 2 and every.colour[0] == every.colour[2] != every.colour[1] and every.colour[3] < 0
+    # mote 1 read in the wide view: paused in every round, so 0 and 2 (crowded in the wide view,
+    # conflicting with nobody now) share the first class and one round view
+    read1 = radio_separation(intr, {"a": pt}, views, 8.0, ("a",), needed={"a": np.array([True, False, True, True])})
+    assert read1.classes == 1 and read1.colour[1] < 0 and read1.colour[0] == read1.colour[2] == 0
+    assert len(read1.rounds["a"]) == 1 and read1.rounds["a"][0].view_targets == (2,)
+    # none of the crowd read: every round as before; all of it read: no round at all
+    none_read = radio_separation(intr, {"a": pt}, views, 8.0, ("a",), needed={"a": np.ones(4, bool)})
+    assert none_read.colour.tolist() == every.colour.tolist()
+    all_read = radio_separation(intr, {"a": pt}, views, 8.0, ("a",), needed={"a": np.array([False] * 3 + [True])})
+    assert all_read.classes == 0 and not any(rr.views for rr in all_read.rounds["a"])
+    # but a mote another radio camera still needs from a crowd is lit in its class: the conflict stays
+    pt_b = np.column_stack([np.array([0.0, 5.0, 30.0, 60.0]) * px, np.zeros(4)])  # 1 crowds 0 in camera b
+    both = radio_separation(intr, {"a": pt, "b": pt_b}, {"a": views["a"], "b": views["a"]}, 8.0, ("a", "b"),
+                            needed={"a": np.array([True, False, True, True]), "b": np.ones(4, bool)})
+    assert both.colour[1] >= 0 and both.colour[0] != both.colour[1] and both.colour[2] != both.colour[1]
+    # the bitmap covers the paused crowded mote's address as well as the classes'
+    far = radio_separation(intr, {"a": pt}, views, 8.0, ("a",), needed={"a": np.array([True, True, False, True])},
+                           addresses=[1, 2, 5000, 6000])
+    assert far.colour[2] < 0 and far.pause_broadcasts == 3 * math.ceil(5000 / (8 * 24))
 
 
 def test_field_time_without_the_lever_is_unchanged_and_the_lever_shortens_rounds(field_time: ModuleType) -> None:

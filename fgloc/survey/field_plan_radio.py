@@ -244,14 +244,17 @@ def radio_separation(
     For each camera of ``radio_cameras`` (``pan_tilt[camera]``: (N, 2) directions of the
     same N motes for every camera; ``views[camera]``: its wide views), two motes closer
     than ``separation_px`` at the wide zoom conflict (:func:`conflict_pairs`; with
-    ``needed[camera]`` only pairs with a mote needed from that camera). The union of
+    ``needed[camera]`` only pairs with a mote needed from that camera, and, as a round
+    lights one class and pauses every other mote, only pairs of motes some radio camera
+    needs from a crowd: a mote every camera read is paused through the rounds and
+    conflicts with nobody; cover rounds, ``partner``, keep every pair). The union of
     these conflicts is coloured (:func:`colour_conflicts`), and each camera re-records,
     per colour class, the wide views that cover its conflicting motes of that class
     (:func:`plan_radio_rounds`). A mote within ``separation_px`` of a static light
     (``lamps[camera]``, (M, 2) directions) cannot be separated by pausing motes: it is
     left to zoom refinement (``leftover``), as are all crowded motes of cameras not in
     ``radio_cameras``. ``addresses`` (default 1..N) price the pause update: the bitmap
-    packets covering the conflicting motes' address range (``pause_packets`` of
+    packets covering the address range of the conflicting motes and of the paused crowded ones (``pause_packets`` of
     ``drivers/tinyos/blink.py``, 192 addresses each), each sent ``repeats`` times.
     ``stations``: each camera's round views are shared across the classes
     (:func:`fgloc.survey.view_planner.plan_round_stations`), for the view-major order."""
@@ -259,6 +262,14 @@ def radio_separation(
     n = len(next(iter(pan_tilt.values())))
     needed = needed or {}
     lamps = lamps or {}
+    # a round lights one class and pauses every other mote (as the coded survey does), so a mote
+    # no radio camera needs from a crowd is never lit in a round: its conflicts do not count
+    lit, crowd = np.zeros(n, bool), np.zeros(n, bool)
+    for c in radio_cameras:
+        need_c = np.ones(n, bool) if needed.get(c) is None else np.asarray(needed[c], bool)
+        crowd_c = neighbour_px(np.asarray(pan_tilt[c], float), intr, field_rows) < separation_px
+        lit |= need_c & crowd_c
+        crowd |= crowd_c
     pairs: list[np.ndarray] = []
     cam_pairs: dict[str, np.ndarray] = {}
     mine: dict[str, np.ndarray] = {}
@@ -278,18 +289,23 @@ def radio_separation(
             continue
         pc = conflict_pairs(pt, intr, separation_px, field_rows)
         pc = pc[need[pc[:, 0]] | need[pc[:, 1]]]
+        if partner is None:  # cover rounds light a read partner on purpose (field_plan_cover)
+            pc = pc[lit[pc[:, 0]] & lit[pc[:, 1]]]
         lit_by_lamp = lamp_close[pc[:, 0]] | lamp_close[pc[:, 1]]
         zoom = np.zeros(n, bool)  # a pair with a mote beside a lamp: pausing motes does not help
         zoom[pc[lit_by_lamp].ravel()] = True
         pc = pc[~lit_by_lamp]
         pairs.append(pc)
         cam_pairs[c] = pc
-        m = np.zeros(n, bool)
-        m[pc.ravel()] = True
-        mine[c] = m & need & ~zoom
+        # every needed crowded mote is read in a round, even one whose crowd is all read (paused)
+        mine[c] = crowded & need & ~zoom & ~lamp_close
         leftover[c] = crowded & need & (zoom | lamp_close)
     if partner is None:
         colour = colour_conflicts(n, np.vstack(pairs) if pairs else np.zeros((0, 2), int))
+        alone = np.zeros(n, bool)  # its neighbours all paused: read in the first class, as the survey does
+        for m in mine.values():
+            alone |= m & (colour < 0)
+        colour[alone] = 0
     else:
         colour, mine = cover_colour(n, cam_pairs, mine, {c: partner.get(c, np.zeros(n, bool)) for c in mine},
                                     None if partner_ok is None else
@@ -298,7 +314,7 @@ def radio_separation(
     rounds = {c: plan(intr, pan_tilt[c], views[c], colour, mine[c], margin_px,
                       views[c][-1] if views[c] else (0.0, 0.0)) for c in mine}
     addr = np.arange(1, n + 1) if addresses is None else np.asarray(addresses, int)
-    involved = addr[colour >= 0]
+    involved = addr[(colour >= 0) | (crowd if partner is None else False)]  # and pauses the read crowded motes
     span = int(involved.max()) - int(involved.min()) + 1 if involved.size else 0
     packets = math.ceil(span / (8 * PAUSE_MAX_BYTES))
     return RadioSeparation(colour, rounds, leftover, packets * repeats)
