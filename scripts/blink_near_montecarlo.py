@@ -12,7 +12,15 @@ other mote within 2 x ``--max-px`` of either. A mote is *read* when a reading na
 code within 2 px of it; a reading elsewhere is *mislabelled*. Printed per distance bin:
 the read share, which ``field_time.py --separation PX --near-decode TABLE`` takes.
 
+``--group K`` (3 to 5): crowds of K motes instead of pairs, grown one mote at a time, each
+``U(--min-px, --max-px)`` px from a random earlier member and at least ``--min-px`` from
+every member (:func:`crowd_pixels`), binned by each mote's nearest neighbour in its crowd;
+with ``--pairs`` group decoding of three LEDs is on too. ``field_time.py --crowd-decode
+K=TABLE`` takes the read shares.
+
     OPENBLAS_NUM_THREADS=1 .venv/bin/python scripts/blink_near_montecarlo.py --trials 150 [--fields] [--pairs]
+    OPENBLAS_NUM_THREADS=1 .venv/bin/python scripts/blink_near_montecarlo.py --trials 150 --group 3 --pairs \
+        --min-px 1 --max-px 8 --motes 39 [--fields]
 """
 
 from __future__ import annotations

@@ -62,6 +62,15 @@ while the classes it needs there take turns, one lit class per slot
 (:func:`fgloc.survey.field_plan_radio.view_major_slots`): fewer slews, more pause updates.
 ``best``: the cheaper of class- and view-major on the clock. Default ``class``.
 
+``--separation PX --near-decode TABLE``: the decoder's measured separation (about 8 px,
+``scripts/blink_near_montecarlo.py``) instead of the 4 px crowd criterion; a mote in a pair
+alone within PX, 4 px or more from its neighbour, is read in the wide view at its bin's
+share. ``--crowd-decode K=TABLE`` (repeatable, K = 3..5): the motes of crowds of K alone
+within PX are read at the share of their nearest-neighbour bin
+(:func:`fgloc.survey.field_plans.crowd_decoding`; ``blink_near_montecarlo.py --group K``),
+in place of the 4 px pair and group draws inside them. In radio rounds a read crowded mote
+is paused like every mote outside the lit class, so it conflicts with nobody.
+
 ``--seeds N``: N seeded scenes per size (seeds 0..N-1) and, after the per-scene rows, the
 median and range of the speed-up over them.
 
