@@ -94,11 +94,12 @@ def nearest_within(uv: np.ndarray, size: int) -> np.ndarray:
 
 
 def trial(seed: int, n_motes: int, book_size: int, glints: int, fields: bool, low: float,
-          high: float, pairs: bool = False, group: int = 2) -> tuple[np.ndarray, np.ndarray, int]:
+          high: float, pairs: bool = False, group: int = 2, three: bool = True) -> tuple[np.ndarray, np.ndarray, int]:
     """One view: per mote its distance to its nearest neighbour (px) and whether it was read;
     mislabels. ``pairs``: decoded with pair decoding on (:mod:`fgloc.camera.blink_pairs`, the
     survey's default). ``group`` 3 to 5: crowds of that many (:func:`crowd_pixels`) instead of
-    pairs, decoded with group decoding of three LEDs on too (``PairConfig(max_group=3)``)."""
+    pairs, decoded with group decoding of three LEDs on too (``PairConfig(max_group=3)``)
+    unless ``three`` is False (pair decoding alone, the coded survey's ``pairs: on``)."""
     rng = np.random.default_rng(seed)
     book = code_book(book_size)
     intr, head_pan, head_tilt = view_camera(rng, fields)
@@ -112,7 +113,7 @@ def trial(seed: int, n_motes: int, book_size: int, glints: int, fields: bool, lo
     frames, cfg, _, _ = render_motes(rng, intr, head_pan, head_tilt, pts, ids, book, glints, fields, False, 10.0,
                                      frames_for(book.length))
     res = decode_view(frames, 1.0 / cfg.frame_rate_hz, book, intr, head_pan, head_tilt,
-                      pairs=(PairConfig(max_group=3) if group > 2 else PairConfig()) if pairs else None)
+                      pairs=(PairConfig(max_group=3) if group > 2 and three else PairConfig()) if pairs else None)
     where = {int(i): uv[k] for k, i in enumerate(ids)}
     read = set()
     mislabelled = 0
@@ -135,6 +136,9 @@ def main() -> None:
     ap.add_argument("--group", type=int, choices=(2, 3, 4, 5), default=2,
                     help="crowd size: 2 (pairs), or 3 to 5 (crowds linked at --max-px; group decoding of three "
                     "LEDs on too with --pairs)")
+    ap.add_argument("--no-three", action="store_true",
+                    help="with --group 3..5 --pairs: pair decoding alone, no group decoding of three LEDs (the "
+                    "coded survey's pairs: on)")
     args = ap.parse_args()
     if not 0.0 < args.min_px < args.max_px <= 64.0:
         ap.error(f"--min-px, --max-px: need 0 < min < max <= 64 ({args.min_px}, {args.max_px})")
@@ -144,13 +148,14 @@ def main() -> None:
     seps, reads, mislabelled = [], [], 0
     for k in range(args.trials):
         sep, read, mis = trial(args.seed + k, args.motes, args.book, args.glints, args.fields, args.min_px,
-                               args.max_px, args.pairs, args.group)
+                               args.max_px, args.pairs, args.group, not args.no_three)
         seps.append(sep)
         reads.append(read)
         mislabelled += mis
     sep, read = np.concatenate(seps), np.concatenate(reads)
     crowd = "pairs" if args.group == 2 else f"crowds of {args.group} (links)"
-    decoding = ("pair decoding on, " if args.group == 2 else "pair and group decoding on, ") if args.pairs else ""
+    decoding = ("pair decoding on, " if args.group == 2 or args.no_three else "pair and group decoding on, "
+                ) if args.pairs else ""
     print(f"{video_label(args.fields)}: {args.trials} views x {args.motes} motes in {crowd} {args.min_px:g}-"
           f"{args.max_px:g} px apart (book {args.book}), {args.glints} glints/view, "
           f"{decoding}{time.perf_counter() - t0:.0f} s")

@@ -228,7 +228,7 @@ def test_a_real_coded_journal_with_every_lever_field_validates(every_lever_journ
 
 @pytest.mark.parametrize(("where", "value", "problem"), [
     (("header", "coded", "retry"), "again", "header.coded.retry: expected one of burst, continue, got 'again'"),
-    (("header", "coded", "pairs"), True, "header.coded.pairs: expected one of off, on"),
+    (("header", "coded", "pairs"), True, "header.coded.pairs: expected one of off, on, groups"),
     (("header", "coded", "levels"), [0.0, 1.0], "header.coded.levels[0]: expected a zoom in (0, 1], got 0.0"),
     (("header", "coded", "video"), None, "header.coded.video: missing required field"),
     (("view", "continued"), False, "view.continued: expected true, got false"),

@@ -330,6 +330,20 @@ def test_probe_stops_the_recording_of_empty_views_only(tmp_path, defaults30):
     assert runner.field_time.phases["frames"] < defaults30[0].phases["frames"]
 
 
+def test_group_decoding_in_the_survey_reads_crowds_the_pair_decoder_leaves(tmp_path):
+    """pairs "groups": a refused pair is also tried as three LEDs. On the 30-mote rig every
+    visible pair is still read once with its own label, and crowds of three read in the wide
+    view save refinement tiles against pairs "on" (5 against 7 here)."""
+    tiles = {}
+    for mode in ("on", "groups"):
+        out = tmp_path / mode
+        _, _, state = survey_reads_every_visible_pair(parsed(lever_rig(30, pairs=mode)), out, 0.2)
+        assert (read_journal(out / "journal.jsonl").header.coded or {}).get("pairs") == mode
+        tiles[mode] = sum(1 for r in view_records(out / "journal.jsonl")
+                          if r["view"].startswith("r") and r["attempt"] == 0)
+    assert tiles["groups"] < tiles["on"]
+
+
 def test_pair_decoding_labels_blobs_of_two_motes_in_the_survey(tmp_path, defaults30):
     """pairs "on": blobs the single decoder refuses are tried as two LEDs; a pair read in a view
     gives two readings naming each other (``partner``), both correctly labelled and close to

@@ -11,7 +11,8 @@ the measured fastest: continue, predicted, probe on, pairs on, short view-major 
 * ``fallback``: ``"blobs"`` | ``"predicted"`` (:func:`predicted_directions`, :func:`blobs_near`);
 * ``video``: ``"frames"`` | ``"fields"`` (interlaced fields at 59.94 Hz);
 * ``probe``: ``"off"`` | ``"on"`` (a view whose first L + 2 frames show no blob stops there);
-* ``pairs``: ``"off"`` | ``"on"`` (refused blobs decoded as two LEDs, :mod:`fgloc.camera.blink_pairs`);
+* ``pairs``: ``"off"`` | ``"on"`` (refused blobs decoded as two LEDs, :mod:`fgloc.camera.blink_pairs`)
+  | ``"groups"`` (and a refused pair as three, :mod:`fgloc.camera.blink_groups`);
 * ``rounds``: ``"short"`` | ``"full"`` (radio rounds record L + 2 samples labelled against the
   round's candidates, :mod:`fgloc.survey.coded_rounds`);
 * ``round_order``: ``"view"`` | ``"class"`` (radio rounds class by class with a barrier each,
@@ -57,7 +58,7 @@ SEPARATE_MODES = ("zoom", "radio")
 FALLBACK_MODES = ("blobs", "predicted")
 VIDEO_MODES = ("frames", "fields")
 PROBE_MODES = ("off", "on")
-PAIRS_MODES = ("off", "on")
+PAIRS_MODES = ("off", "on", "groups")
 ROUNDS_MODES = ("full", "short")
 ROUND_ORDERS = ("class", "view")
 CHOICES = {"retry": RETRY_MODES, "separate": SEPARATE_MODES, "fallback": FALLBACK_MODES, "video": VIDEO_MODES,

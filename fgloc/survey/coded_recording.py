@@ -77,7 +77,7 @@ def record_view(coded: CodedSurvey, runner: SurveyRunner, camera: str, vid: str,
     else:
         frames = grab_frames(coded, runner, camera, count, t_start, key)
     coded._continue_at[(camera, vid)] = t_start + count * coded.camera.frame_period_s
-    pairs = PairConfig() if coded.settings.pairs == "on" else None
+    pairs = {"on": PairConfig(), "groups": PairConfig(max_group=3)}.get(coded.settings.pairs)
     dec: ViewDecode | CandidateDecode
     if short:
         frames = (before or []) + frames

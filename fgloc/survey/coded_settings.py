@@ -50,7 +50,8 @@ class CodedSettings:
     #: empty view), else goes on to 3L + 2 (one continuous recording); ``"off"``: always 3L + 2
     probe: str = "on"
     #: ``"on"``: refused blobs are also tried as two LEDs and labelled by both code words when
-    #: that is unique (:mod:`fgloc.camera.blink_pairs`; rotation-free books); ``"off"``: not
+    #: that is unique (:mod:`fgloc.camera.blink_pairs`; rotation-free books); ``"groups"``: and a
+    #: refused pair is tried as three LEDs (:mod:`fgloc.camera.blink_groups`); ``"off"``: not
     pairs: str = "on"
     #: radio-separation rounds (``separate "radio"``): ``"short"`` records ``L + 2`` samples per
     #: round view and labels each blob against the round's candidates (the lit class's motes with
