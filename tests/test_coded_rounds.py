@@ -139,9 +139,11 @@ def replay(needs: dict[str, list[set[int]]], slots: list[Slot]) -> None:
                 at[c] += 1
         current = {c: left[c][at[c]] for c in left if at[c] < len(left[c])}
         served = {k: sum(k in v for v in current.values()) for v in current.values() for k in v}
-        # the lit class serves the most cameras; ties keep the class lit before
-        assert served[slot.lit] == max(served.values())
-        if lit in served and served[lit] == served[slot.lit]:
+        finishes = {k: sum(v == {k} for v in current.values()) for k in served}
+        rank = {k: (finishes[k], served[k]) for k in served}
+        # the lit class finishes the most views, then serves the most cameras; ties keep the class lit before
+        assert rank[slot.lit] == max(rank.values())
+        if lit in rank and rank[lit] == rank[slot.lit]:
             assert slot.lit == lit
         for c, j in slot.views.items():
             assert j == at[c] and slot.lit in left[c][j]  # at its current view, a class it asked for
@@ -179,6 +181,15 @@ def test_view_major_schedule_by_hand():
         (1, {"cam0": 0, "cam1": 0}), (0, {"cam0": 0}), (1, {"cam0": 1}), (2, {"cam1": 0})]
     # at a tie, the class lit already stays lit (no pause update), though 0 is lower
     assert [s.lit for s in view_major_schedule({"cam0": [{1}, {1}], "cam1": [{0, 1}]})] == [1, 1, 0]
+
+
+def test_view_major_schedule_lets_a_finished_camera_move_on():
+    """Class 0 and 2 serve two cameras each, class 1 only cam2, but 1 is all cam2's first view
+    needs: lit first, it lets cam2 move on to its second view, which needs 0 with the others.
+    Three slots; lighting the most-served class first takes four (0, 2, 1, then 0 for cam2)."""
+    slots = view_major_schedule({"cam0": [{0, 2}], "cam1": [{0, 2}], "cam2": [{1}, {0}]})
+    assert [(s.lit, s.views) for s in slots] == [
+        (1, {"cam2": 0}), (0, {"cam0": 0, "cam1": 0, "cam2": 1}), (2, {"cam0": 0, "cam1": 0})]
 
 
 # ----- view-major on the in-process rig: recorded as scheduled, priced per view
