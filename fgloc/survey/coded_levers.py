@@ -46,6 +46,7 @@ from fgloc.core.errors import FglocError
 from fgloc.core.geometry import pan_tilt_bearing
 from fgloc.files.journal import JournalState
 from fgloc.files.rig_config import RigConfig
+from fgloc.survey.coded_ladder import LADDER_MODES
 from fgloc.survey.coded_settings import CodedSettings
 from fgloc.survey.coded_views import distinct_directions
 
@@ -62,11 +63,12 @@ PAIRS_MODES = ("off", "on", "groups")
 ROUNDS_MODES = ("full", "short")
 ROUND_ORDERS = ("class", "view")
 CHOICES = {"retry": RETRY_MODES, "separate": SEPARATE_MODES, "fallback": FALLBACK_MODES, "video": VIDEO_MODES,
-           "probe": PROBE_MODES, "pairs": PAIRS_MODES, "rounds": ROUNDS_MODES, "round_order": ROUND_ORDERS}
+           "probe": PROBE_MODES, "pairs": PAIRS_MODES, "rounds": ROUNDS_MODES, "round_order": ROUND_ORDERS,
+           "ladder": LADDER_MODES}
 #: the defaults before the journal recorded the levers: a journal without recorded levers resumes with these,
 #: and a lever a journal's header does not record (added after it was written) resumes with its value here
 LEGACY: dict[str, Any] = {"retry": "burst", "separate": "zoom", "fallback": "blobs", "video": "frames", "probe": "off",
-                          "pairs": "off", "rounds": "full", "round_order": "class"}
+                          "pairs": "off", "rounds": "full", "round_order": "class", "ladder": "climb"}
 PREDICTED_RADIUS = math.radians(3.0)  #: a blob this close to a mote's predicted direction may hide it
 
 
