@@ -10,7 +10,9 @@ node: its LED commands, the LED wait, then the slowest camera's moves, settles, 
 position reads, :func:`fgloc.survey.coded_clock.node_field_time`).
 
 Reported per mode: predicted field time (median over seeds, and per phase for the first
-seed), readings decoded in views and measured by the fallback, mislabelled readings (a
+seed; per seed and camera the recordings, frames and priced lane seconds of the wide views and of
+each refinement rung, ``r1``, ``r2``, ...: a view's move, settle, position read and recordings, a
+rung's zoom travel with its first tile), readings decoded in views and measured by the fallback, mislabelled readings (a
 decoded reading whose nearest visible node bearing is another node's), readings more than
 0.05 deg from their node's bearing, and the RMS node position error of the joint solve
 (baseline units); with radio separation also the priced rounds alone (their lanes and pause
@@ -74,6 +76,44 @@ def _keeping_stats(run_coded):  # noqa: ANN001, ANN202
 
 
 CodedSurvey.run = _keeping_stats(CodedSurvey.run)  # type: ignore[method-assign]
+
+_PRICED: dict = {}  # camera -> view kind ("wide", "r1", ...) -> priced lane seconds of the current coded run
+
+
+def _pricing_visits(visit):  # noqa: ANN001, ANN202
+    """Wrap ``CodedSurvey._visit``: the camera's priced lane time since its previous view (the
+    move, settle, position read, recordings, and a rung's zoom travel before its first tile)
+    added to ``_PRICED`` under the view's kind."""
+    last: dict = {}  # camera -> (its lane list, priced seconds after its previous view)
+
+    def priced_visit(self, runner, camera, vid, *args, **kw):  # noqa: ANN001, ANN202
+        out = visit(self, runner, camera, vid, *args, **kw)
+        ops = self.lanes[camera]
+        lane, before = last.get(camera, (None, 0.0))
+        before = before if lane is ops else 0.0  # a barrier (radio separation) starts new lanes
+        after = price(ops, self.lane_timing[camera]).total
+        last[camera] = (ops, after)
+        kind = "wide" if vid.startswith("w") else vid.split("-")[0]
+        _PRICED.setdefault(camera, {}).setdefault(kind, 0.0)
+        _PRICED[camera][kind] += after - before
+        return out
+    priced_visit.last = last  # type: ignore[attr-defined]
+    return priced_visit
+
+
+def _pricing_zoom(refine):  # noqa: ANN001, ANN202
+    """Wrap ``CodedSurvey.run_refine``: the zoom back to the survey zoom priced as ``zoom back``."""
+    def priced_refine(self, runner, camera, *args, **kw):  # noqa: ANN001, ANN202
+        out = refine(self, runner, camera, *args, **kw)
+        ops = self.lanes[camera]
+        if ops and type(ops[-1]).__name__ == "Zoom" and ops[-1].dzoom < 0:
+            _PRICED.setdefault(camera, {})["zoom back"] = price(ops[-1:], self.lane_timing[camera]).total
+        return out
+    return priced_refine
+
+
+CodedSurvey._visit = _pricing_visits(CodedSurvey._visit)  # type: ignore[method-assign]
+CodedSurvey.run_refine = _pricing_zoom(CodedSurvey.run_refine)  # type: ignore[method-assign]
 
 
 def rig_for(seed: int, motes: int, width: int, mode: str, fx: float | None = None, repeatability_deg: float = 0.0,
@@ -207,6 +247,8 @@ def run(seed: int, motes: int, width: int, mode: str, out: Path, fx: float | Non
         survey, runner = run_survey(rig, out, opened=opened, on_progress=per_node)
         ft = sum_times(times)
     else:
+        _PRICED.clear()
+        CodedSurvey._visit.last.clear()  # type: ignore[attr-defined]
         t0 = time.perf_counter()
         survey, runner = run_survey(rig, out, opened=OpenedRig(open_head=sim.open_head, leds=sim.leds, simulated=sim))
         ft = runner.field_time
@@ -219,7 +261,7 @@ def run(seed: int, motes: int, width: int, mode: str, out: Path, fx: float | Non
     seen = {(c, n) for (n, c, _) in state.observations}
     extra: dict = {}
     if mode != "sequential":
-        extra["breakdown"] = breakdown(rig, sim, state)
+        extra["breakdown"] = breakdown(rig, sim, state) | {"priced": {c: dict(v) for c, v in _PRICED.items()}}
         stats = _STATS[-1]
         extra["rounds"] = (stats.rounds_s, stats.classes, stats.pause_updates, stats.round_views)
         first = sum(1 for key in state.views if key[2] == 0)
@@ -283,7 +325,10 @@ def _report(name: str, rows: dict[str, list[dict]], args: argparse.Namespace) ->
     print(f"{name}:")
     for k, r in enumerate(rows[name], start=1):
         b = r["breakdown"]
-        cams = "; ".join(f"{c}: " + ", ".join(f"{kind} {n0}+{n1} ({fr} frames)" for kind, (n0, n1, fr) in sorted(v.items()))
+        priced = b.get("priced", {})
+        cams = "; ".join(f"{c}: " + ", ".join(f"{kind} {n0}+{n1} ({fr} frames, {priced.get(c, {}).get(kind, 0.0):.1f} s)"
+                                              for kind, (n0, n1, fr) in sorted(v.items()))
+                         + (f", zoom back {priced[c]['zoom back']:.1f} s" if "zoom back" in priced.get(c, {}) else "")
                          for c, v in b["cameras"].items())
         print(f"  seed {k}: coded {r['field'].describe()}; recordings first+again: {cams}; fallback nodes "
               f"{b['fallback_nodes']} ({b['fallback_s']:.1f} s summed); planner's price for this rig "
