@@ -27,6 +27,8 @@ instead of the node loop of :mod:`fgloc.survey.runner` (docs/survey.md, "Coded i
    Blobs no reading explains (:func:`~fgloc.survey.coded_views.unexplained_blob`) are
    recorded again in tiles at the next zoom of :attr:`CodedSettings.levels` until none is
    left; then the head zooms back. Refused blobs are journaled and logged, never guessed.
+   ``ladder "focus"`` (:mod:`fgloc.survey.coded_ladder`): a blob at a reading of the camera
+   is that mote; a rung hands on only blobs near what it chased; lamps go to the fallback.
 4. **Stop**, one broadcast.
 5. **Fallback.** For each node a camera has not read: a camera whose views left no blob
    unexplained journals ``not_found`` without a search; otherwise the node is measured the
@@ -39,8 +41,8 @@ Levers (:class:`CodedSettings`, chosen by rig.json ``"coded"`` or ``fgloc survey
 :mod:`fgloc.survey.coded_levers`). A new survey's defaults are the measured fastest:
 ``retry "continue"`` (a retry goes on recording L frames, decoded in sliding windows),
 ``probe "on"`` (a recording stops after L + 2 frames showing no blob), ``fallback
-"predicted"`` (:mod:`fgloc.survey.coded_fallback`) and ``pairs "on"``; the procedure above
-is ``retry "burst"``, ``probe "off"``, ``fallback "blobs"``, ``pairs "off"``
+"predicted"`` (:mod:`fgloc.survey.coded_fallback`), ``pairs "on"`` and ``ladder "focus"``; the procedure above
+is ``retry "burst"``, ``probe "off"``, ``fallback "blobs"``, ``pairs "off"``, ``ladder "climb"``
 (:data:`~fgloc.survey.coded_levers.LEGACY`). Not by default: ``separate "radio"`` (colour
 classes paused by bitmap between the wide pass and the refinement,
 :mod:`fgloc.survey.coded_separation`; by default short rounds labelled against the lit

@@ -3,7 +3,7 @@ remembered by the journal, and the predicted fallback.
 
 rig.json ``"coded"`` (optional) and ``fgloc survey --coded KEY=VALUE`` choose them
 (:func:`coded_settings`; a new survey's defaults are :class:`~fgloc.survey.coded_settings.CodedSettings`'s,
-the measured fastest: continue, predicted, probe on, pairs on, short view-major rounds):
+the measured fastest: continue, predicted, probe on, pairs on, short view-major rounds, ladder focus):
 
 * ``retry``: ``"burst"`` | ``"continue"`` (a retry goes on recording L frames, sliding windows);
 * ``separate``: ``"zoom"`` | ``"radio"`` (crowded motes paused by colour class first,
@@ -17,6 +17,8 @@ the measured fastest: continue, predicted, probe on, pairs on, short view-major 
   round's candidates, :mod:`fgloc.survey.coded_rounds`);
 * ``round_order``: ``"view"`` | ``"class"`` (radio rounds class by class with a barrier each,
   or view by view cycling the classes, :mod:`fgloc.survey.coded_view_major`);
+* ``ladder``: ``"climb"`` | ``"focus"`` (a refinement rung hands on only unread blobs near what it
+  chased, lamps to the fallback, :mod:`fgloc.survey.coded_ladder`);
 * ``levels``: the refinement zoom ladder, ascending fractions of the optical range.
 
 **Resume rule.** A coded survey's journal header records the levers it started with
@@ -25,7 +27,7 @@ value or ``--coded`` flag that names a lever with another value is refused in on
 flag or file, the lever, both values), never mixed in. A journal without recorded levers
 (written before they were recorded, or started as a sequential survey) resumes with
 :data:`LEGACY` (the defaults before this rule) overridden by rig.json and the flags, exactly as
-it resumed before. A lever added after a journal was written (``rounds``, ``round_order``) and
+it resumed before. A lever added after a journal was written (``rounds``, ``round_order``, ``ladder``) and
 so missing from its recorded levers resumes with its :data:`LEGACY` value, the only one the
 survey that wrote it knew.
 
