@@ -4,7 +4,8 @@
 * :func:`unread` drops a refused blob at a reading of the camera (pixels of the blob's own
   zoom), :func:`focused` keeps a rung's blob only near what the rung chased and hands a lamp
   that stays lit after a zoom step to the fallback, :func:`read_before` takes exactly the
-  views done before a rung is planned.
+  views done before a rung is planned (or before a view), :func:`retry_helps` records a view
+  again only for a blob no reading explains.
 * On seeded scenes ``"focus"`` records fewer refinement frames than ``"climb"`` (the survey
   before the lever) and still reads every visible pair once, none mislabelled.
 * A focused survey killed before, in the middle of (torn) and after its refinement resumes to
@@ -26,7 +27,16 @@ from fgloc.core.errors import FglocError
 from fgloc.core.geometry import pan_tilt_bearing
 from fgloc.core.model import Gauge, NodeMode
 from fgloc.files.journal import JournalHeader, JournalState
-from fgloc.survey.coded_ladder import EXPLAINED_PX, FOCUS_PX, focused, never_dark, read_before, unread
+from fgloc.survey.coded_ladder import (
+    EXPLAINED_PX,
+    FOCUS_PX,
+    focused,
+    never_dark,
+    read_before,
+    retry_helps,
+    unread,
+    view_order,
+)
 from fgloc.survey.coded_levers import LEGACY, coded_settings
 from fgloc.survey.session import run_survey
 from tests.test_survey_coded import clean_cuts, coded_rig, opened, parsed, view_records
@@ -110,6 +120,36 @@ def test_read_before_takes_the_views_done_before_the_rung():
     assert pans(0) == [0.1, 0.2, 0.3]
     assert pans(1) == [0.1, 0.2, 0.3, 0.4]
     assert pans(3) == [0.1, 0.2, 0.3, 0.4, 0.5]
+
+
+def test_a_view_is_recorded_again_only_for_a_blob_no_reading_explains():
+    k = intrinsics_at()
+    (u, v), head, _ = blob_at(k, HEAD, 0.0)
+    record = {"head": list(head), "zoom": 0.0, "refused": [
+        {"kind": "rejected", "u": u, "v": v, "reason": "3 of 16 bits never read cleanly"},
+        {"kind": "rejected", "u": u + 40.0, "v": v, "reason": "too close to the image border"}]}
+    at_blob = np.array([reading(k, blob_at(k, HEAD, 0.0), 0.5)])
+    assert not retry_helps(record, at_blob, k, 0.0)  # the refused mote was read; the border blob never counts
+    assert retry_helps(record, np.zeros((0, 3)), k, 0.0)
+    ambiguous = record | {"refused": record["refused"] + [{"kind": "ambiguous", "u": u - 30.0, "v": v, "reason": "x"}]}
+    assert retry_helps(ambiguous, at_blob, k, 0.0)  # an unread merged blob: a longer recording may cure it
+    assert retry_helps(record | {"refused": [{"kind": "duplicate", "reason": "code 5 decoded from 2 blobs"}]},
+                       at_blob, k, 0.0)  # no pixel: cannot tell
+
+
+def test_view_order_and_the_readings_before_a_view():
+    assert sorted(["r2-000", "w010", "r1-003", "s1-v000", "w002", "r1-000"], key=view_order) == [
+        "w002", "w010", "s1-v000", "r1-000", "r1-003", "r2-000"]
+
+    def rec(pan: float) -> dict:
+        return {"readings": [{"pan": pan, "tilt": 0.0}]}
+
+    views = {("cam0", "w000", 0): rec(0.1), ("cam0", "w001", 0): rec(0.2), ("cam0", "w001", 1): rec(0.3),
+             ("cam0", "w002", 0): rec(0.4), ("cam0", "r1-000", 0): rec(0.5), ("cam1", "w000", 0): rec(0.6)}
+    b = read_before(views, "cam0", 0, "w001", 0)
+    assert sorted(round(math.atan2(y, x), 6) for x, y, _ in b) == [0.1, 0.2]
+    b = read_before(views, "cam0", 0, "r1-000", 0)
+    assert sorted(round(math.atan2(y, x), 6) for x, y, _ in b) == [0.1, 0.2, 0.3, 0.4, 0.5]
 
 
 # ----- the survey

@@ -101,7 +101,7 @@ from fgloc.survey.clock import (
     sum_times,
 )
 from fgloc.survey.coded_clock import SequentialClock
-from fgloc.survey.coded_ladder import Blob, focused, never_dark, read_before, unread
+from fgloc.survey.coded_ladder import Blob, focused, never_dark, read_before, retry_helps, unread
 from fgloc.survey.coded_radio import pause_motes, start_codes, stop_codes
 from fgloc.survey.coded_readings import field_intrinsics
 from fgloc.survey.coded_recording import Frame, record_view
@@ -281,6 +281,8 @@ class CodedSurvey:
             last = rec
             if not (retry_wanted(rec) if candidates is not None else needs_second_recording(rec)):
                 break
+            if candidates is None and self.settings.ladder == "focus" and not self._retry_helps(runner, camera, rec):
+                break  # its curable refusals are motes this camera read (coded_ladder.retry_helps)
         return last
 
     def unexplained(self, records: list[dict[str, Any] | None]) -> list[Blob]:
@@ -302,6 +304,13 @@ class CodedSurvey:
     def _dark(self, camera: str, blobs: list[Blob]) -> list[bool]:
         """Which of ``blobs`` (of :meth:`unexplained`) never went dark (:func:`fgloc.survey.coded_ladder.never_dark`)."""
         return [(camera, b) in self._never_dark for b in blobs]
+
+    def _retry_helps(self, runner: SurveyRunner, camera: str, rec: dict[str, Any]) -> bool:
+        """Whether recording ``rec``'s view again may read a mote the camera has not read
+        (:func:`fgloc.survey.coded_ladder.retry_helps`; readings of the views before it only)."""
+        with runner._state_lock:
+            read = read_before(runner.state.views, camera, 0, str(rec["view"]), int(rec["attempt"]))
+        return retry_helps(rec, read, lambda z: self.intrinsics_at(camera, z), self.survey_zoom[camera])
 
     def _unread(self, runner: SurveyRunner, camera: str, blobs: list[Blob], rung: int) -> list[Blob]:
         """``blobs`` but those at a reading of the camera's views up to refinement ``rung``

@@ -57,16 +57,53 @@ def direction(blob: Blob, intrinsics_at: Callable[[float], CameraIntrinsics]) ->
     return float(p), float(t)
 
 
-def read_before(views: Mapping[tuple[str, str, int], Mapping[str, Any]], camera: str, rung: int) -> np.ndarray:
+def view_order(view: str) -> tuple[int, int, int]:
+    """Where view id ``view`` falls in a camera's survey: the wide pass (``w<k>``), the radio
+    rounds (``s...``, all at one place), then rung n's tiles (``r<n>-<k>``), in that order."""
+    if view.startswith("w"):
+        return 0, 0, int(view[1:])
+    if view.startswith("r"):
+        rung, k = view[1:].split("-")
+        return 2, int(rung), int(k)
+    return 1, 0, 0
+
+
+def read_before(views: Mapping[tuple[str, str, int], Mapping[str, Any]], camera: str, rung: int,
+                view: str | None = None, attempt: int = 0) -> np.ndarray:
     """(M, 3) unit bearings of ``camera``'s readings in its journaled ``views`` (keyed (camera,
     view id, attempt)) of the wide pass, the radio rounds and refinement rungs up to ``rung``:
-    exactly the views done before rung ``rung + 1`` is planned, so a resume decides alike."""
+    exactly the views done before rung ``rung + 1`` is planned, so a resume decides alike. With
+    ``view``: the views before it (:func:`view_order`) and its own recordings up to ``attempt``."""
+    bound = (2, rung + 1, 0) if view is None else view_order(view)
     out = []
-    for (cam, vid, _attempt), rec in views.items():
-        if cam != camera or not (vid[:1] in "ws" or (vid[:1] == "r" and int(vid[1:].split("-")[0]) <= rung)):
+    for (cam, vid, att), rec in views.items():
+        if cam != camera:
+            continue
+        order = view_order(vid)
+        if not (order < bound or (vid == view and att <= attempt)):
             continue
         out += [pan_tilt_bearing(float(r["pan"]), float(r["tilt"])) for r in rec.get("readings", [])]
     return np.array(out, dtype=float).reshape(-1, 3)
+
+
+def retry_helps(record: Mapping[str, Any], read: np.ndarray, intrinsics_at: Callable[[float], CameraIntrinsics],
+                survey_zoom: float) -> bool:
+    """Whether a second recording of ``record`` (which :func:`~fgloc.survey.coded_views.needs_second_recording`
+    asks for) may read a mote not read yet: some curable refusal lies at no bearing of ``read``
+    (the camera's readings so far, :func:`read_before` with its view). A view whose curable
+    refusals are all motes this camera already read is not recorded again."""
+    from fgloc.survey.coded_views import unexplained_blob
+
+    head = (float(record["head"][0]), float(record["head"][1]))
+    zoom = float(record.get("zoom", survey_zoom))
+    blobs: list[Blob] = []
+    for r in record.get("refused", []):
+        if not unexplained_blob(r):
+            continue
+        if "u" not in r:
+            return True
+        blobs.append(((float(r["u"]), float(r["v"])), head, zoom))
+    return bool(unread(blobs, read, intrinsics_at))
 
 
 def unread(found: Sequence[Blob], read: np.ndarray, intrinsics_at: Callable[[float], CameraIntrinsics],
