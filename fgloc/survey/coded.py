@@ -282,7 +282,7 @@ class CodedSurvey:
             if not (retry_wanted(rec) if candidates is not None else needs_second_recording(rec)):
                 break
             if candidates is None and self.settings.ladder == "focus" and not self._retry_helps(runner, camera, rec):
-                break  # its curable refusals are motes this camera read (coded_ladder.retry_helps)
+                break  # every blob it leaves unexplained is a mote this camera read (coded_ladder.retry_helps)
         return last
 
     def unexplained(self, records: list[dict[str, Any] | None]) -> list[Blob]:

@@ -8,9 +8,14 @@ wherever it lies in a tile. Measured on the EVI-D100-sized rig (docs/blink-codes
 "Where the ladder's time went"), most of those are not what the rung chased: a tile is
 several times larger than the cluster it was planned for, and the motes and static lamps at
 its edges, already read or chased at the survey zoom, come out refused there (too few clean
-bits near the border, a lamp that never goes dark) and pull the ladder up to its last rung.
+bits near the border, a lamp that never goes dark) and pull the ladder up to its last rung;
+and about half of the blobs the wide pass leaves unexplained lie at a mote the same camera
+read in another view.
 
-``ladder "focus"`` (:func:`focused`) carries a blob on only when it lies where the rung looked:
+``ladder "focus"``: a blob within :data:`EXPLAINED_PX` of a reading of the camera is that mote
+(:func:`unread`, before each rung and for the fallback); a view is recorded a second time only
+for a blob no reading explains (:func:`retry_helps`); and (:func:`focused`) a rung carries a
+blob on only when it lies where the rung looked:
 within :data:`FOCUS_PX` pixels (of the chased blob's own, coarser, recording) of a chased blob.
 Any other blob lies in a direction a coarser view already decoded or chases itself (every
 direction is at least 8 px inside some wide view, :mod:`fgloc.survey.view_planner`). A blob
@@ -18,7 +23,8 @@ that never goes dark where the blob it refines never went dark either (a zoom st
 least 2x split nothing and made nothing blink: a static lamp) is not chased further but
 handed to the fallback (:mod:`fgloc.survey.coded_fallback`), which searches it the
 sequential way if a mote may hide there (two motes merged into one never-dark blob separate
-there: one LED is lit at a time). Readings are never affected: only which tiles are recorded.
+there: one LED is lit at a time). The lever only chooses which tiles and second recordings are
+made; decoding and labelling are unchanged (a mote may be read in another recording).
 
 Angles radians, pixels OpenCV convention.
 """
@@ -89,9 +95,11 @@ def read_before(views: Mapping[tuple[str, str, int], Mapping[str, Any]], camera:
 def retry_helps(record: Mapping[str, Any], read: np.ndarray, intrinsics_at: Callable[[float], CameraIntrinsics],
                 survey_zoom: float) -> bool:
     """Whether a second recording of ``record`` (which :func:`~fgloc.survey.coded_views.needs_second_recording`
-    asks for) may read a mote not read yet: some curable refusal lies at no bearing of ``read``
-    (the camera's readings so far, :func:`read_before` with its view). A view whose curable
-    refusals are all motes this camera already read is not recorded again."""
+    asks for) may read a mote not read yet: some blob it leaves unexplained
+    (:func:`~fgloc.survey.coded_views.unexplained_blob`: curable refusals, and merged or
+    never-dark blobs a longer recording may also resolve) lies at no bearing of ``read`` (the
+    camera's readings so far, :func:`read_before` with its view), or has no pixel. A view
+    whose unexplained blobs are all motes this camera already read is not recorded again."""
     from fgloc.survey.coded_views import unexplained_blob
 
     head = (float(record["head"][0]), float(record["head"][1]))
