@@ -10,7 +10,10 @@ node: its LED commands, the LED wait, then the slowest camera's moves, settles, 
 position reads, :func:`fgloc.survey.coded_clock.node_field_time`).
 
 Reported per mode: predicted field time (median over seeds, and per phase for the first
-seed), readings decoded in views and measured by the fallback, mislabelled readings (a
+seed; per seed and camera the recordings, frames and priced lane seconds of the wide views and of
+each refinement rung, ``r1``, ``r2``, ...: a view's move, settle, position read and recordings, a
+rung's zoom travel with its first tile; the wide pass's unexplained blobs the ladder starts
+from, how many lie at a reading of the same camera and how many at a crowded mote), readings decoded in views and measured by the fallback, mislabelled readings (a
 decoded reading whose nearest visible node bearing is another node's), readings more than
 0.05 deg from their node's bearing, and the RMS node position error of the joint solve
 (baseline units); with radio separation also the priced rounds alone (their lanes and pause
@@ -75,6 +78,44 @@ def _keeping_stats(run_coded):  # noqa: ANN001, ANN202
 
 CodedSurvey.run = _keeping_stats(CodedSurvey.run)  # type: ignore[method-assign]
 
+_PRICED: dict = {}  # camera -> view kind ("wide", "r1", ...) -> priced lane seconds of the current coded run
+
+
+def _pricing_visits(visit):  # noqa: ANN001, ANN202
+    """Wrap ``CodedSurvey._visit``: the camera's priced lane time since its previous view (the
+    move, settle, position read, recordings, and a rung's zoom travel before its first tile)
+    added to ``_PRICED`` under the view's kind."""
+    last: dict = {}  # camera -> (its lane list, priced seconds after its previous view)
+
+    def priced_visit(self, runner, camera, vid, *args, **kw):  # noqa: ANN001, ANN202
+        out = visit(self, runner, camera, vid, *args, **kw)
+        ops = self.lanes[camera]
+        lane, before = last.get(camera, (None, 0.0))
+        before = before if lane is ops else 0.0  # a barrier (radio separation) starts new lanes
+        after = price(ops, self.lane_timing[camera]).total
+        last[camera] = (ops, after)
+        kind = "wide" if vid.startswith("w") else vid.split("-")[0]
+        _PRICED.setdefault(camera, {}).setdefault(kind, 0.0)
+        _PRICED[camera][kind] += after - before
+        return out
+    priced_visit.last = last  # type: ignore[attr-defined]
+    return priced_visit
+
+
+def _pricing_zoom(refine):  # noqa: ANN001, ANN202
+    """Wrap ``CodedSurvey.run_refine``: the zoom back to the survey zoom priced as ``zoom back``."""
+    def priced_refine(self, runner, camera, *args, **kw):  # noqa: ANN001, ANN202
+        out = refine(self, runner, camera, *args, **kw)
+        ops = self.lanes[camera]
+        if ops and type(ops[-1]).__name__ == "Zoom" and ops[-1].dzoom < 0:
+            _PRICED.setdefault(camera, {})["zoom back"] = price(ops[-1:], self.lane_timing[camera]).total
+        return out
+    return priced_refine
+
+
+CodedSurvey._visit = _pricing_visits(CodedSurvey._visit)  # type: ignore[method-assign]
+CodedSurvey.run_refine = _pricing_zoom(CodedSurvey.run_refine)  # type: ignore[method-assign]
+
 
 def rig_for(seed: int, motes: int, width: int, mode: str, fx: float | None = None, repeatability_deg: float = 0.0,
             coded: dict | None = None, field_boxes: bool = False):
@@ -132,6 +173,40 @@ def breakdown(rig, sim, state) -> dict:  # noqa: ANN001
     fb = [r for r in state.field_times if r.get("scope") == "fallback_node"]
     out["fallback_nodes"] = len(fb)
     out["fallback_s"] = sum(sum(float(x) for x in r["phases"].values()) for r in fb)
+    return out
+
+
+def wide_blobs(rig, sim, state) -> dict:  # noqa: ANN001
+    """Per camera, the wide pass's unexplained blobs (each view's last recording, as the ladder
+    starts from them): (blobs, at a reading of the camera's wide views, within
+    :data:`~fgloc.survey.coded_ladder.EXPLAINED_PX`; at a visible mote with another within 4 px,
+    the planner's crowd criterion, from the scene's truth)."""
+    from fgloc.core.geometry import pan_tilt_bearing
+    from fgloc.survey.coded_ladder import EXPLAINED_PX, direction, read_before
+
+    coded = CodedSurvey(rig, sim.open_head, sim.leds, sim)
+    out = {}
+    for i, cam in enumerate(rig.camera_ids):
+        last: dict = {}
+        for (c, v, a), r in sorted(state.views.items()):
+            if c == cam and v.startswith("w"):
+                last[v] = r
+        blobs = coded.unexplained(list(last.values()))
+        read = read_before(state.views, cam, 0)
+        live = [j for j, n in enumerate(rig.node_ids) if sim.scene.visible[i, j] and n not in sim.scene.dead]
+        truth = np.array([pan_tilt_bearing(*sim.scene.apparent[i, j]) for j in live]).reshape(-1, 3)
+        fx = rig.cameras[i].intrinsics.fx
+        gap = np.arccos(np.clip(truth @ truth.T, -1, 1))
+        np.fill_diagonal(gap, np.pi)
+        crowded = gap.min(axis=1) * fx < 4.0
+        at_read = at_crowd = 0
+        for b in blobs:
+            k = coded.intrinsics_at(cam, b[2])
+            d = pan_tilt_bearing(*direction(b, lambda z: coded.intrinsics_at(cam, z)))
+            at_read += bool(len(read)) and float(np.max(read @ d)) >= math.cos(EXPLAINED_PX / k.fx)
+            near = np.arccos(np.clip(truth @ d, -1, 1)) * k.fx < 2.0 if len(truth) else np.zeros(0, bool)
+            at_crowd += bool((near & crowded).any())
+        out[cam] = (len(blobs), at_read, at_crowd)
     return out
 
 
@@ -207,6 +282,8 @@ def run(seed: int, motes: int, width: int, mode: str, out: Path, fx: float | Non
         survey, runner = run_survey(rig, out, opened=opened, on_progress=per_node)
         ft = sum_times(times)
     else:
+        _PRICED.clear()
+        CodedSurvey._visit.last.clear()  # type: ignore[attr-defined]
         t0 = time.perf_counter()
         survey, runner = run_survey(rig, out, opened=OpenedRig(open_head=sim.open_head, leds=sim.leds, simulated=sim))
         ft = runner.field_time
@@ -219,7 +296,8 @@ def run(seed: int, motes: int, width: int, mode: str, out: Path, fx: float | Non
     seen = {(c, n) for (n, c, _) in state.observations}
     extra: dict = {}
     if mode != "sequential":
-        extra["breakdown"] = breakdown(rig, sim, state)
+        extra["breakdown"] = breakdown(rig, sim, state) | {"priced": {c: dict(v) for c, v in _PRICED.items()},
+                                                           "wide_blobs": wide_blobs(rig, InProcessRig(rig), state)}
         stats = _STATS[-1]
         extra["rounds"] = (stats.rounds_s, stats.classes, stats.pause_updates, stats.round_views)
         first = sum(1 for key in state.views if key[2] == 0)
@@ -283,8 +361,14 @@ def _report(name: str, rows: dict[str, list[dict]], args: argparse.Namespace) ->
     print(f"{name}:")
     for k, r in enumerate(rows[name], start=1):
         b = r["breakdown"]
-        cams = "; ".join(f"{c}: " + ", ".join(f"{kind} {n0}+{n1} ({fr} frames)" for kind, (n0, n1, fr) in sorted(v.items()))
+        priced = b.get("priced", {})
+        cams = "; ".join(f"{c}: " + ", ".join(f"{kind} {n0}+{n1} ({fr} frames, {priced.get(c, {}).get(kind, 0.0):.1f} s)"
+                                              for kind, (n0, n1, fr) in sorted(v.items()))
+                         + (f", zoom back {priced[c]['zoom back']:.1f} s" if "zoom back" in priced.get(c, {}) else "")
                          for c, v in b["cameras"].items())
+        blobs = "; ".join(f"{c} {n} ({at_read} at a reading, {at_crowd} at a mote within 4 px of another)"
+                          for c, (n, at_read, at_crowd) in b.get("wide_blobs", {}).items())
+        print(f"  seed {k}: wide-pass unexplained blobs: {blobs}")
         print(f"  seed {k}: coded {r['field'].describe()}; recordings first+again: {cams}; fallback nodes "
               f"{b['fallback_nodes']} ({b['fallback_s']:.1f} s summed); planner's price for this rig "
               f"{r['planner']:.1f} s (separation 4 px; 6 px: {r['planner6']:.1f} s)")

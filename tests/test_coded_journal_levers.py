@@ -34,7 +34,7 @@ from fgloc.survey.session import run_survey
 from tests.test_survey_coded import EXAMPLE, clean_cuts, coded_rig, opened, parsed, view_records
 
 NEW_DEFAULTS = {"retry": "continue", "separate": "zoom", "fallback": "predicted", "video": "frames", "probe": "on",
-                "pairs": "on", "rounds": "short", "round_order": "view"}
+                "pairs": "on", "rounds": "short", "round_order": "view", "ladder": "focus"}
 
 
 def lines_of(path: Path) -> list[bytes]:
@@ -266,7 +266,8 @@ def test_a_bad_lever_value_fails_validation(every_lever_journal, tmp_path, where
 def test_rig_json_with_every_lever_validates_and_a_bad_value_fails():
     data = json.loads(EXAMPLE.read_text())
     data["coded"] = {"retry": "burst", "separate": "radio", "fallback": "blobs", "video": "fields", "probe": "off",
-                     "pairs": "off", "rounds": "full", "round_order": "class", "levels": [0.25, 0.5, 1.0]}
+                     "pairs": "off", "rounds": "full", "round_order": "class", "ladder": "climb",
+                     "levels": [0.25, 0.5, 1.0]}
     check(data, "rig", "rig.json", RigConfigError)
     parse_rig(data, str(EXAMPLE), EXAMPLE.parent)
     for key, bad, problem in (("retry", "again", "coded.retry: expected one of burst, continue, got 'again'"),

@@ -27,6 +27,8 @@ instead of the node loop of :mod:`fgloc.survey.runner` (docs/survey.md, "Coded i
    Blobs no reading explains (:func:`~fgloc.survey.coded_views.unexplained_blob`) are
    recorded again in tiles at the next zoom of :attr:`CodedSettings.levels` until none is
    left; then the head zooms back. Refused blobs are journaled and logged, never guessed.
+   ``ladder "focus"`` (:mod:`fgloc.survey.coded_ladder`): a blob at a reading of the camera
+   is that mote; a rung hands on only blobs near what it chased; lamps go to the fallback.
 4. **Stop**, one broadcast.
 5. **Fallback.** For each node a camera has not read: a camera whose views left no blob
    unexplained journals ``not_found`` without a search; otherwise the node is measured the
@@ -39,8 +41,8 @@ Levers (:class:`CodedSettings`, chosen by rig.json ``"coded"`` or ``fgloc survey
 :mod:`fgloc.survey.coded_levers`). A new survey's defaults are the measured fastest:
 ``retry "continue"`` (a retry goes on recording L frames, decoded in sliding windows),
 ``probe "on"`` (a recording stops after L + 2 frames showing no blob), ``fallback
-"predicted"`` (:mod:`fgloc.survey.coded_fallback`) and ``pairs "on"``; the procedure above
-is ``retry "burst"``, ``probe "off"``, ``fallback "blobs"``, ``pairs "off"``
+"predicted"`` (:mod:`fgloc.survey.coded_fallback`), ``pairs "on"`` and ``ladder "focus"``; the procedure above
+is ``retry "burst"``, ``probe "off"``, ``fallback "blobs"``, ``pairs "off"``, ``ladder "climb"``
 (:data:`~fgloc.survey.coded_levers.LEGACY`). Not by default: ``separate "radio"`` (colour
 classes paused by bitmap between the wide pass and the refinement,
 :mod:`fgloc.survey.coded_separation`; by default short rounds labelled against the lit
@@ -99,6 +101,7 @@ from fgloc.survey.clock import (
     sum_times,
 )
 from fgloc.survey.coded_clock import SequentialClock
+from fgloc.survey.coded_ladder import Blob, focused, never_dark, read_before, retry_helps, unread
 from fgloc.survey.coded_radio import pause_motes, start_codes, stop_codes
 from fgloc.survey.coded_readings import field_intrinsics
 from fgloc.survey.coded_recording import Frame, record_view
@@ -117,7 +120,6 @@ from fgloc.survey.view_planner import box_targets, plan_views
 logger = logging.getLogger(__name__)
 
 
-Blob = tuple[tuple[float, float], tuple[float, float], float]  #: (u, v) px, head (pan, tilt), zoom of a refused blob
 CLUSTER_SPREAD_PX = 6.0  #: refinement tiles also cover this far (px of the coarser view) around a blob
 
 
@@ -175,6 +177,7 @@ class CodedSurvey:
         self.here: dict[str, tuple[float, float]] = {}  # camera -> head (pan, tilt) after its last view
         self.wide_records: dict[str, list[dict[str, Any] | None]] = {}
         self._done_views = 0
+        self._never_dark: set[tuple[str, Blob]] = set()  # (camera, blob) of unexplained blobs that never went dark
         self.stages = FieldTime({})  # barrier stages done (radio separation: wide pass, rounds), in series
 
     # ----- plan and clock
@@ -278,6 +281,8 @@ class CodedSurvey:
             last = rec
             if not (retry_wanted(rec) if candidates is not None else needs_second_recording(rec)):
                 break
+            if candidates is None and self.settings.ladder == "focus" and not self._retry_helps(runner, camera, rec):
+                break  # every blob it leaves unexplained is a mote this camera read (coded_ladder.retry_helps)
         return last
 
     def unexplained(self, records: list[dict[str, Any] | None]) -> list[Blob]:
@@ -289,9 +294,30 @@ class CodedSurvey:
                 continue
             zoom = float(rec.get("zoom", self.survey_zoom[rec["camera"]]))
             head = (float(rec["head"][0]), float(rec["head"][1]))
-            out += [((float(r["u"]), float(r["v"])), head, zoom) for r in rec["refused"]
-                    if unexplained_blob(r) and "u" in r]
+            for r in rec["refused"]:
+                if unexplained_blob(r) and "u" in r:
+                    out.append(blob := ((float(r["u"]), float(r["v"])), head, zoom))
+                    if never_dark(r):
+                        self._never_dark.add((rec["camera"], blob))
         return out
+
+    def _dark(self, camera: str, blobs: list[Blob]) -> list[bool]:
+        """Which of ``blobs`` (of :meth:`unexplained`) never went dark (:func:`fgloc.survey.coded_ladder.never_dark`)."""
+        return [(camera, b) in self._never_dark for b in blobs]
+
+    def _retry_helps(self, runner: SurveyRunner, camera: str, rec: dict[str, Any]) -> bool:
+        """Whether recording ``rec``'s view again may read a mote the camera has not read
+        (:func:`fgloc.survey.coded_ladder.retry_helps`; readings of the views before it only)."""
+        with runner._state_lock:
+            read = read_before(runner.state.views, camera, 0, str(rec["view"]), int(rec["attempt"]))
+        return retry_helps(rec, read, lambda z: self.intrinsics_at(camera, z), self.survey_zoom[camera])
+
+    def _unread(self, runner: SurveyRunner, camera: str, blobs: list[Blob], rung: int) -> list[Blob]:
+        """``blobs`` but those at a reading of the camera's views up to refinement ``rung``
+        (:func:`fgloc.survey.coded_ladder.unread`)."""
+        with runner._state_lock:
+            read = read_before(runner.state.views, camera, rung)
+        return [blobs[k] for k in unread(blobs, read, lambda z: self.intrinsics_at(camera, z))]
 
     def blob_directions(self, camera: str, blobs: list[Blob], spread_px: float = 0.0) -> np.ndarray:
         """(M, 2) (pan, tilt) of ``blobs``; with ``spread_px`` each blob also gives the 8
@@ -341,9 +367,13 @@ class CodedSurvey:
         here, zoom0 = self.here[camera], self.survey_zoom[camera]
         zoom = zoom0
         s = self.rig.search_for(camera)
+        handed: list[Blob] = []  # ladder "focus": static lamps the fallback searches instead of the next rung
+        focus = self.settings.ladder == "focus"
         for rung, level in enumerate(self.levels, start=1):
             if failed:
                 break
+            if focus:  # blobs at a mote this camera read are that mote (coded_ladder.unread)
+                blobs = self._unread(runner, camera, blobs, rung - 1)
             pts = self.blob_directions(camera, blobs, spread_px=CLUSTER_SPREAD_PX)
             if not len(pts):
                 break
@@ -356,8 +386,14 @@ class CodedSurvey:
                 last.append(self._visit(runner, camera, f"r{rung}-{k:03d}", target, level, here))
                 here = target
             self.stats.views += len(tiles)
-            failed, blobs = any(r is None for r in last), self.unexplained(last)
-        blobs = blobs + (keep or [])
+            chased, failed, blobs = blobs, any(r is None for r in last), self.unexplained(last)
+            if focus:
+                blobs, lamps = focused(chased, self._dark(camera, chased), blobs, self._dark(camera, blobs),
+                                       lambda z: self.intrinsics_at(camera, z))
+                handed += lamps
+        if focus and not failed:
+            blobs = self._unread(runner, camera, blobs, len(self.levels))
+        blobs = blobs + handed + (keep or [])
         self.remaining[camera] = int(failed) + len(blobs)
         fov = min(runner.workers[camera].locator.pixels.field_of_view())  # at the survey zoom
         self.final_blobs[camera] = self.blob_directions(camera, blobs)

@@ -3,7 +3,7 @@ remembered by the journal, and the predicted fallback.
 
 rig.json ``"coded"`` (optional) and ``fgloc survey --coded KEY=VALUE`` choose them
 (:func:`coded_settings`; a new survey's defaults are :class:`~fgloc.survey.coded_settings.CodedSettings`'s,
-the measured fastest: continue, predicted, probe on, pairs on, short view-major rounds):
+the measured fastest: continue, predicted, probe on, pairs on, short view-major rounds, ladder focus):
 
 * ``retry``: ``"burst"`` | ``"continue"`` (a retry goes on recording L frames, sliding windows);
 * ``separate``: ``"zoom"`` | ``"radio"`` (crowded motes paused by colour class first,
@@ -17,6 +17,8 @@ the measured fastest: continue, predicted, probe on, pairs on, short view-major 
   round's candidates, :mod:`fgloc.survey.coded_rounds`);
 * ``round_order``: ``"view"`` | ``"class"`` (radio rounds class by class with a barrier each,
   or view by view cycling the classes, :mod:`fgloc.survey.coded_view_major`);
+* ``ladder``: ``"climb"`` | ``"focus"`` (a refinement rung hands on only unread blobs near what it
+  chased, lamps to the fallback, :mod:`fgloc.survey.coded_ladder`);
 * ``levels``: the refinement zoom ladder, ascending fractions of the optical range.
 
 **Resume rule.** A coded survey's journal header records the levers it started with
@@ -25,7 +27,7 @@ value or ``--coded`` flag that names a lever with another value is refused in on
 flag or file, the lever, both values), never mixed in. A journal without recorded levers
 (written before they were recorded, or started as a sequential survey) resumes with
 :data:`LEGACY` (the defaults before this rule) overridden by rig.json and the flags, exactly as
-it resumed before. A lever added after a journal was written (``rounds``, ``round_order``) and
+it resumed before. A lever added after a journal was written (``rounds``, ``round_order``, ``ladder``) and
 so missing from its recorded levers resumes with its :data:`LEGACY` value, the only one the
 survey that wrote it knew.
 
@@ -46,6 +48,7 @@ from fgloc.core.errors import FglocError
 from fgloc.core.geometry import pan_tilt_bearing
 from fgloc.files.journal import JournalState
 from fgloc.files.rig_config import RigConfig
+from fgloc.survey.coded_ladder import LADDER_MODES
 from fgloc.survey.coded_settings import CodedSettings
 from fgloc.survey.coded_views import distinct_directions
 
@@ -62,11 +65,12 @@ PAIRS_MODES = ("off", "on", "groups")
 ROUNDS_MODES = ("full", "short")
 ROUND_ORDERS = ("class", "view")
 CHOICES = {"retry": RETRY_MODES, "separate": SEPARATE_MODES, "fallback": FALLBACK_MODES, "video": VIDEO_MODES,
-           "probe": PROBE_MODES, "pairs": PAIRS_MODES, "rounds": ROUNDS_MODES, "round_order": ROUND_ORDERS}
+           "probe": PROBE_MODES, "pairs": PAIRS_MODES, "rounds": ROUNDS_MODES, "round_order": ROUND_ORDERS,
+           "ladder": LADDER_MODES}
 #: the defaults before the journal recorded the levers: a journal without recorded levers resumes with these,
 #: and a lever a journal's header does not record (added after it was written) resumes with its value here
 LEGACY: dict[str, Any] = {"retry": "burst", "separate": "zoom", "fallback": "blobs", "video": "frames", "probe": "off",
-                          "pairs": "off", "rounds": "full", "round_order": "class"}
+                          "pairs": "off", "rounds": "full", "round_order": "class", "ladder": "climb"}
 PREDICTED_RADIUS = math.radians(3.0)  #: a blob this close to a mote's predicted direction may hide it
 
 

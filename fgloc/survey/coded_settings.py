@@ -64,6 +64,10 @@ class CodedSettings:
     #: cycling the classes each view needs; :mod:`fgloc.survey.coded_view_major`). Both defaults
     #: measured faster (docs/blink-codes.md, "Short and view-major rounds, measured")
     round_order: str = "view"
+    #: refinement rungs: ``"focus"`` carries on only the blobs a rung's tiles show where it looked
+    #: (near a chased blob) and hands static lamps to the fallback (:mod:`fgloc.survey.coded_ladder`);
+    #: ``"climb"``: every blob its tiles leave unexplained (the default of journals written before this lever)
+    ladder: str = "focus"
 
 
 @dataclass

@@ -1,0 +1,152 @@
+"""Which blobs a refinement rung of the coded survey hands to the next rung (lever ``ladder``).
+
+A rung of the zoom ladder (:meth:`fgloc.survey.coded.CodedSurvey.run_refine`) records tiles
+over the blobs it chases (those the coarser views left unexplained) and decodes everything in
+them. With ``ladder "climb"`` (the survey before this lever) every blob the tiles leave
+unexplained (:func:`~fgloc.survey.coded_views.unexplained_blob`) is chased at the next rung,
+wherever it lies in a tile. Measured on the EVI-D100-sized rig (docs/blink-codes.md,
+"Where the ladder's time went"), most of those are not what the rung chased: a tile is
+several times larger than the cluster it was planned for, and the motes and static lamps at
+its edges, already read or chased at the survey zoom, come out refused there (too few clean
+bits near the border, a lamp that never goes dark) and pull the ladder up to its last rung;
+and about half of the blobs the wide pass leaves unexplained lie at a mote the same camera
+read in another view.
+
+``ladder "focus"``: a blob within :data:`EXPLAINED_PX` of a reading of the camera is that mote
+(:func:`unread`, before each rung and for the fallback); a view is recorded a second time only
+for a blob no reading explains (:func:`retry_helps`); and (:func:`focused`) a rung carries a
+blob on only when it lies where the rung looked:
+within :data:`FOCUS_PX` pixels (of the chased blob's own, coarser, recording) of a chased blob.
+Any other blob lies in a direction a coarser view already decoded or chases itself (every
+direction is at least 8 px inside some wide view, :mod:`fgloc.survey.view_planner`). A blob
+that never goes dark where the blob it refines never went dark either (a zoom step of at
+least 2x split nothing and made nothing blink: a static lamp) is not chased further but
+handed to the fallback (:mod:`fgloc.survey.coded_fallback`), which searches it the
+sequential way if a mote may hide there (two motes merged into one never-dark blob separate
+there: one LED is lit at a time). The lever only chooses which tiles and second recordings are
+made; decoding and labelling are unchanged (a mote may be read in another recording).
+
+Angles radians, pixels OpenCV convention.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any
+
+import numpy as np
+
+from fgloc.camera.intrinsics import CameraIntrinsics
+from fgloc.camera.pixel_angles import pixel_to_pan_tilt
+from fgloc.core.geometry import pan_tilt_bearing
+
+Blob = tuple[tuple[float, float], tuple[float, float], float]  #: (u, v) px, head (pan, tilt), zoom of a refused blob
+LADDER_MODES = ("climb", "focus")
+#: a blob of a rung's tile is the chased blob's (a member of its cluster) within this many pixels
+#: of the chased blob's own recording: twice the 6 px the tiles reach around it
+FOCUS_PX = 12.0
+#: a refused blob this close (pixels of its own recording) to a reading of the same camera is that mote
+EXPLAINED_PX = 1.5
+_NEVER_DARK = "never dark"
+
+
+def never_dark(refused: dict[str, object]) -> bool:
+    """A refused blob that stayed lit in every frame (a static lamp, or motes merged so that one is always on)."""
+    return refused.get("kind") == "rejected" and str(refused.get("reason", "")).startswith(_NEVER_DARK)
+
+
+def direction(blob: Blob, intrinsics_at: Callable[[float], CameraIntrinsics]) -> tuple[float, float]:
+    """(pan, tilt) of ``blob`` seen through the intrinsics of its zoom."""
+    (u, v), head, zoom = blob
+    p, t = pixel_to_pan_tilt(intrinsics_at(zoom), np.array([u, v]), *head)
+    return float(p), float(t)
+
+
+def view_order(view: str) -> tuple[int, int, int]:
+    """Where view id ``view`` falls in a camera's survey: the wide pass (``w<k>``), the radio
+    rounds (``s...``, all at one place), then rung n's tiles (``r<n>-<k>``), in that order."""
+    if view.startswith("w"):
+        return 0, 0, int(view[1:])
+    if view.startswith("r"):
+        rung, k = view[1:].split("-")
+        return 2, int(rung), int(k)
+    return 1, 0, 0
+
+
+def read_before(views: Mapping[tuple[str, str, int], Mapping[str, Any]], camera: str, rung: int,
+                view: str | None = None, attempt: int = 0) -> np.ndarray:
+    """(M, 3) unit bearings of ``camera``'s readings in its journaled ``views`` (keyed (camera,
+    view id, attempt)) of the wide pass, the radio rounds and refinement rungs up to ``rung``:
+    exactly the views done before rung ``rung + 1`` is planned, so a resume decides alike. With
+    ``view``: the views before it (:func:`view_order`) and its own recordings up to ``attempt``."""
+    bound = (2, rung + 1, 0) if view is None else view_order(view)
+    out = []
+    for (cam, vid, att), rec in views.items():
+        if cam != camera:
+            continue
+        order = view_order(vid)
+        if not (order < bound or (vid == view and att <= attempt)):
+            continue
+        out += [pan_tilt_bearing(float(r["pan"]), float(r["tilt"])) for r in rec.get("readings", [])]
+    return np.array(out, dtype=float).reshape(-1, 3)
+
+
+def retry_helps(record: Mapping[str, Any], read: np.ndarray, intrinsics_at: Callable[[float], CameraIntrinsics],
+                survey_zoom: float) -> bool:
+    """Whether a second recording of ``record`` (which :func:`~fgloc.survey.coded_views.needs_second_recording`
+    asks for) may read a mote not read yet: some blob it leaves unexplained
+    (:func:`~fgloc.survey.coded_views.unexplained_blob`: curable refusals, and merged or
+    never-dark blobs a longer recording may also resolve) lies at no bearing of ``read`` (the
+    camera's readings so far, :func:`read_before` with its view), or has no pixel. A view
+    whose unexplained blobs are all motes this camera already read is not recorded again."""
+    from fgloc.survey.coded_views import unexplained_blob
+
+    head = (float(record["head"][0]), float(record["head"][1]))
+    zoom = float(record.get("zoom", survey_zoom))
+    blobs: list[Blob] = []
+    for r in record.get("refused", []):
+        if not unexplained_blob(r):
+            continue
+        if "u" not in r:
+            return True
+        blobs.append(((float(r["u"]), float(r["v"])), head, zoom))
+    return bool(unread(blobs, read, intrinsics_at))
+
+
+def unread(found: Sequence[Blob], read: np.ndarray, intrinsics_at: Callable[[float], CameraIntrinsics],
+           ) -> list[int]:
+    """Indices of ``found`` no reading explains: no bearing of ``read`` ((M, 3), :func:`read_before`)
+    within :data:`EXPLAINED_PX` pixels of the blob in its own recording. A blob at a read mote is
+    that mote refused in one view (cut by the border, a noisy bit, a duplicate decode) and read in
+    another: at the same zoom a second mote merged with it would have spoilt that reading too."""
+    keep = []
+    for k, blob in enumerate(found):
+        intr = intrinsics_at(blob[2])
+        if len(read) and float(np.max(read @ pan_tilt_bearing(*direction(blob, intrinsics_at)))) >= math.cos(
+                EXPLAINED_PX / max(intr.fx, intr.fy)):
+            continue
+        keep.append(k)
+    return keep
+
+
+def focused(chased: Sequence[Blob], chased_dark: Sequence[bool], found: Sequence[Blob], found_dark: Sequence[bool],
+            intrinsics_at: Callable[[float], CameraIntrinsics]) -> tuple[list[Blob], list[Blob]]:
+    """Split ``found`` (the blobs a rung's tiles left unexplained) into (carried on to the next
+    rung, handed to the fallback); the rest are dropped (module docstring). ``chased``: the blobs
+    the rung's tiles were planned over; ``*_dark``: which of them never went dark
+    (:func:`never_dark`); ``intrinsics_at(zoom)``: the camera's intrinsics at a zoom."""
+    if not chased or not found:
+        return [], []
+    centres = np.array([pan_tilt_bearing(*direction(b, intrinsics_at)) for b in chased])
+    # the angle FOCUS_PX spans in each chased blob's own recording (its focal length at its zoom)
+    reach = np.array([math.cos(FOCUS_PX / max(intrinsics_at(b[2]).fx, intrinsics_at(b[2]).fy)) for b in chased])
+    dark = np.asarray(chased_dark, dtype=bool)
+    carried: list[Blob] = []
+    handed: list[Blob] = []
+    for blob, lamp in zip(found, found_dark):
+        near = centres @ pan_tilt_bearing(*direction(blob, intrinsics_at)) >= reach
+        if not near.any():
+            continue  # a coarser view decoded this direction or chases it itself
+        (handed if lamp and bool(dark[near].any()) else carried).append(blob)
+    return carried, handed
