@@ -41,7 +41,7 @@ Levers (:class:`CodedSettings`, chosen by rig.json ``"coded"`` or ``fgloc survey
 :mod:`fgloc.survey.coded_levers`). A new survey's defaults are the measured fastest:
 ``retry "continue"`` (a retry goes on recording L frames, decoded in sliding windows),
 ``probe "on"`` (a recording stops after L + 2 frames showing no blob), ``fallback
-"predicted"`` (:mod:`fgloc.survey.coded_fallback`), ``pairs "on"`` and ``ladder "focus"``; the procedure above
+"predicted"`` (:mod:`fgloc.survey.coded_fallback`), ``pairs "groups"`` and ``ladder "focus"``; the procedure above
 is ``retry "burst"``, ``probe "off"``, ``fallback "blobs"``, ``pairs "off"``, ``ladder "climb"``
 (:data:`~fgloc.survey.coded_levers.LEGACY`). Not by default: ``separate "radio"`` (colour
 classes paused by bitmap between the wide pass and the refinement,

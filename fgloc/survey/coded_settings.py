@@ -52,7 +52,7 @@ class CodedSettings:
     #: ``"on"``: refused blobs are also tried as two LEDs and labelled by both code words when
     #: that is unique (:mod:`fgloc.camera.blink_pairs`; rotation-free books); ``"groups"``: and a
     #: refused pair is tried as three LEDs (:mod:`fgloc.camera.blink_groups`); ``"off"``: not
-    pairs: str = "on"
+    pairs: str = "groups"
     #: radio-separation rounds (``separate "radio"``): ``"short"`` records ``L + 2`` samples per
     #: round view and labels each blob against the round's candidates (the lit class's motes with
     #: their predicted pixels, :func:`fgloc.camera.blink_candidates.decode_candidates`); a retry
