@@ -185,7 +185,7 @@ def decode_group(
         raise ValueError("group decoding needs a rotation-free book")
     cfg = config or PairConfig()
     r = cfg.group_radius_px
-    window = background_free_aperture(stack, valid, u, v, r, noise_sigma, _off_and_one)
+    window = background_free_aperture(stack, valid, u, v, r, noise_sigma, _off_and_one, cfg.aperture_fraction)
     if window is None:
         return _refuse("too close to the image border")
     big, flux, noise, pad, (ox, oy) = window

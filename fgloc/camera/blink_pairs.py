@@ -51,6 +51,8 @@ class PairConfig:
     radius_px: int = 5  #: aperture half-width around the blob centre (both LEDs inside)
     group_px: float = 4.0  #: refused blobs this close form one candidate pair
     single_px: float = 2.5  #: no candidate pair this close to a decoded single LED
+    neighbour_px: float = 12.0  #: a lone refused blob is tried as a pair with a decoded single LED this close
+    same_px: float = 1.0  #: a pair LED with a decoded single LED's code this close to it is that LED
     level_band: float = 0.3  #: a sample within this x step of a level is that count
     max_level_skew: float = 0.2  #: |one-LED level - midpoint of off and two-LED| over the step
     min_snr: float = 12.0  #: one-LED step in flux-noise sigmas
@@ -65,6 +67,9 @@ class PairConfig:
     group_radius_px: int = 7  #: aperture half-width for a group of three
     group_min_snr: float = 8.0  #: one-LED step in flux-noise sigmas, group aperture (level band 2.4 sigma)
     min_template_sigmas: float = 8.0  #: one-LED templates this many noise sigmas apart to read a two-LED sample
+    #: flux aperture: the blob's footprint, where its mean lit image reaches this fraction of
+    #: its peak (0: the whole square; :func:`footprint`)
+    aperture_fraction: float = 0.1
 
 
 @dataclass(frozen=True)
@@ -194,14 +199,18 @@ def _refuse(why: str, exclusive: tuple[int, int] = (0, 0)) -> PairResult:
 
 def _background_free(big: np.ndarray, valid: np.ndarray, ring: np.ndarray, core: np.ndarray,
                      off_and_one: Callable[[np.ndarray], tuple[float, float]] | None = None,
-                     ) -> tuple[np.ndarray, np.ndarray]:
-    """Patch stack ``big`` (N, h, w) minus its static background, and each sample's flux in
-    ``core``. The background is the per-pixel mean of the darkest third of the samples
+                     fraction: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Patch stack ``big`` (N, h, w) minus its static background, each sample's flux in the
+    aperture, and the aperture (a mask within ``core``). The background is the per-pixel mean
+    of the darkest third of the samples
     (by a first flux in ``core`` minus the ``ring`` median), each sample scaled by its
     ambient gain (median ratio of its ``ring`` pixels to their median over the samples):
     over an aperture of ~100 px a textured background moves with the ambient light by
     as much as an LED, so it is measured, not assumed flat. ``off_and_one`` gives the off and
-    the one-LED level of the first fluxes (default: of three levels, off / one / two LEDs)."""
+    the one-LED level of the first fluxes (default: of three levels, off / one / two LEDs).
+    ``fraction`` > 0: the aperture is the blob's own footprint, the ``core`` pixels where the
+    mean lit image (background-free samples with a first flux above the midpoint of the off
+    and one-LED levels) reaches ``fraction`` of its peak (:func:`footprint`); 0: all of ``core``."""
     ref = np.median(big[valid][:, ring], axis=0)
     usable = ref > 5.0
     if usable.sum() >= 8:
@@ -214,7 +223,25 @@ def _background_free(big: np.ndarray, valid: np.ndarray, ring: np.ndarray, core:
     dark = np.flatnonzero(valid & (first < 0.5 * (c0 + c1)))
     bg = (big[dark] / gain[dark, None, None]).mean(axis=0)
     sub = big - gain[:, None, None] * bg[None]
-    return sub, sub[:, core].sum(axis=1)
+    aperture = core
+    if fraction > 0.0:
+        lit = valid & (first >= 0.5 * (c0 + c1))
+        if lit.any():
+            aperture = footprint(sub[lit].mean(axis=0), core, fraction)
+    return sub, sub[:, aperture].sum(axis=1), aperture
+
+
+def footprint(lit_image: np.ndarray, core: np.ndarray, fraction: float) -> np.ndarray:
+    """The pixels of ``core`` where ``lit_image`` (a background-free mean lit image) reaches
+    ``fraction`` of its peak over ``core``: the LEDs' own footprint, an aperture that sums their
+    light with far less noise than the whole square (for a Gaussian spot, ``fraction`` 0.1
+    keeps 90 % of the flux on ~2 pi sigma^2 ln 10 px; two LEDs lit in different shares of
+    the samples keep different shares of theirs, by at most ``fraction`` x the ratio of the
+    shares, which the equal-level tests bound). All of ``core`` when the peak is not positive."""
+    peak = float(lit_image[core].max())
+    if peak <= 0.0:
+        return core
+    return core & (lit_image >= fraction * peak)
 
 
 def _fold(values: np.ndarray, positions: np.ndarray, length: int) -> tuple[np.ndarray | None, str]:
@@ -255,18 +282,19 @@ def cut_aperture(stack: np.ndarray, u: float, v: float, r: int
 
 def background_free_aperture(
     stack: np.ndarray, valid: np.ndarray, u: float, v: float, r: int, noise_sigma: float,
-    off_and_one: Callable[[np.ndarray], tuple[float, float]] | None = None,
+    off_and_one: Callable[[np.ndarray], tuple[float, float]] | None = None, fraction: float = 0.0,
 ) -> tuple[np.ndarray, np.ndarray, float, int, tuple[int, int]] | None:
     """The window around pixel (u, v) (:func:`cut_aperture`) minus its static background
-    (:func:`_background_free`), each sample's flux in the ``r`` core, the flux noise (DN: the
-    per-pixel frame-difference ``noise_sigma`` over the core), the window's pad and the image
+    (:func:`_background_free`), each sample's flux in the aperture (the ``r`` core, or with
+    ``fraction`` > 0 the blob's footprint in it), the flux noise (DN: the per-pixel
+    frame-difference ``noise_sigma`` over the aperture), the window's pad and the image
     pixel of its corner (ox, oy); None when the window leaves the image."""
     cut = cut_aperture(stack, u, v, r)
     if cut is None:
         return None
     big, pad, ring, core, (cu, cv) = cut
-    big, flux = _background_free(big, valid, ring, core, off_and_one)
-    return big, flux, float(noise_sigma) * math.sqrt(core.sum() * 2.0), pad, (cu - pad, cv - pad)
+    big, flux, aperture = _background_free(big, valid, ring, core, off_and_one, fraction)
+    return big, flux, float(noise_sigma) * math.sqrt(aperture.sum() * 2.0), pad, (cu - pad, cv - pad)
 
 
 def count_and_singles(big: np.ndarray, flux: np.ndarray, valid: np.ndarray, positions: np.ndarray,
@@ -361,7 +389,7 @@ def decode_pair(
     a frame difference (DN), as :func:`fgloc.camera.led_detection.detect_led` reports it."""
     cfg = config or PairConfig()
     r = cfg.radius_px
-    window = background_free_aperture(stack, valid, u, v, r, noise_sigma)
+    window = background_free_aperture(stack, valid, u, v, r, noise_sigma, fraction=cfg.aperture_fraction)
     if window is None:
         return _refuse("too close to the image border")
     big, flux, noise, pad, (ox, oy) = window
