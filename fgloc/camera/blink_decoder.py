@@ -53,13 +53,12 @@ from __future__ import annotations
 import math
 from collections import Counter
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
 from fgloc.camera.blink_codes import CodeBook, word_of
-from fgloc.camera.blink_groups import decode_group
-from fgloc.camera.blink_pairs import PairConfig, PairResult, decode_pair
+from fgloc.camera.blink_pairs import PairConfig
 from fgloc.camera.intrinsics import CameraIntrinsics
 from fgloc.camera.led_detection import DetectorConfig, LedDetection, detect_led, to_gray
 from fgloc.camera.pixel_angles import pixel_to_pan_tilt
@@ -282,7 +281,8 @@ def decode_view(
     """Decode every mote in ``frames`` (see the module docstring). ``sync`` is required
     with a synchronized book and refused with a rotation-free one. ``pairs`` (rotation-free
     books only; default off): refused blobs are tried as two LEDs
-    (:func:`fgloc.camera.blink_pairs.decode_pair`, see :func:`_pair_readings`)."""
+    (:func:`fgloc.camera.blink_pairs.decode_pair`, see
+    :func:`fgloc.camera.blink_crowd_decoding.crowd_readings`)."""
     cfg = config or DecoderConfig()
     if book.synchronized != (sync is not None):
         raise ValueError("a synchronized book needs sync timing, a rotation-free book none")
@@ -326,7 +326,9 @@ def decode_view(
             continue
         decoded.append((got.reading(hit[0], intr, head_pan, head_tilt), hit[0]))
     if pairs is not None and sync is None:
-        refused, merged = _pair_readings(stack, valid, positions, book, float(det.noise_sigma), refused,
+        from fgloc.camera.blink_crowd_decoding import crowd_readings  # it builds on this module's types
+
+        refused, merged = crowd_readings(stack, valid, positions, book, float(det.noise_sigma), refused,
                                          [rd for rd, _ in decoded], intr, head_pan, head_tilt, pairs)
         decoded = [(rd, rd.index) for rd in merged]
     counts = Counter(code for _, code in decoded)
@@ -394,117 +396,3 @@ def decode_windows(
         if not read and not seen:
             left.append(rf)
     return ViewDecode(readings, tuple(left), n, n - len(set(idx.tolist())), unsampled_positions(idx, book.length))
-
-
-#: refusal reasons of blobs that may be two LEDs: all but the image border (a pair blinks
-#: levels 0, 1, 2, which the one-LED split reads as a never-dark light, a weak LED, an
-#: unknown or conflicting word, or varying lit frames)
-_PAIR_KINDS = ("unresolved blob", "lit frames vary", "samples one period apart", "never read cleanly",
-               "no rotation of a book code", "on samples", "never dark", "on-off amplitude")
-
-
-def _pair_readings(
-    stack: np.ndarray, valid: np.ndarray, positions: np.ndarray, book: CodeBook, noise_sigma: float,
-    refused: list[RefusedBlob], readings: list[DecodedReading], intr: CameraIntrinsics, head_pan: float,
-    head_tilt: float, cfg: PairConfig,
-) -> tuple[list[RefusedBlob], list[DecodedReading]]:
-    """Try the refused blobs that may be two LEDs as pairs: (refusals left, every reading).
-    Refusals within ``cfg.group_px`` of each other form one candidate, centred at their mean
-    (none with a decoded reading within ``cfg.single_px``: that blob is one LED). A decoded
-    pair replaces the candidate's refusals by two readings that name each other
-    (``partner``); a refused pair leaves them as they were. A candidate refused alone is
-    tried with its nearest decoded single LED within ``cfg.neighbour_px`` as one pair
-    (:func:`_with_neighbour`): a neighbour whose light spills into the candidate's aperture
-    makes a lone LED fail the one-LED tests. A pair LED that names the code of a decoded
-    single LED within ``cfg.same_px`` of it is that LED (its reading is replaced by the
-    pair's); anywhere else the two readings of one code are refused as duplicates."""
-    cand = [k for k, rf in enumerate(refused) if rf.kind != "duplicate" and any(s in rf.reason for s in _PAIR_KINDS)]
-    groups: list[list[int]] = []
-    for k in cand:
-        near = [g for g in groups if any(math.hypot(refused[k].u - refused[j].u, refused[k].v - refused[j].v)
-                                         <= cfg.group_px for j in g)]
-        merged = [k] + [j for g in near for j in g]
-        groups = [g for g in groups if g not in near] + [merged]
-    drop: set[int] = set()
-    singles = list(readings)
-    out: list[DecodedReading] = []
-    centre = [(float(np.mean([refused[j].u for j in g])), float(np.mean([refused[j].v for j in g]))) for g in groups]
-    done: set[int] = set()
-    for gi, g in enumerate(groups):
-        if gi in done:
-            continue
-        u0, v0 = centre[gi]
-        if any(math.hypot(rd.u - u0, rd.v - v0) <= cfg.single_px for rd in singles):
-            continue
-        res = decode_pair(stack, valid, positions, u0, v0, book, noise_sigma, cfg)
-        if (res.index is None or res.uv is None) and cfg.max_group >= 3:
-            grp = decode_group(stack, valid, positions, u0, v0, book, noise_sigma, cfg)
-            if grp.index is not None and grp.uv is not None:
-                drop.update(g)
-                done.add(gi)
-                for k in range(3):
-                    (u, v), s = grp.uv[k], grp.sigma_px[k]
-                    p_, t_ = pixel_to_pan_tilt(intr, np.array([u, v]), head_pan, head_tilt)
-                    rest = tuple(grp.index[m] for m in range(3) if m != k)
-                    out.append(DecodedReading(grp.index[k], u, v, s, float(p_), float(t_), grp.exclusive[k],
-                                              rest[0], rest))
-                continue
-        if res.index is None or res.uv is None:
-            others = [(centre[h], h) for h in range(len(groups)) if h != gi and h not in done]
-            res, partner = _with_neighbour(stack, valid, positions, u0, v0, book, noise_sigma, singles, others, cfg)
-            if res.index is not None and partner is not None:
-                drop.update(groups[partner])
-                done.add(partner)
-        if res.index is None or res.uv is None:
-            continue
-        drop.update(g)
-        done.add(gi)
-        for k in range(2):
-            (u, v), s = res.uv[k], res.sigma_px[k]
-            p_, t_ = pixel_to_pan_tilt(intr, np.array([u, v]), head_pan, head_tilt)
-            rd = DecodedReading(res.index[k], u, v, s, float(p_), float(t_), res.exclusive[k], res.index[1 - k])
-            same = [m for m, o in enumerate(singles)
-                    if o.index == rd.index and math.hypot(o.u - u, o.v - v) <= cfg.same_px]
-            if same:
-                singles[same[0]] = rd
-            else:
-                out.append(rd)
-    return [rf for k, rf in enumerate(refused) if k not in drop], singles + out
-
-
-def _with_neighbour(
-    stack: np.ndarray, valid: np.ndarray, positions: np.ndarray, u0: float, v0: float, book: CodeBook,
-    noise_sigma: float, singles: list[DecodedReading], others: list[tuple[tuple[float, float], int]],
-    cfg: PairConfig,
-) -> tuple[PairResult, int | None]:
-    """The refused candidate at (u0, v0) px decoded as a pair with a neighbour within
-    ``cfg.neighbour_px``: a decoded single LED (``singles``) or another refused candidate
-    (``others``: (centre, id)), the nearest of each tried, nearer first;
-    :func:`fgloc.camera.blink_pairs.decode_pair` at their midpoint, the aperture half-width
-    ``cfg.radius_px`` or the half distance + 3 px, the larger. With a single LED, accepted
-    only when one LED of the pair is it (its code within ``cfg.same_px`` of its reading): the
-    pair decoder read both words exactly, one of them independently confirmed. Returns the
-    result and the id of the refused candidate it took (None: a single LED, or refused)."""
-    tries: list[tuple[float, float, float, DecodedReading | None, int | None]] = []
-    near_single = sorted(((math.hypot(rd.u - u0, rd.v - v0), m) for m, rd in enumerate(singles)))
-    if near_single and near_single[0][0] <= cfg.neighbour_px:
-        rd = singles[near_single[0][1]]
-        tries.append((near_single[0][0], rd.u, rd.v, rd, None))
-    near_other = sorted((math.hypot(c[0] - u0, c[1] - v0), c, h) for c, h in others)
-    if near_other and near_other[0][0] <= cfg.neighbour_px:
-        d, c, h = near_other[0]
-        tries.append((d, c[0], c[1], None, h))
-    res = PairResult(None, None, (math.nan, math.nan), (0, 0), "no neighbour")
-    for d, un, vn, known, h in sorted(tries, key=lambda t: t[0]):
-        wide = replace(cfg, radius_px=max(cfg.radius_px, math.ceil(0.5 * d) + 3))
-        res = decode_pair(stack, valid, positions, 0.5 * (u0 + un), 0.5 * (v0 + vn), book, noise_sigma, wide)
-        if res.index is None or res.uv is None:
-            continue
-        if known is None:
-            return res, h
-        uv = res.uv
-        if any(res.index[j] == known.index and math.hypot(uv[j][0] - known.u, uv[j][1] - known.v) <= cfg.same_px
-               for j in range(2)):
-            return res, None
-        res = PairResult(None, None, (math.nan, math.nan), res.exclusive, "pair with a neighbour: neither LED is it")
-    return res, None
