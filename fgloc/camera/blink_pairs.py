@@ -176,12 +176,15 @@ def _three_levels(f: np.ndarray) -> tuple[float, float, float]:
     return float(c[0]), float(c[1]), float(c[2])
 
 
-def _centroid(img: np.ndarray, u0: float, v0: float, r: int = 3) -> tuple[float, float] | None:
+def _centroid(img: np.ndarray, u0: float, v0: float, r: int = 3, clamp: bool = False) -> tuple[float, float] | None:
     """Intensity-weighted centroid (negative pixels clipped) of ``img`` in a (2r+1)^2 window
-    around (u0, v0) (array coordinates), iterated twice; None when the window leaves ``img``."""
+    around (u0, v0) (array coordinates), iterated twice; None when the window leaves ``img``
+    (``clamp``: the window is shifted to stay inside it) or holds no light."""
     u, v = u0, v0
     for _ in range(2):
         cu, cv = int(round(u)), int(round(v))
+        if clamp:
+            cu, cv = min(max(cu, r), img.shape[1] - r - 1), min(max(cv, r), img.shape[0] - r - 1)
         if not (r <= cu < img.shape[1] - r and r <= cv < img.shape[0] - r):
             return None
         win = np.clip(img[cv - r: cv + r + 1, cu - r: cu + r + 1], 0.0, None)
@@ -191,6 +194,15 @@ def _centroid(img: np.ndarray, u0: float, v0: float, r: int = 3) -> tuple[float,
         ys, xs = np.mgrid[-r: r + 1, -r: r + 1]
         u, v = cu + float((win * xs).sum()) / tot, cv + float((win * ys).sum()) / tot
     return u, v
+
+
+def _spot(img: np.ndarray, pad: int, r: int) -> tuple[float, float] | None:
+    """Centroid of one LED's image ``img`` (a patch with its centre at (pad, pad)): coarse in
+    the (2r+1)^2 window kept inside the patch, refined in the 7 x 7 window around it (an LED
+    up to r px off the patch centre; the small window keeps the clipped noise of the large
+    one from pulling it to the centre). None as :func:`_centroid`."""
+    first = _centroid(img, pad, pad, r, clamp=True)
+    return _centroid(img, *first) if first is not None else None
 
 
 def _refuse(why: str, exclusive: tuple[int, int] = (0, 0)) -> PairResult:
@@ -315,7 +327,7 @@ def count_and_singles(big: np.ndarray, flux: np.ndarray, valid: np.ndarray, posi
         return f"{int(off.sum())} {off_name} samples"
     dark = big[off].mean(axis=0)
     singles = np.flatnonzero(count == 1)
-    cents = [_centroid(big[i] - dark, pad, pad, r) for i in singles.tolist()]
+    cents = [_spot(big[i] - dark, pad, r) for i in singles.tolist()]
     if any(c is None for c in cents):
         return "one-LED sample without a centroid"
     return count, cword, dark, singles, cents
@@ -331,8 +343,7 @@ def exclusive_centroids(big: np.ndarray, dark: np.ndarray, only: list[np.ndarray
     sig: list[float] = []
     for sel in only:
         img = big[sel].mean(axis=0) - dark
-        first = _centroid(img, pad, pad, r)
-        c = _centroid(img, *first) if first is not None else None
+        c = _spot(img, pad, r)
         if c is None:
             return "exclusive centroid at the aperture edge"
         per = [_centroid(big[i] - dark, *c) for i in sel.tolist()]
