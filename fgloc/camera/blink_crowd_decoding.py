@@ -91,13 +91,13 @@ def with_neighbour(
         d, c, h = other[0]
         tries.append((d, c[0], c[1], None, h))
     res = _refused_pair("no neighbour")
-    for d, un, vn, known, h in sorted(tries, key=lambda t: t[0]):
-        wide = replace(cfg, radius_px=max(cfg.radius_px, math.ceil(0.5 * d) + 3))
+    for dist, un, vn, known, took in sorted(tries, key=lambda t: t[0]):
+        wide = replace(cfg, radius_px=max(cfg.radius_px, math.ceil(0.5 * dist) + 3))
         res = decode_pair(stack, valid, positions, 0.5 * (u0 + un), 0.5 * (v0 + vn), book, noise_sigma, wide)
         if res.index is None or res.uv is None:
             continue
         if known is None:
-            return res, h
+            return res, took
         if _confirms(res.index, res.uv, known, cfg.same_px):
             return res, None
         res = _refused_pair("pair with a neighbour: neither LED is it", res.exclusive)
