@@ -6,9 +6,11 @@ blinks the **sum** of the two code words: per sample 0, 1 or 2 LEDs are lit. Whe
 words differ, samples exist in which only one of the two LEDs is lit (its *exclusive*
 samples). :func:`decode_pair` labels such a blob as a pair, never by guessing:
 
-1. **Levels.** The blob's flux per sample in a ``2 radius_px + 1`` square aperture, the
-   static background measured per pixel on the both-off samples and scaled by each
-   sample's ambient gain (:func:`_background_free`), must show three equally spaced
+1. **Levels.** The blob's flux per sample in its footprint within a ``2 radius_px + 1``
+   square (the pixels where its mean lit image reaches ``aperture_fraction`` of its peak,
+   :func:`footprint`: far less noise than the whole square), the static background
+   measured per pixel on the both-off samples and scaled by each sample's ambient gain
+   (:func:`_background_free`), must show three equally spaced
    levels: off, one LED, two LEDs (equally bright within ``max_level_skew`` of the step).
    Each sample within ``level_band`` x step of a level gets that count, anything between
    is an erasure; more than one sample above the two-LED level (a third LED) refuses.
