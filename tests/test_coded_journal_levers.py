@@ -206,7 +206,7 @@ def every_lever_journal(tmp_path_factory) -> list[dict]:
     """The records of a real coded survey whose journal holds every lever field: default levers
     plus radio separation (16 motes: continuations, probes, pair readings, short rounds)."""
     out = tmp_path_factory.mktemp("levers")
-    data = coded_rig(16, width=160)
+    data = coded_rig(16, width=160, seed=2)  # a scene with a continued recording (seed 1 needs none since pair decoding reads neighbours)
     data["coded"] = {"separate": "radio"}
     rig = parsed(data)
     run_survey(rig, out, opened=opened(rig)[0])

@@ -58,8 +58,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from fgloc.camera.blink_codes import CodeBook, word_of
-from fgloc.camera.blink_groups import decode_group
-from fgloc.camera.blink_pairs import PairConfig, decode_pair
+from fgloc.camera.blink_pairs import PairConfig
 from fgloc.camera.intrinsics import CameraIntrinsics
 from fgloc.camera.led_detection import DetectorConfig, LedDetection, detect_led, to_gray
 from fgloc.camera.pixel_angles import pixel_to_pan_tilt
@@ -282,7 +281,8 @@ def decode_view(
     """Decode every mote in ``frames`` (see the module docstring). ``sync`` is required
     with a synchronized book and refused with a rotation-free one. ``pairs`` (rotation-free
     books only; default off): refused blobs are tried as two LEDs
-    (:func:`fgloc.camera.blink_pairs.decode_pair`, see :func:`_pair_readings`)."""
+    (:func:`fgloc.camera.blink_pairs.decode_pair`, see
+    :func:`fgloc.camera.blink_crowd_decoding.crowd_readings`)."""
     cfg = config or DecoderConfig()
     if book.synchronized != (sync is not None):
         raise ValueError("a synchronized book needs sync timing, a rotation-free book none")
@@ -326,9 +326,11 @@ def decode_view(
             continue
         decoded.append((got.reading(hit[0], intr, head_pan, head_tilt), hit[0]))
     if pairs is not None and sync is None:
-        refused, extra = _pair_readings(stack, valid, positions, book, float(det.noise_sigma), refused,
-                                        [rd for rd, _ in decoded], intr, head_pan, head_tilt, pairs)
-        decoded += [(rd, rd.index) for rd in extra]
+        from fgloc.camera.blink_crowd_decoding import crowd_readings  # it builds on this module's types
+
+        refused, merged = crowd_readings(stack, valid, positions, book, float(det.noise_sigma), refused,
+                                         [rd for rd, _ in decoded], intr, head_pan, head_tilt, pairs)
+        decoded = [(rd, rd.index) for rd in merged]
     counts = Counter(code for _, code in decoded)
     readings = []
     for rd, code in decoded:
@@ -394,57 +396,3 @@ def decode_windows(
         if not read and not seen:
             left.append(rf)
     return ViewDecode(readings, tuple(left), n, n - len(set(idx.tolist())), unsampled_positions(idx, book.length))
-
-
-#: refusal reasons of blobs that may be two LEDs: all but the image border (a pair blinks
-#: levels 0, 1, 2, which the one-LED split reads as a never-dark light, a weak LED, an
-#: unknown or conflicting word, or varying lit frames)
-_PAIR_KINDS = ("unresolved blob", "lit frames vary", "samples one period apart", "never read cleanly",
-               "no rotation of a book code", "on samples", "never dark", "on-off amplitude")
-
-
-def _pair_readings(
-    stack: np.ndarray, valid: np.ndarray, positions: np.ndarray, book: CodeBook, noise_sigma: float,
-    refused: list[RefusedBlob], readings: list[DecodedReading], intr: CameraIntrinsics, head_pan: float,
-    head_tilt: float, cfg: PairConfig,
-) -> tuple[list[RefusedBlob], list[DecodedReading]]:
-    """Try the refused blobs that may be two LEDs as pairs. Refusals within ``cfg.group_px``
-    of each other form one candidate, centred at their mean (none with a decoded reading
-    within ``cfg.single_px``: that blob is one LED); a decoded
-    pair replaces the candidate's refusals by two readings that name each other
-    (``partner``); a refused pair leaves them as they were."""
-    cand = [k for k, rf in enumerate(refused) if rf.kind != "duplicate" and any(s in rf.reason for s in _PAIR_KINDS)]
-    groups: list[list[int]] = []
-    for k in cand:
-        near = [g for g in groups if any(math.hypot(refused[k].u - refused[j].u, refused[k].v - refused[j].v)
-                                         <= cfg.group_px for j in g)]
-        merged = [k] + [j for g in near for j in g]
-        groups = [g for g in groups if g not in near] + [merged]
-    drop: set[int] = set()
-    out: list[DecodedReading] = []
-    for g in groups:
-        u0 = float(np.mean([refused[j].u for j in g]))
-        v0 = float(np.mean([refused[j].v for j in g]))
-        if any(math.hypot(rd.u - u0, rd.v - v0) <= cfg.single_px for rd in readings):
-            continue
-        res = decode_pair(stack, valid, positions, u0, v0, book, noise_sigma, cfg)
-        if (res.index is None or res.uv is None) and cfg.max_group >= 3:
-            grp = decode_group(stack, valid, positions, u0, v0, book, noise_sigma, cfg)
-            if grp.index is not None and grp.uv is not None:
-                drop.update(g)
-                for k in range(3):
-                    (u, v), s = grp.uv[k], grp.sigma_px[k]
-                    p_, t_ = pixel_to_pan_tilt(intr, np.array([u, v]), head_pan, head_tilt)
-                    rest = tuple(grp.index[m] for m in range(3) if m != k)
-                    out.append(DecodedReading(grp.index[k], u, v, s, float(p_), float(t_), grp.exclusive[k],
-                                              rest[0], rest))
-            continue
-        if res.index is None or res.uv is None:
-            continue
-        drop.update(g)
-        for k in range(2):
-            (u, v), s = res.uv[k], res.sigma_px[k]
-            p_, t_ = pixel_to_pan_tilt(intr, np.array([u, v]), head_pan, head_tilt)
-            out.append(DecodedReading(res.index[k], u, v, s, float(p_), float(t_), res.exclusive[k],
-                                      res.index[1 - k]))
-    return [rf for k, rf in enumerate(refused) if k not in drop], out

@@ -5,8 +5,8 @@ motes (``PairConfig(max_group=3)``; off by default). The blob blinks the **sum**
 three code words: per sample 0..3 LEDs are lit. :func:`decode_group` labels it with the
 pair decoder's discipline, never by guessing:
 
-1. **Levels.** Flux per sample in a ``2 group_radius_px + 1`` square aperture, static
-   background removed as for pairs, must show four equally spaced levels (off, one, two,
+1. **Levels.** Flux per sample in the blob's footprint within a ``2 group_radius_px + 1``
+   square, footprint and static background as for pairs, must show four equally spaced levels (off, one, two,
    three LEDs; each within ``max_level_skew`` of the step), or three when no sample has
    all three lit. More than one sample above the three-LED level (a fourth LED) refuses.
 2. **Which LED.** The centroids of the one-LED samples must form three compact, clearly
@@ -185,7 +185,7 @@ def decode_group(
         raise ValueError("group decoding needs a rotation-free book")
     cfg = config or PairConfig()
     r = cfg.group_radius_px
-    window = background_free_aperture(stack, valid, u, v, r, noise_sigma, _off_and_one)
+    window = background_free_aperture(stack, valid, u, v, r, noise_sigma, _off_and_one, cfg.aperture_fraction)
     if window is None:
         return _refuse("too close to the image border")
     big, flux, noise, pad, (ox, oy) = window

@@ -6,9 +6,11 @@ blinks the **sum** of the two code words: per sample 0, 1 or 2 LEDs are lit. Whe
 words differ, samples exist in which only one of the two LEDs is lit (its *exclusive*
 samples). :func:`decode_pair` labels such a blob as a pair, never by guessing:
 
-1. **Levels.** The blob's flux per sample in a ``2 radius_px + 1`` square aperture, the
-   static background measured per pixel on the both-off samples and scaled by each
-   sample's ambient gain (:func:`_background_free`), must show three equally spaced
+1. **Levels.** The blob's flux per sample in its footprint within a ``2 radius_px + 1``
+   square (the pixels where its mean lit image reaches ``aperture_fraction`` of its peak,
+   :func:`footprint`: far less noise than the whole square), the static background
+   measured per pixel on the both-off samples and scaled by each sample's ambient gain
+   (:func:`_background_free`), must show three equally spaced
    levels: off, one LED, two LEDs (equally bright within ``max_level_skew`` of the step).
    Each sample within ``level_band`` x step of a level gets that count, anything between
    is an erasure; more than one sample above the two-LED level (a third LED) refuses.
@@ -51,6 +53,8 @@ class PairConfig:
     radius_px: int = 5  #: aperture half-width around the blob centre (both LEDs inside)
     group_px: float = 4.0  #: refused blobs this close form one candidate pair
     single_px: float = 2.5  #: no candidate pair this close to a decoded single LED
+    neighbour_px: float = 12.0  #: a lone refused blob is tried as a pair with a decoded single LED this close
+    same_px: float = 1.0  #: a pair LED with a decoded single LED's code this close to it is that LED
     level_band: float = 0.3  #: a sample within this x step of a level is that count
     max_level_skew: float = 0.2  #: |one-LED level - midpoint of off and two-LED| over the step
     min_snr: float = 12.0  #: one-LED step in flux-noise sigmas
@@ -65,6 +69,9 @@ class PairConfig:
     group_radius_px: int = 7  #: aperture half-width for a group of three
     group_min_snr: float = 8.0  #: one-LED step in flux-noise sigmas, group aperture (level band 2.4 sigma)
     min_template_sigmas: float = 8.0  #: one-LED templates this many noise sigmas apart to read a two-LED sample
+    #: flux aperture: the blob's footprint, where its mean lit image reaches this fraction of
+    #: its peak (0: the whole square; :func:`footprint`)
+    aperture_fraction: float = 0.1
 
 
 @dataclass(frozen=True)
@@ -171,12 +178,15 @@ def _three_levels(f: np.ndarray) -> tuple[float, float, float]:
     return float(c[0]), float(c[1]), float(c[2])
 
 
-def _centroid(img: np.ndarray, u0: float, v0: float, r: int = 3) -> tuple[float, float] | None:
+def _centroid(img: np.ndarray, u0: float, v0: float, r: int = 3, clamp: bool = False) -> tuple[float, float] | None:
     """Intensity-weighted centroid (negative pixels clipped) of ``img`` in a (2r+1)^2 window
-    around (u0, v0) (array coordinates), iterated twice; None when the window leaves ``img``."""
+    around (u0, v0) (array coordinates), iterated twice; None when the window leaves ``img``
+    (``clamp``: the window is shifted to stay inside it) or holds no light."""
     u, v = u0, v0
     for _ in range(2):
         cu, cv = int(round(u)), int(round(v))
+        if clamp:
+            cu, cv = min(max(cu, r), img.shape[1] - r - 1), min(max(cv, r), img.shape[0] - r - 1)
         if not (r <= cu < img.shape[1] - r and r <= cv < img.shape[0] - r):
             return None
         win = np.clip(img[cv - r: cv + r + 1, cu - r: cu + r + 1], 0.0, None)
@@ -188,20 +198,33 @@ def _centroid(img: np.ndarray, u0: float, v0: float, r: int = 3) -> tuple[float,
     return u, v
 
 
+def _spot(img: np.ndarray, pad: int, r: int) -> tuple[float, float] | None:
+    """Centroid of one LED's image ``img`` (a patch with its centre at (pad, pad)): coarse in
+    the (2r+1)^2 window kept inside the patch, refined in the 7 x 7 window around it (an LED
+    up to r px off the patch centre; the small window keeps the clipped noise of the large
+    one from pulling it to the centre). None as :func:`_centroid`."""
+    first = _centroid(img, pad, pad, r, clamp=True)
+    return _centroid(img, *first) if first is not None else None
+
+
 def _refuse(why: str, exclusive: tuple[int, int] = (0, 0)) -> PairResult:
     return PairResult(None, None, (math.nan, math.nan), exclusive, why)
 
 
 def _background_free(big: np.ndarray, valid: np.ndarray, ring: np.ndarray, core: np.ndarray,
                      off_and_one: Callable[[np.ndarray], tuple[float, float]] | None = None,
-                     ) -> tuple[np.ndarray, np.ndarray]:
-    """Patch stack ``big`` (N, h, w) minus its static background, and each sample's flux in
-    ``core``. The background is the per-pixel mean of the darkest third of the samples
+                     fraction: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Patch stack ``big`` (N, h, w) minus its static background, each sample's flux in the
+    aperture, and the aperture (a mask within ``core``). The background is the per-pixel mean
+    of the darkest third of the samples
     (by a first flux in ``core`` minus the ``ring`` median), each sample scaled by its
     ambient gain (median ratio of its ``ring`` pixels to their median over the samples):
     over an aperture of ~100 px a textured background moves with the ambient light by
     as much as an LED, so it is measured, not assumed flat. ``off_and_one`` gives the off and
-    the one-LED level of the first fluxes (default: of three levels, off / one / two LEDs)."""
+    the one-LED level of the first fluxes (default: of three levels, off / one / two LEDs).
+    ``fraction`` > 0: the aperture is the blob's own footprint, the ``core`` pixels where the
+    mean lit image (background-free samples with a first flux above the midpoint of the off
+    and one-LED levels) reaches ``fraction`` of its peak (:func:`footprint`); 0: all of ``core``."""
     ref = np.median(big[valid][:, ring], axis=0)
     usable = ref > 5.0
     if usable.sum() >= 8:
@@ -214,7 +237,25 @@ def _background_free(big: np.ndarray, valid: np.ndarray, ring: np.ndarray, core:
     dark = np.flatnonzero(valid & (first < 0.5 * (c0 + c1)))
     bg = (big[dark] / gain[dark, None, None]).mean(axis=0)
     sub = big - gain[:, None, None] * bg[None]
-    return sub, sub[:, core].sum(axis=1)
+    aperture = core
+    if fraction > 0.0:
+        lit = valid & (first >= 0.5 * (c0 + c1))
+        if lit.any():
+            aperture = footprint(sub[lit].mean(axis=0), core, fraction)
+    return sub, sub[:, aperture].sum(axis=1), aperture
+
+
+def footprint(lit_image: np.ndarray, core: np.ndarray, fraction: float) -> np.ndarray:
+    """The pixels of ``core`` where ``lit_image`` (a background-free mean lit image) reaches
+    ``fraction`` of its peak over ``core``: the LEDs' own footprint, an aperture that sums their
+    light with far less noise than the whole square (for a Gaussian spot, ``fraction`` 0.1
+    keeps 90 % of the flux on ~2 pi sigma^2 ln 10 px; two LEDs lit in different shares of
+    the samples keep different shares of theirs, by at most ``fraction`` x the ratio of the
+    shares, which the equal-level tests bound). All of ``core`` when the peak is not positive."""
+    peak = float(lit_image[core].max())
+    if peak <= 0.0:
+        return core
+    return core & (lit_image >= fraction * peak)
 
 
 def _fold(values: np.ndarray, positions: np.ndarray, length: int) -> tuple[np.ndarray | None, str]:
@@ -255,18 +296,19 @@ def cut_aperture(stack: np.ndarray, u: float, v: float, r: int
 
 def background_free_aperture(
     stack: np.ndarray, valid: np.ndarray, u: float, v: float, r: int, noise_sigma: float,
-    off_and_one: Callable[[np.ndarray], tuple[float, float]] | None = None,
+    off_and_one: Callable[[np.ndarray], tuple[float, float]] | None = None, fraction: float = 0.0,
 ) -> tuple[np.ndarray, np.ndarray, float, int, tuple[int, int]] | None:
     """The window around pixel (u, v) (:func:`cut_aperture`) minus its static background
-    (:func:`_background_free`), each sample's flux in the ``r`` core, the flux noise (DN: the
-    per-pixel frame-difference ``noise_sigma`` over the core), the window's pad and the image
+    (:func:`_background_free`), each sample's flux in the aperture (the ``r`` core, or with
+    ``fraction`` > 0 the blob's footprint in it), the flux noise (DN: the per-pixel
+    frame-difference ``noise_sigma`` over the aperture), the window's pad and the image
     pixel of its corner (ox, oy); None when the window leaves the image."""
     cut = cut_aperture(stack, u, v, r)
     if cut is None:
         return None
     big, pad, ring, core, (cu, cv) = cut
-    big, flux = _background_free(big, valid, ring, core, off_and_one)
-    return big, flux, float(noise_sigma) * math.sqrt(core.sum() * 2.0), pad, (cu - pad, cv - pad)
+    big, flux, aperture = _background_free(big, valid, ring, core, off_and_one, fraction)
+    return big, flux, float(noise_sigma) * math.sqrt(aperture.sum() * 2.0), pad, (cu - pad, cv - pad)
 
 
 def count_and_singles(big: np.ndarray, flux: np.ndarray, valid: np.ndarray, positions: np.ndarray,
@@ -287,7 +329,7 @@ def count_and_singles(big: np.ndarray, flux: np.ndarray, valid: np.ndarray, posi
         return f"{int(off.sum())} {off_name} samples"
     dark = big[off].mean(axis=0)
     singles = np.flatnonzero(count == 1)
-    cents = [_centroid(big[i] - dark, pad, pad, r) for i in singles.tolist()]
+    cents = [_spot(big[i] - dark, pad, r) for i in singles.tolist()]
     if any(c is None for c in cents):
         return "one-LED sample without a centroid"
     return count, cword, dark, singles, cents
@@ -303,8 +345,7 @@ def exclusive_centroids(big: np.ndarray, dark: np.ndarray, only: list[np.ndarray
     sig: list[float] = []
     for sel in only:
         img = big[sel].mean(axis=0) - dark
-        first = _centroid(img, pad, pad, r)
-        c = _centroid(img, *first) if first is not None else None
+        c = _spot(img, pad, r)
         if c is None:
             return "exclusive centroid at the aperture edge"
         per = [_centroid(big[i] - dark, *c) for i in sel.tolist()]
@@ -361,7 +402,7 @@ def decode_pair(
     a frame difference (DN), as :func:`fgloc.camera.led_detection.detect_led` reports it."""
     cfg = config or PairConfig()
     r = cfg.radius_px
-    window = background_free_aperture(stack, valid, u, v, r, noise_sigma)
+    window = background_free_aperture(stack, valid, u, v, r, noise_sigma, fraction=cfg.aperture_fraction)
     if window is None:
         return _refuse("too close to the image border")
     big, flux, noise, pad, (ox, oy) = window
