@@ -38,8 +38,7 @@ from fgloc.survey.coded_ladder import (
     view_order,
 )
 from fgloc.survey.coded_levers import LEGACY, coded_settings
-from fgloc.survey.session import run_survey
-from tests.test_survey_coded import clean_cuts, coded_rig, opened, parsed, view_records
+from tests.test_survey_coded import coded_rig, cut_and_resume, parsed, view_records
 from tests.test_survey_coded_levers import survey_reads_every_visible_pair
 
 HEAD = (0.3, -0.2)
@@ -173,24 +172,9 @@ def test_focus_records_fewer_refinement_frames_and_reads_every_visible_pair(tmp_
 
 
 def test_a_focused_survey_resumes_to_the_uncut_readings(tmp_path):
-    from tests.test_survey_runner import resume_from_cuts
-
-    rig = parsed(ladder_rig(12, 160, "focus"))
-    full = tmp_path / "full"
-    run_survey(rig, full, opened=opened(rig)[0])
-    data = (full / "journal.jsonl").read_bytes()
-    records = [json.loads(line) for line in data.splitlines()]
-    ends = [0, *np.cumsum([len(line) + 1 for line in data.splitlines()]).tolist()]
-    clean = clean_cuts(records)
-    refine = [k for k, r in enumerate(records) if r["type"] == "view" and r["view"].startswith("r")]
-    assert len(refine) >= 2, "the scene should need refinement"
-    cuts = sorted({k for k in (refine[0], refine[len(refine) // 2], refine[-1] + 1) if k in clean})
-    assert len(cuts) >= 2
-    n_views = sum(r["type"] == "view" for r in records)
-    states = resume_from_cuts(rig, data, [int(ends[k]) for k in cuts], tmp_path)  # + torn cuts
-    for k in range(len(states)):
-        keys = [(r["camera"], r["view"], r["attempt"]) for r in view_records(tmp_path / f"cut{k}" / "journal.jsonl")]
-        assert len(keys) == len(set(keys)) == n_views, k
+    """Killed at the first refinement view, in the middle of them (clean and torn) and after
+    the last: each resume records every view once (the ladder decides from earlier views only)."""
+    cut_and_resume(parsed(ladder_rig(12, 160, "focus")), tmp_path, "r")
 
 
 def test_a_header_without_the_ladder_lever_resumes_climbing():

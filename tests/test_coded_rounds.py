@@ -35,7 +35,7 @@ from fgloc.survey.coded_levers import LEGACY, coded_settings
 from fgloc.survey.coded_rounds import ROUND_RADIUS_PX, decode_round, round_frames
 from fgloc.survey.session import run_survey
 from fgloc.survey.view_planner import Slot, view_major_schedule
-from tests.test_survey_coded import check_labels, clean_cuts, coded_rig, opened, parsed, view_records
+from tests.test_survey_coded import check_labels, coded_rig, cut_and_resume, opened, parsed, view_records
 from tests.test_survey_coded_levers import lever_rig, survey_reads_every_visible_pair
 
 L30 = code_book(30).length
@@ -287,23 +287,9 @@ def test_short_rounds_resume_to_the_uncut_readings(tmp_path, order):
     """Killed before the first round view, in the middle of the rounds (between recordings, and
     torn) and after the last: each resume re-plans the same rounds and candidates and ends with
     the uncut run's readings, each recording once."""
-    from tests.test_survey_runner import resume_from_cuts
-
     rig = parsed(lever_rig(30, separate="radio", rounds="short", round_order=order))
-    full = tmp_path / "full"
-    run_survey(rig, full, opened=opened(rig)[0])
-    data = (full / "journal.jsonl").read_bytes()
-    records = [json.loads(line) for line in data.splitlines()]
-    ends = [0, *np.cumsum([len(line) + 1 for line in data.splitlines()]).tolist()]
-    clean = clean_cuts(records)
-    rounds = [k for k, r in enumerate(records) if r["type"] == "view" and r["view"].startswith("s")]
-    cuts = sorted({k for k in (rounds[0], rounds[len(rounds) // 2], rounds[-1] + 1) if k in clean})
-    assert len(cuts) >= 2
-    n_views = sum(r["type"] == "view" for r in records)
-    states = resume_from_cuts(rig, data, [int(ends[k]) for k in cuts], tmp_path)
+    records, states = cut_and_resume(rig, tmp_path, "s")
     for k in range(len(states)):
-        keys = [(r["camera"], r["view"], r["attempt"]) for r in view_records(tmp_path / f"cut{k}" / "journal.jsonl")]
-        assert len(keys) == len(set(keys)) == n_views, k
         cands = {(r["camera"], r["view"]): r["candidates"] for r in round_records(tmp_path / f"cut{k}" / "journal.jsonl")}
         assert cands == {(r["camera"], r["view"]): r["candidates"] for r in records if r["type"] == "view"
                          and r["view"].startswith("s")}

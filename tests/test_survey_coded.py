@@ -63,6 +63,30 @@ def clean_cuts(records: list[dict]) -> set[int]:
     return {k for k in range(len(records) + 1) if not any(lo < k <= hi for lo, hi in spans)}
 
 
+def cut_and_resume(rig, tmp_path, prefix: str) -> tuple[list[dict], list]:
+    """Run the coded survey into ``tmp_path/full``, then kill it (clean cuts, and torn ones:
+    :func:`tests.test_survey_runner.resume_from_cuts`) before the first view whose id starts
+    with ``prefix``, in the middle of those views and after the last, and resume each: every
+    view is recorded exactly once in each resumed journal. Returns (the uncut journal's
+    records, the resumed states)."""
+    full = tmp_path / "full"
+    run_survey(rig, full, opened=opened(rig)[0])
+    data = (full / "journal.jsonl").read_bytes()
+    records = [json.loads(line) for line in data.splitlines()]
+    ends = [0, *np.cumsum([len(line) + 1 for line in data.splitlines()]).tolist()]
+    clean = clean_cuts(records)
+    chosen = [k for k, r in enumerate(records) if r["type"] == "view" and r["view"].startswith(prefix)]
+    assert len(chosen) >= 2, f"the scene should record views {prefix}..."
+    cuts = sorted({k for k in (chosen[0], chosen[len(chosen) // 2], chosen[-1] + 1) if k in clean})
+    assert len(cuts) >= 2
+    n_views = sum(r["type"] == "view" for r in records)
+    states = resume_from_cuts(rig, data, [int(ends[k]) for k in cuts], tmp_path)
+    for k in range(len(states)):
+        keys = [(r["camera"], r["view"], r["attempt"]) for r in view_records(tmp_path / f"cut{k}" / "journal.jsonl")]
+        assert len(keys) == len(set(keys)) == n_views, k
+    return records, states
+
+
 def check_labels(rig, scene, state, max_error_deg: float) -> int:
     """Every reading decoded in a view lies nearest to the bearing of the node it names (among
     the nodes its camera can see) and within ``max_error_deg``; returns how many were decoded."""
