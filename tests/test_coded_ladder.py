@@ -15,14 +15,12 @@
 
 from __future__ import annotations
 
-import json
 import math
 
 import numpy as np
 import pytest
 
 from fgloc.camera.pixel_angles import pixel_to_pan_tilt
-from fgloc.cli import main
 from fgloc.core.errors import FglocError
 from fgloc.core.geometry import pan_tilt_bearing
 from fgloc.core.model import Gauge, NodeMode
@@ -38,7 +36,7 @@ from fgloc.survey.coded_ladder import (
     view_order,
 )
 from fgloc.survey.coded_levers import LEGACY, coded_settings
-from tests.test_survey_coded import coded_rig, cut_and_resume, parsed, view_records
+from tests.test_survey_coded import check_lever_refused_on_resume, coded_rig, cut_and_resume, parsed, view_records
 from tests.test_survey_coded_levers import survey_reads_every_visible_pair
 
 HEAD = (0.3, -0.2)
@@ -191,20 +189,7 @@ def test_a_header_without_the_ladder_lever_resumes_climbing():
 
 
 def test_a_ladder_flag_that_disagrees_with_the_journal_is_refused_in_one_line(tmp_path, capsys):
-    rig_json = tmp_path / "rig.json"
-    rig_json.write_text(json.dumps(coded_rig(6, width=160)))
-    args = ["survey", "--rig", str(rig_json), "-o", str(tmp_path / "o"), "--simulate", "--quiet"]
-    journal = tmp_path / "o" / "journal.jsonl"
-    assert main(args) == 0
-    lines = journal.read_bytes().splitlines(keepends=True)
-    journal.write_bytes(b"".join(lines[:len(lines) // 2]))
-    before = journal.read_bytes()
-    capsys.readouterr()
-    assert main(args + ["--resume", "--coded", "ladder=climb"]) == 2
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "--coded: ladder" in err[0] and str(journal) in err[0], err
-    assert journal.read_bytes() == before
-    assert main(args + ["--resume", "--coded", "ladder=focus"]) == 0  # the journal's own value
+    check_lever_refused_on_resume(coded_rig(6, width=160), tmp_path, capsys, "ladder=climb", "ladder", "ladder=focus")
 
 
 def test_the_ladder_lever_is_schema_checked():

@@ -26,7 +26,6 @@ import pytest
 
 from fgloc.camera.blink_codes import code_book
 from fgloc.camera.pixel_angles import pan_tilt_to_pixel
-from fgloc.cli import main
 from fgloc.core.model import Gauge, NodeMode
 from fgloc.files.journal import JournalError, JournalHeader, JournalState, read_journal
 from fgloc.survey.clock import Frames, PositionRead, Slew, Wait, op_time
@@ -35,7 +34,15 @@ from fgloc.survey.coded_levers import LEGACY, coded_settings
 from fgloc.survey.coded_rounds import ROUND_RADIUS_PX, decode_round, round_frames
 from fgloc.survey.session import run_survey
 from fgloc.survey.view_planner import Slot, view_major_schedule
-from tests.test_survey_coded import check_labels, coded_rig, cut_and_resume, opened, parsed, view_records
+from tests.test_survey_coded import (
+    check_labels,
+    check_lever_refused_on_resume,
+    coded_rig,
+    cut_and_resume,
+    opened,
+    parsed,
+    view_records,
+)
 from tests.test_survey_coded_levers import lever_rig, survey_reads_every_visible_pair
 
 L30 = code_book(30).length
@@ -299,20 +306,7 @@ def test_short_rounds_resume_to_the_uncut_readings(tmp_path, order):
 def test_a_round_lever_that_disagrees_with_the_journal_is_refused_in_one_line(tmp_path, capsys, flag, named):
     data = coded_rig(6, width=160, identification="coded")
     data["coded"] = {"separate": "radio", "rounds": "short", "round_order": "view"}
-    rig_json = tmp_path / "rig.json"
-    rig_json.write_text(json.dumps(data))
-    args = ["survey", "--rig", str(rig_json), "-o", str(tmp_path / "o"), "--simulate", "--quiet"]
-    journal = tmp_path / "o" / "journal.jsonl"
-    assert main(args) == 0
-    lines = journal.read_bytes().splitlines(keepends=True)
-    journal.write_bytes(b"".join(lines[:len(lines) // 2]))
-    before = journal.read_bytes()
-    capsys.readouterr()
-    assert main(args + ["--resume", "--coded", flag]) == 2
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and f"--coded: {named}" in err[0] and str(journal) in err[0], err
-    assert journal.read_bytes() == before
-    assert main(args + ["--resume", "--coded", "rounds=short"]) == 0  # the journal's own value
+    check_lever_refused_on_resume(data, tmp_path, capsys, flag, named, "rounds=short")
 
 
 def test_a_header_without_the_round_levers_resumes_with_full_class_major_rounds(monkeypatch):

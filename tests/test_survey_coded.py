@@ -87,6 +87,26 @@ def cut_and_resume(rig, tmp_path, prefix: str) -> tuple[list[dict], list]:
     return records, states
 
 
+def check_lever_refused_on_resume(data: dict, tmp_path, capsys, flag: str, named: str, own: str) -> None:
+    """Survey with rig.json ``data``, cut the journal in half, resume with ``--coded flag``:
+    refused in one line naming the lever ``named`` and the journal, exit 2, the journal
+    untouched; resumed with ``--coded own`` (the journal's own value) it finishes."""
+    rig_json = tmp_path / "rig.json"
+    rig_json.write_text(json.dumps(data))
+    args = ["survey", "--rig", str(rig_json), "-o", str(tmp_path / "o"), "--simulate", "--quiet"]
+    journal = tmp_path / "o" / "journal.jsonl"
+    assert main(args) == 0
+    lines = journal.read_bytes().splitlines(keepends=True)
+    journal.write_bytes(b"".join(lines[:len(lines) // 2]))
+    before = journal.read_bytes()
+    capsys.readouterr()
+    assert main(args + ["--resume", "--coded", flag]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"--coded: {named}" in err[0] and str(journal) in err[0], err
+    assert journal.read_bytes() == before
+    assert main(args + ["--resume", "--coded", own]) == 0
+
+
 def check_labels(rig, scene, state, max_error_deg: float) -> int:
     """Every reading decoded in a view lies nearest to the bearing of the node it names (among
     the nodes its camera can see) and within ``max_error_deg``; returns how many were decoded."""
