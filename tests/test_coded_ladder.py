@@ -156,7 +156,7 @@ def ladder_rig(n: int, width: int, ladder: str, seed: int = 1) -> dict:
     return data
 
 
-@pytest.mark.parametrize(("n", "width", "seed"), [(30, 320, 2), (12, 160, 1)])
+@pytest.mark.parametrize(("n", "width", "seed"), [(30, 320, 3), (12, 160, 1)])
 def test_focus_records_fewer_refinement_frames_and_reads_every_visible_pair(tmp_path, n, width, seed):
     frames = {}
     for ladder in ("climb", "focus"):
