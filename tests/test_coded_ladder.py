@@ -72,6 +72,8 @@ def test_a_blob_at_a_reading_is_read_in_pixels_of_its_own_zoom():
     # the same angle is 10 tile pixels: that reading is another mote, the tile's blob stays unread
     assert unread([tile], np.array([reading(k, wide, near)]), k) == [0]
     assert unread([wide, tile], np.zeros((0, 3)), k) == [0, 1]
+    # a blob refused as merged LEDs hides a second mote beside the read one: never explained
+    assert unread([wide, tile], np.array([reading(k, wide, near), reading(k, tile, near)]), k, [True, False]) == [0]
 
 
 def test_a_rung_carries_on_only_what_lies_where_it_looked():
@@ -167,6 +169,16 @@ def test_focus_records_fewer_refinement_frames_and_reads_every_visible_pair(tmp_
         frames[ladder] = sum(r["frames"] for r in recs if r["view"].startswith("r"))
         assert all(float(r["zoom"]) > 0 for r in recs if r["view"].startswith("r"))
     assert 0 < frames["focus"] < frames["climb"], frames
+
+
+def test_a_mote_merged_with_one_read_at_a_higher_zoom_is_still_read(tmp_path):
+    """The 640 x 480 rig of scripts/coded_survey.py, seed 4: cam0's wide views merge n021 with
+    n028 2.6 px away (refused as ambiguous, its centroid 1.3 px from n028); a 2x tile reads n028.
+    The merged blob must not count as n028: n021 is read too (by the fallback)."""
+    from tests.conftest import load_script
+
+    rig = load_script("coded_survey").rig_for(4, 100, 640, "coded", 502, 0.0, {}, True)
+    survey_reads_every_visible_pair(rig, tmp_path / "s4")
 
 
 def test_a_focused_survey_resumes_to_the_uncut_readings(tmp_path):

@@ -178,6 +178,7 @@ class CodedSurvey:
         self.wide_records: dict[str, list[dict[str, Any] | None]] = {}
         self._done_views = 0
         self._never_dark: set[tuple[str, Blob]] = set()  # (camera, blob) of unexplained blobs that never went dark
+        self._merged: set[tuple[str, Blob]] = set()  # (camera, blob) of blobs refused as two or more LEDs merged
         self.stages = FieldTime({})  # barrier stages done (radio separation: wide pass, rounds), in series
 
     # ----- plan and clock
@@ -299,6 +300,8 @@ class CodedSurvey:
                     out.append(blob := ((float(r["u"]), float(r["v"])), head, zoom))
                     if never_dark(r):
                         self._never_dark.add((rec["camera"], blob))
+                    if r.get("kind") == "ambiguous":
+                        self._merged.add((rec["camera"], blob))
         return out
 
     def _dark(self, camera: str, blobs: list[Blob]) -> list[bool]:
@@ -317,7 +320,8 @@ class CodedSurvey:
         (:func:`fgloc.survey.coded_ladder.unread`)."""
         with runner._state_lock:
             read = read_before(runner.state.views, camera, rung)
-        return [blobs[k] for k in unread(blobs, read, lambda z: self.intrinsics_at(camera, z))]
+        return [blobs[k] for k in unread(blobs, read, lambda z: self.intrinsics_at(camera, z),
+                                         [(camera, b) in self._merged for b in blobs])]
 
     def blob_directions(self, camera: str, blobs: list[Blob], spread_px: float = 0.0) -> np.ndarray:
         """(M, 2) (pan, tilt) of ``blobs``; with ``spread_px`` each blob also gives the 8

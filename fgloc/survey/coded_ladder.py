@@ -115,14 +115,20 @@ def retry_helps(record: Mapping[str, Any], read: np.ndarray, intrinsics_at: Call
 
 
 def unread(found: Sequence[Blob], read: np.ndarray, intrinsics_at: Callable[[float], CameraIntrinsics],
-           ) -> list[int]:
+           merged: Sequence[bool] | None = None) -> list[int]:
     """Indices of ``found`` no reading explains: no bearing of ``read`` ((M, 3), :func:`read_before`)
     within :data:`EXPLAINED_PX` pixels of the blob in its own recording. A blob at a read mote is
     that mote refused in one view (cut by the border, a noisy bit, a duplicate decode) and read in
-    another: at the same zoom a second mote merged with it would have spoilt that reading too."""
+    another: at the same zoom a second mote merged with it would have spoilt that reading too.
+    Not so a blob refused as merged LEDs (``merged[k]``, kind ``ambiguous``): its other mote may
+    be the one not read (a mote 2.6 px from a mote read at a higher zoom: the merged blob's
+    centroid lies 1.3 px from that reading), so it is always kept."""
     keep = []
     for k, blob in enumerate(found):
         intr = intrinsics_at(blob[2])
+        if merged is not None and merged[k]:
+            keep.append(k)
+            continue
         if len(read) and float(np.max(read @ pan_tilt_bearing(*direction(blob, intrinsics_at)))) >= math.cos(
                 EXPLAINED_PX / max(intr.fx, intr.fy)):
             continue
