@@ -181,6 +181,17 @@ def test_a_mote_merged_with_one_read_at_a_higher_zoom_is_still_read(tmp_path):
     survey_reads_every_visible_pair(rig, tmp_path / "s4")
 
 
+def test_no_pair_reading_is_taken_from_an_leds_cut_off_edge(tmp_path):
+    """The 320 x 240 rig of scripts/coded_survey.py, seed 5: a 2x tile of cam1 pair-decoded
+    n078 with n067 5.3 px from the aperture's centre (r = 5), its light cut off at the edge
+    beside a flickering lamp: the reading lay 0.42 deg from n067, nearer n033. Such an LED is
+    refused (``PairConfig.edge_px``); every reading lies within 0.2 deg of its own mote."""
+    from tests.conftest import load_script
+
+    rig = load_script("coded_survey").rig_for(5, 100, 320, "coded", None, 0.0, {}, False)
+    survey_reads_every_visible_pair(rig, tmp_path / "s5", 0.2)
+
+
 def test_a_focused_survey_resumes_to_the_uncut_readings(tmp_path):
     """Killed at the first refinement view, in the middle of them (clean and torn) and after
     the last: each resume records every view once (the ladder decides from earlier views only)."""

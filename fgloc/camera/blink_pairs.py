@@ -63,6 +63,10 @@ class PairConfig:
     min_exclusive: int = 3  #: clean exclusive samples per LED, and both-off samples
     max_centroid_spread_px: float = 0.35  #: robust spread of one LED's exclusive-sample centroids
     max_both_px: float = 0.5  #: both-on centroid vs the midpoint of the two LEDs
+    #: an LED centroid within this many px of the aperture's edge is refused: its light is cut
+    #: off there (on the 320 x 240 rig a centroid 5.3 px from the centre of an r = 5 aperture lay
+    #: 2.3 px off its LED, nearer another mote); the neighbour rule's wider aperture may read it
+    edge_px: float = 1.0
     min_gap_px: float = 0.5  #: one-LED centroid clusters at least this far apart to tell the sides
     gap_spreads: float = 5.0  #: ... and at least this many times their robust spread
     max_group: int = 2  #: 3: a refused pair is tried as three LEDs (:mod:`fgloc.camera.blink_groups`)
@@ -466,6 +470,9 @@ def decode_pair(
     if isinstance(found, str):
         return _refuse(found, excl)
     uv, sig = found
+    edge = max(max(abs(x - pad), abs(y - pad)) for x, y in uv)
+    if edge > r - cfg.edge_px:  # an LED at the aperture's edge is cut off there: its centroid is biased
+        return _refuse(f"an LED {edge:.1f} px from the aperture centre, within {cfg.edge_px:g} px of its edge", excl)
     if both.any():
         cb = _centroid(big[both].mean(axis=0) - dark, pad, pad, r)
         mid = (0.5 * (uv[0][0] + uv[1][0]), 0.5 * (uv[0][1] + uv[1][1]))
