@@ -333,7 +333,7 @@ def test_probe_stops_the_recording_of_empty_views_only(tmp_path, defaults30):
 def test_group_decoding_in_the_survey_reads_crowds_the_pair_decoder_leaves(tmp_path):
     """pairs "groups": a refused pair is also tried as three LEDs. On the 30-mote rig every
     visible pair is still read once with its own label, and crowds of three read in the wide
-    view save refinement tiles against pairs "on" (5 against 7 here)."""
+    view save refinement tiles against pairs "on" (3 against 5 here)."""
     tiles = {}
     for mode in ("on", "groups"):
         out = tmp_path / mode
