@@ -24,6 +24,11 @@ decoders (exact book words, uniqueness checked); this module only chooses where 
    is the same LED (a chain A-B-C decoded as pairs A-B and B-C reads B twice): the later
    replaces it (:func:`merge_reading`). The same code anywhere else is left to the view
    decoder, which refuses both as duplicates.
+6. **Light left over.** A refused blob of a decoded candidate that lies more than
+   ``explain_px`` from the decoded LEDs (the convex hull of their centroids, where a blob of
+   those LEDs alone has its centroid) stays refused: it holds another LED's light. (A third
+   LED 7 px beside a decoded pair was lost so: its blob counted as the pair's, the survey
+   saw nothing left to chase.)
 
 Pixels: OpenCV convention (the view's).
 """
@@ -163,8 +168,13 @@ def crowd_readings(
     def near_single(gi: int) -> bool:
         return any(math.hypot(rd.u - centre[gi][0], rd.v - centre[gi][1]) <= cfg.single_px for rd in singles)
 
-    def take(gi: int, got: list[DecodedReading]) -> None:
+    explained: dict[int, list[DecodedReading]] = {}  # candidate -> the crowd's readings
+
+    def take(gi: int, got: list[DecodedReading], partner: int | None = None) -> None:
         done.add(gi)
+        explained[gi] = got
+        if partner is not None:
+            explained[partner] = got
         for rd in got:
             merge_reading(every, rd, cfg.same_px)
 
@@ -183,8 +193,10 @@ def crowd_readings(
             res, partner = with_neighbour(stack, valid, positions, u0, v0, book, noise_sigma, every, others, cfg)
             if res.index is not None and partner is not None:
                 done.add(partner)
+        else:
+            partner = None
         if res.index is not None and res.uv is not None:
-            take(gi, _readings(res.index, res.uv, res.sigma_px, res.exclusive, intr, head_pan, head_tilt))
+            take(gi, _readings(res.index, res.uv, res.sigma_px, res.exclusive, intr, head_pan, head_tilt), partner)
     if cfg.max_group >= 3:
         for gi in range(len(groups)):
             if gi in done or near_single(gi):
@@ -192,5 +204,30 @@ def crowd_readings(
             grp3 = group_with_neighbours(stack, valid, positions, *centre[gi], book, noise_sigma, every, cfg)
             if grp3 is not None and grp3.index is not None and grp3.uv is not None:
                 take(gi, _readings(grp3.index, grp3.uv, grp3.sigma_px, grp3.exclusive, intr, head_pan, head_tilt))
-    drop = {j for gi in done for j in groups[gi]}
+    # a refused blob off the decoded LEDs holds light of another LED: it stays refused (step 6)
+    drop = {j for gi in done for j in groups[gi]
+            if gi not in explained or hull_distance(refused[j].u, refused[j].v, explained[gi]) <= cfg.explain_px}
     return [rf for k, rf in enumerate(refused) if k not in drop], every
+
+
+def hull_distance(u: float, v: float, leds: list[DecodedReading]) -> float:
+    """Pixels from (u, v) to the convex hull of ``leds``' centroids (a point, a segment or a
+    triangle; 0 inside): where a blob of those LEDs alone can have its centroid."""
+    pts = [np.array([rd.u, rd.v], float) for rd in leds]
+    x = np.array([u, v], float)
+    if len(pts) >= 3:
+        a, b, c = pts[:3]
+        m = np.column_stack([b - a, c - a])
+        if abs(np.linalg.det(m)) > 1e-9:
+            s, t = np.linalg.solve(m, x - a)
+            if s >= 0 and t >= 0 and s + t <= 1:
+                return 0.0
+    if len(pts) == 1:
+        return float(np.linalg.norm(x - pts[0]))
+    best = math.inf
+    for i in range(len(pts)):
+        for j in range(i + 1, len(pts)):
+            a, d = pts[i], pts[j] - pts[i]
+            t = float(np.clip((x - a) @ d / max(float(d @ d), 1e-12), 0.0, 1.0))
+            best = min(best, float(np.linalg.norm(x - (a + t * d))))
+    return best

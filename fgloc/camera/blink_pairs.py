@@ -76,6 +76,9 @@ class PairConfig:
     #: flux aperture: the blob's footprint, where its mean lit image reaches this fraction of
     #: its peak (0: the whole square; :func:`footprint`)
     aperture_fraction: float = 0.1
+    #: a refused blob more than this many px from the LEDs its candidate decoded to stays refused
+    #: (:func:`fgloc.camera.blink_crowd_decoding.crowd_readings`, step 6)
+    explain_px: float = 1.5
 
 
 @dataclass(frozen=True)
