@@ -26,7 +26,9 @@ instead of the node loop of :mod:`fgloc.survey.runner` (docs/survey.md, "Coded i
 3. **Refinement** (rigs whose ``record_blinks`` renders other zooms: ``blink_zoom``).
    Blobs no reading explains (:func:`~fgloc.survey.coded_views.unexplained_blob`) are
    recorded again in tiles at the next zoom of :attr:`CodedSettings.levels` until none is
-   left; then the head zooms back. Refused blobs are journaled and logged, never guessed.
+   left. The head zooms back to the survey zoom only before its next operation (a fallback
+   search, priced there; else after the survey's last reading, not priced: the survey ends at
+   its last recording). Refused blobs are journaled and logged, never guessed.
    ``ladder "focus"`` (:mod:`fgloc.survey.coded_ladder`): a blob at a reading of the camera
    is that mote; a rung hands on only blobs near what it chased; lamps go to the fallback.
 4. **Stop**, one broadcast.
@@ -365,9 +367,9 @@ class CodedSurvey:
                    keep: list[Blob] | None = None) -> None:
         """The refinement rungs: tiles over ``blobs`` (unexplained so far) at the next zoom of the
         ladder, then over what those tiles left unexplained, until none is left or the ladder
-        ends; then zoom back to the survey zoom. ``failed``: a view failed (its blobs are
-        unknown; the fallback covers this camera). ``keep``: blobs the fallback must still
-        search even when every rung explains its own."""
+        ends; the zoom back to the survey zoom is owed (:meth:`owe_zoom_back`). ``failed``: a view
+        failed (its blobs are unknown; the fallback covers this camera). ``keep``: blobs the
+        fallback must still search even when every rung explains its own."""
         here, zoom0 = self.here[camera], self.survey_zoom[camera]
         zoom = zoom0
         s = self.rig.search_for(camera)
@@ -404,11 +406,29 @@ class CodedSurvey:
         self.blobs[camera] = None if failed else distinct_directions(self.final_blobs[camera], 0.25 * fov)
         self.here[camera] = here
         if zoom != zoom0:
-            self.lanes[camera].append(Zoom(zoom0 - zoom))
-            try:
-                runner.workers[camera].call(lambda h: h.set_zoom(zoom0))
-            except CameraFailed as exc:
-                logger.warning(f"{camera}: could not zoom back to the survey zoom: {exc}")
+            self.owe_zoom_back(runner, camera, zoom)
+
+    def owe_zoom_back(self, runner: SurveyRunner, camera: str, zoom: float) -> None:
+        """The head, left at ``zoom`` by the refinement, zooms back to the survey zoom just before
+        its next operation: a fallback search (priced in that node's field time), the repeats, or
+        the end of the survey (:meth:`settle_heads`, after the last reading: not priced). A camera
+        nothing else needs so ends its lane at its last recording."""
+        zoom0 = self.survey_zoom[camera]
+
+        def back(head: PanTiltHead) -> None:
+            self.clock.sink.add(camera, Zoom(zoom0 - zoom))  # recorded only inside a priced node
+            head.set_zoom(zoom0)
+
+        runner.workers[camera].before_next = back
+
+    def settle_heads(self, runner: SurveyRunner) -> None:
+        """Zoom back every head still owing it (the survey's readings are all taken)."""
+        for camera, worker in runner.workers.items():
+            if worker.before_next is not None:
+                try:
+                    worker.call(lambda _h: None)
+                except CameraFailed as exc:
+                    logger.warning(f"{camera}: could not zoom back to the survey zoom: {exc}")
 
     # ----- the whole phase
     def start_codes(self, runner: SurveyRunner) -> None:
@@ -489,6 +509,7 @@ class CodedSurvey:
 
                     run_repeats(runner, pool)
                 runner.estimate(nodes_done=len(runner.state.done))
+                self.settle_heads(runner)
         finally:
             for w in runner.workers.values():
                 try:

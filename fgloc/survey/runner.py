@@ -115,6 +115,9 @@ class CameraWorker:
         self.zoom = cam.zoom
         self.head: PanTiltHead | None = None
         self.lock = threading.Lock()
+        #: an operation the head owes before its next one (a coded survey's zoom back to the
+        #: survey zoom after its refinement, done only when the head is needed again)
+        self.before_next: Callable[[PanTiltHead], object] | None = None
 
     def _reopen(self) -> None:
         old, self.head = self.head, None
@@ -125,6 +128,7 @@ class CameraWorker:
             except Exception:  # noqa: BLE001 - a broken link may fail to close; we are replacing it
                 pass
         head = self.open_head()
+        self.before_next = None  # a reopened head is set to the survey zoom below
         try:
             head.set_zoom(self.zoom)  # the zoom the intrinsics were calibrated at
         except BaseException:
@@ -140,6 +144,9 @@ class CameraWorker:
 
         def try_op(_attempt: int) -> object:
             try:
+                if self.before_next is not None:
+                    self.before_next(self.head)  # type: ignore[arg-type]
+                    self.before_next = None
                 return op(self.head)  # type: ignore[arg-type]
             except Exception:
                 self.stats.head_errors += 1

@@ -1,0 +1,114 @@
+"""The coded survey's zoom back after refinement is owed, not priced on the camera's lane: the
+head zooms back to the survey zoom just before its next operation (a fallback search, priced in
+that node's field time) or after the survey's last reading (not priced)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from fgloc.drivers.inprocess_rig import SceneHead
+from fgloc.files.journal import read_journal
+from fgloc.survey.clock import Zoom, price
+from fgloc.survey.coded import CodedSurvey
+from fgloc.survey.session import run_survey
+from tests.test_survey_coded import check_labels, coded_rig, opened, parsed, view_records
+
+
+@pytest.fixture
+def head_log(monkeypatch):
+    """Every set_zoom and move_to of the in-process heads, in order: (camera index, what, value)."""
+    log: list[tuple[int, str, object]] = []
+    set_zoom, move_to = SceneHead.set_zoom, SceneHead.move_to
+
+    def zooming(self, zoom):  # noqa: ANN001, ANN202
+        log.append((self.index, "zoom", float(zoom)))
+        return set_zoom(self, zoom)
+
+    def moving(self, pan, tilt):  # noqa: ANN001, ANN202
+        log.append((self.index, "move", (float(pan), float(tilt))))
+        return move_to(self, pan, tilt)
+
+    monkeypatch.setattr(SceneHead, "set_zoom", zooming)
+    monkeypatch.setattr(SceneHead, "move_to", moving)
+    return log
+
+
+def _lanes_at_the_end(monkeypatch) -> dict[str, list]:
+    """The camera lanes as the survey prices them, captured when it settles its heads."""
+    lanes: dict[str, list] = {}
+    settle = CodedSurvey.settle_heads
+
+    def settling(self, runner):  # noqa: ANN001, ANN202
+        lanes.update({c: list(ops) for c, ops in self.lanes.items()})
+        return settle(self, runner)
+
+    monkeypatch.setattr(CodedSurvey, "settle_heads", settling)
+    return lanes
+
+
+def test_a_refined_camera_ends_its_lane_at_its_last_recording_and_the_head_still_zooms_back(
+        tmp_path, monkeypatch, head_log):
+    rig = parsed(coded_rig(12, width=160))
+    lanes = _lanes_at_the_end(monkeypatch)
+    rig_opened, sim = opened(rig)
+    run_survey(rig, tmp_path, opened=rig_opened)
+    refined = {r["camera"] for r in view_records(tmp_path / "journal.jsonl") if float(r["zoom"]) > 0}
+    assert refined, "the scene should need refinement"
+    for c in refined:
+        zooms = [op.dzoom for op in lanes[c] if isinstance(op, Zoom)]
+        assert zooms and all(z > 0 for z in zooms)  # zoomed in rung by rung, never back on the lane
+    for i, cam in enumerate(rig.cameras):  # every head ends at its survey zoom all the same
+        assert sim.heads[cam.id]._zoom == cam.zoom
+        zooms = [v for k, what, v in head_log if k == i and what == "zoom"]
+        if cam.id in refined:
+            assert max(zooms) > cam.zoom and zooms[-1] == cam.zoom
+
+
+def test_a_zoomed_camera_zooms_back_before_its_first_fallback_search_priced_there(tmp_path, monkeypatch, head_log):
+    """A mote whose code the survey does not know (its blob unassigned, chased up the ladder and
+    handed to the fallback) is measured the sequential way: each camera that refined zooms back
+    before its first move of that search, the zoom is priced in the node's field time, and the
+    readings lie on the mote."""
+    rig = parsed(coded_rig(12, width=160))
+    hidden = "n005"
+    init = CodedSurvey.__init__
+
+    def forgetting(self, *args, **kw):  # noqa: ANN001, ANN202
+        init(self, *args, **kw)
+        self.node_of_code = {k: n for k, n in self.node_of_code.items() if n != hidden}
+
+    monkeypatch.setattr(CodedSurvey, "__init__", forgetting)
+    rig_opened, sim = opened(rig)
+    run_survey(rig, tmp_path, opened=rig_opened)
+    state = read_journal(tmp_path / "journal.jsonl")
+    check_labels(rig, sim.scene, state, max_error_deg=0.2)
+    obs = [o for (n, _c, _k), o in state.observations.items() if n == hidden]
+    seen_by = {c for c, n in sim.scene.visible_pairs() if n == hidden}
+    assert {o.camera for o in obs} == seen_by and seen_by
+    for o in obs:
+        assert o.view is None  # the sequential way
+        i = rig.camera_ids.index(o.camera)
+        p, t = sim.scene.apparent[i, rig.node_ids.index(hidden)]
+        assert math.degrees(math.hypot(math.remainder(o.pan - p, 2 * math.pi) * math.cos(t), o.tilt - t)) < 0.2
+    records = view_records(tmp_path / "journal.jsonl")
+    last_zoom = {r["camera"]: float(r["zoom"]) for r in records}  # each camera's last recording's zoom
+    zoomed = {c for c, z in last_zoom.items() if z > 0 and c in {o.camera for o in obs}}
+    assert zoomed, "a camera that ended zoomed in should search for the mote"
+    for c in zoomed:
+        i = rig.camera_ids.index(c)
+        cam = rig.cameras[i]
+        events = [(what, v) for k, what, v in head_log if k == i]
+        last_rec = max(k for k, (what, v) in enumerate(events) if what == "zoom" and v == last_zoom[c])
+        after = events[last_rec + 2:]  # past the last tile's own move
+        moves = [k for k, (what, _v) in enumerate(after) if what == "move"]
+        assert moves and after[:moves[0]] == [("zoom", cam.zoom)]  # back to the survey zoom, then the search
+    node_time = [r for r in state.field_times if r.get("scope") == "fallback_node" and r.get("node") == hidden]
+    assert len(node_time) == 1
+    timing = CodedSurvey(rig, rig_opened.open_head, rig_opened.leds, sim).timing
+    owed = max(price([Zoom(cam.zoom - last_zoom[cam.id])], timing[cam.id]).total
+               for cam in rig.cameras if cam.id in zoomed)
+    assert node_time[0]["phases"].get("zoom", 0.0) == pytest.approx(owed) and owed > 0
+    assert np.isfinite(node_time[0]["total_s"])
