@@ -177,7 +177,10 @@ class SimScene:
         """Per camera, a rig.json ``cameras[].search`` box (degrees) holding every visible node's
         apparent bearing with ``margin_deg`` to spare: what a field team sets when it knows where
         the field lies from each camera. A camera whose visible nodes lie across the +-180 degree
-        pan seam (encoder pans more than 180 degrees apart) keeps every pan."""
+        pan seam (encoder pans more than 180 degrees apart) gets a box that runs across it (its
+        pans taken around their circular mean, so one limit lies beyond +-180 degrees: a head
+        that pans without end turns there); one whose nodes span more than 180 degrees either
+        way keeps every pan."""
         out = {}
         for i, c in enumerate(self.camera_ids):
             seen = self.visible[i] & np.array([n not in self.dead for n in self.node_ids])
@@ -186,9 +189,13 @@ class SimScene:
             pan, tilt = np.degrees(self.apparent[i, seen, 0]), np.degrees(self.apparent[i, seen, 1])
             box = {"tilt_min_deg": max(-90.0, float(tilt.min()) - margin_deg),
                    "tilt_max_deg": min(90.0, float(tilt.max()) + margin_deg)}
+            centre = float(np.degrees(np.angle(np.mean(np.exp(1j * np.radians(pan))))))
+            around = np.remainder(pan - centre + 180.0, 360.0) - 180.0 + centre
             if float(pan.max() - pan.min()) <= 180.0:
                 box |= {"pan_min_deg": max(-180.0, float(pan.min()) - margin_deg),
                         "pan_max_deg": min(180.0, float(pan.max()) + margin_deg)}
+            elif float(around.max() - around.min()) <= 180.0:
+                box |= {"pan_min_deg": float(around.min()) - margin_deg, "pan_max_deg": float(around.max()) + margin_deg}
             out[c] = box
         return out
 

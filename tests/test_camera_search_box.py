@@ -12,7 +12,7 @@ from fgloc.cli import main
 from fgloc.drivers.inprocess_rig import InProcessRig
 from fgloc.files.journal import read_journal
 from fgloc.survey.session import run_survey
-from tests.test_survey_coded import coded_rig, opened, parsed, view_records
+from tests.test_survey_coded import check_labels, coded_rig, opened, parsed, view_records
 
 
 def test_a_camera_box_overrides_the_rig_search_field_by_field():
@@ -75,3 +75,39 @@ def test_coded_views_stay_in_each_camera_s_field_box_and_read_every_visible_pair
     assert {(x.camera, x.node) for x in survey.observations} == o[1].scene.visible_pairs()
     assert runner.field_time.total < full_runner.field_time.total
     assert read_journal(tmp_path / "box" / "journal.jsonl").duplicates_ignored == 0
+
+
+def test_a_box_across_the_pan_seam_is_searched_as_one_box(tmp_path):
+    """Seed 3: cam0's visible nodes lie across the +-180 deg pan seam, so its field box runs
+    from -209 to -116 deg (``field_search_boxes``). The coded survey plans its wide views inside
+    that box (pans taken mod 360), needs fewer of them than the all-pan box, and the coded and
+    the sequential survey both read every visible pair, the coded readings on their motes."""
+    data = coded_rig(30, width=320, seed=3)
+    full_rig = parsed(data)
+    boxes = InProcessRig(full_rig).scene.field_search_boxes()
+    box = boxes["cam0"]
+    assert box["pan_min_deg"] < -180.0 < box["pan_max_deg"]
+    assert box["pan_max_deg"] - box["pan_min_deg"] < 120.0
+    for cam in data["cameras"]:
+        cam["search"] = boxes[cam["id"]]
+    rig = parsed(data)
+    rig_opened, sim = opened(rig)
+    survey, _ = run_survey(rig, tmp_path / "coded", opened=rig_opened)
+    assert {(x.camera, x.node) for x in survey.observations} == sim.scene.visible_pairs()
+    state = read_journal(tmp_path / "coded" / "journal.jsonl")
+    assert state.duplicates_ignored == 0
+    check_labels(rig, sim.scene, state, max_error_deg=0.2)
+    wide = [r for r in view_records(tmp_path / "coded" / "journal.jsonl")
+            if r["camera"] == "cam0" and r["view"].startswith("w") and r["attempt"] == 0]
+    for r in wide:
+        pan = math.degrees(r["target"][0])
+        assert any(box["pan_min_deg"] - 1e-9 <= pan + k <= box["pan_max_deg"] + 1e-9 for k in (-360, 0, 360))
+    _, full_runner = run_survey(full_rig, tmp_path / "all", opened=opened(full_rig)[0])
+    full_wide = [r for r in view_records(tmp_path / "all" / "journal.jsonl")
+                 if r["camera"] == "cam0" and r["view"].startswith("w") and r["attempt"] == 0]
+    assert len(wide) < len(full_wide)
+    data["identification"] = "sequential"
+    seq_rig = parsed(data)
+    seq_opened, seq_sim = opened(seq_rig)
+    seq, _ = run_survey(seq_rig, tmp_path / "sequential", opened=seq_opened)
+    assert {(x.camera, x.node) for x in seq.observations} == seq_sim.scene.visible_pairs()
