@@ -13,7 +13,7 @@
 * After the rounds, a wide blob counts as explained only when the rounds read every crowded
   mote predicted at it and no mote the camera has still not read is predicted near it (a mote
   one camera read may be placed a degree off, outside every class): the 640 x 480 radio survey
-  of scripts/coded_survey.py (seed 1) reads every visible pair.
+  of scripts/coded_survey.py (seed 1) reads every visible pair, and resumes to the same readings.
 * Both resume from a kill to the uncut run's readings, no reading twice; a lever that
   disagrees with the journal is refused in one line (exit 2); a journal whose header predates
   these levers resumes with full, class-major rounds.
@@ -176,13 +176,24 @@ def test_a_mote_predicted_off_its_merged_blob_is_still_read(tmp_path):
     is placed where cam1's bearing meets the ground, 8.7 px (1.0 deg) off in cam0: outside
     RADIUS_PX of the blob, so in no class. The rounds read n066 and n091; the blob must not
     count as explained (cam0 would have no blob left and n002 would be journaled not found
-    without a search): every visible pair is read."""
+    without a search): every visible pair is read once, none mislabelled. Killed before,
+    in the middle of and after the refinement (clean and torn), each resume ends with the
+    uncut run's readings and not-found records (the blob rule reads the journal only)."""
+    from fgloc.drivers.inprocess_rig import InProcessRig
     from tests.conftest import load_script
 
     rig = load_script("coded_survey").rig_for(1, 100, 640, "coded", 502, 0.0,
                                               {"video": "fields", "separate": "radio"}, True)
-    _, _, state = survey_reads_every_visible_pair(rig, tmp_path / "s1")
-    assert ("n002", "cam0") not in state.not_found
+    _, resumed = cut_and_resume(rig, tmp_path, "r")
+    state = read_journal(tmp_path / "full" / "journal.jsonl")
+    scene = InProcessRig(rig).scene
+    assert {(c, n) for (n, c, _) in state.observations} == scene.visible_pairs()
+    assert ("n002", "cam0") not in state.not_found and state.duplicates_ignored == 0
+    check_labels(rig, scene, state, max_error_deg=0.2)
+    for st in resumed:
+        assert {k: (o.pan, o.tilt) for k, o in st.observations.items()} == {
+            k: (o.pan, o.tilt) for k, o in state.observations.items()}
+        assert set(st.not_found) == set(state.not_found) and st.duplicates_ignored == 0
 
 
 # ----- the view-major schedule
