@@ -10,6 +10,10 @@
   that moment, a pause update is sent exactly when the lit class changes, and the lanes price
   one move per view and never start a recording before every recording of the class lit
   before it has ended.
+* After the rounds, a wide blob counts as explained only when the rounds read every crowded
+  mote predicted at it and no mote the camera has still not read is predicted near it (a mote
+  one camera read may be placed a degree off, outside every class): the 640 x 480 radio survey
+  of scripts/coded_survey.py (seed 1) reads every visible pair, and resumes to the same readings.
 * Both resume from a kill to the uncut run's readings, no reading twice; a lever that
   disagrees with the journal is refused in one line (exit 2); a journal whose header predates
   these levers resumes with full, class-major rounds.
@@ -132,6 +136,64 @@ def test_a_lit_non_candidate_is_never_labelled():
     assert labelled >= 15  # the three candidates are read in most of the 30 chances
     assert refused >= 5  # the stray's blob is seen, and refused with its reason
     assert ROUND_RADIUS_PX > 2.0
+
+
+# ----- the wide pass's blobs after the rounds
+def test_a_blob_an_unread_placed_mote_may_hide_in_is_not_explained_by_the_rounds():
+    """A wide blob whose crowded mote ``a`` (predicted 2 px away) the rounds read is explained
+    only when no mote the camera has still not read is predicted within PREDICTED_RADIUS
+    (3 deg) of it: ``b`` predicted 9 px away (1.03 deg at fx 502; outside RADIUS_PX, so in no
+    class) keeps it for the fallback; ``c`` at 4 deg does not. A blob whose crowded mote
+    the rounds did not read, or with none predicted near, goes to the zoom refinement."""
+    from fgloc.camera.intrinsics import CameraIntrinsics
+    from fgloc.camera.pixel_angles import pixel_to_pan_tilt
+    from fgloc.survey.coded_levers import PREDICTED_RADIUS
+    from fgloc.survey.coded_separation import RADIUS_PX, SeparationPlan, sort_wide_blobs
+
+    intr = CameraIntrinsics(502.0, 502.0, 320.0, 240.0, 640, 480)
+    head = (0.3, -0.2)
+
+    def at(du: float, dv: float = 0.0) -> tuple[float, float]:
+        p, t = pixel_to_pan_tilt(intr, np.array([320.0 + du, 240.0 + dv]), *head)
+        return float(p), float(t)
+
+    c_dir = (head[0] + math.radians(4.0) / math.cos(head[1]), head[1])  # 4 deg right of the image centre
+    assert RADIUS_PX < 9.0 and math.degrees(9.0 / 502.0) < math.degrees(PREDICTED_RADIUS) < 4.0 - 0.1
+    blob = ((320.0, 240.0), head, 0.0)
+    lone = ((100.0, 100.0), head, 0.0)  # no crowded mote predicted near
+    dirs = np.array([at(0.0), at(-220.0, -140.0)])
+    plan = SeparationPlan({"a": 0}, {"cam0": {"a": at(2.0)}}, {"cam0": set()},
+                          {"cam0": {"a": at(2.0), "b": at(9.0), "c": c_dir}}, {"cam0": {"a", "b", "c"}})
+    assert sort_wide_blobs(intr, [blob, lone], dirs, plan, "cam0", {"a"}) == ([lone], [], [blob])
+    assert sort_wide_blobs(intr, [blob, lone], dirs, plan, "cam0", {"a", "b"}) == ([lone], [blob], [])
+    assert sort_wide_blobs(intr, [blob, lone], dirs, plan, "cam0", set()) == ([blob, lone], [], [])
+    assert sort_wide_blobs(intr, [blob, lone], dirs, plan, "cam0", {"a", "b", "c"}) == ([lone], [blob], [])
+
+
+def test_a_mote_predicted_off_its_merged_blob_is_still_read(tmp_path):
+    """The 640 x 480 rig of scripts/coded_survey.py, seed 1, fields, radio separation: cam0's
+    wide views merge n002 with n066 and n091 (5.5 and 6.9 px away). Read by cam1 alone, n002
+    is placed where cam1's bearing meets the ground, 8.7 px (1.0 deg) off in cam0: outside
+    RADIUS_PX of the blob, so in no class. The rounds read n066 and n091; the blob must not
+    count as explained (cam0 would have no blob left and n002 would be journaled not found
+    without a search): every visible pair is read once, none mislabelled. Killed before,
+    in the middle of and after the refinement (clean and torn), each resume ends with the
+    uncut run's readings and not-found records (the blob rule reads the journal only)."""
+    from fgloc.drivers.inprocess_rig import InProcessRig
+    from tests.conftest import load_script
+
+    rig = load_script("coded_survey").rig_for(1, 100, 640, "coded", 502, 0.0,
+                                              {"video": "fields", "separate": "radio"}, True)
+    _, resumed = cut_and_resume(rig, tmp_path, "r")
+    state = read_journal(tmp_path / "full" / "journal.jsonl")
+    scene = InProcessRig(rig).scene
+    assert {(c, n) for (n, c, _) in state.observations} == scene.visible_pairs()
+    assert ("n002", "cam0") not in state.not_found and state.duplicates_ignored == 0
+    check_labels(rig, scene, state, max_error_deg=0.2)
+    for st in resumed:
+        assert {k: (o.pan, o.tilt) for k, o in st.observations.items()} == {
+            k: (o.pan, o.tilt) for k, o in state.observations.items()}
+        assert set(st.not_found) == set(state.not_found) and st.duplicates_ignored == 0
 
 
 # ----- the view-major schedule

@@ -24,6 +24,12 @@ in no class, stays paused during the rounds, and is left to the zoom refinement 
 sequential fallback (never guessed). The plan is a function of the journaled wide views
 only, so a resumed survey re-plans the same rounds.
 
+After the rounds a wide blob counts as explained only when the rounds read every crowded
+mote predicted at it and no mote the camera has still not read is predicted within the
+fallback's radius of it (:func:`sort_wide_blobs`): a mote one camera read is placed by one
+bearing and can be predicted a degree off, outside every class, and is then searched by the
+fallback at that blob instead of being journaled not found.
+
 Angles radians; pixels OpenCV convention; positions gauge frame (baseline units).
 """
 
@@ -61,6 +67,8 @@ class SeparationPlan:
     unplaced: dict[str, set[str]]  #: camera -> motes it did not read whose direction is unknown
     #: camera -> node -> predicted (pan, tilt) of every placed node (short rounds' candidates)
     predicted: Mapping[str, Mapping[str, tuple[float, float]]] = field(default_factory=dict)
+    #: camera -> motes it did not read in the wide pass (silent motes excluded), placed or not
+    unread: Mapping[str, set[str]] = field(default_factory=dict)
 
     @property
     def classes(self) -> int:
@@ -152,7 +160,7 @@ def plan_separation(intr: Mapping[str, CameraIntrinsics], blobs: Mapping[str, li
     colour = colour_conflicts(len(nodes), np.array(edges, dtype=int).reshape(-1, 2))
     # crowded motes in no conflict (their partner unplaced, or predicted apart) read in the first class
     return SeparationPlan({n: max(int(colour[index[n]]), 0) for n in nodes}, crowded, unplaced,
-                          {c: dict(p) for c, p in predicted.items()})
+                          {c: dict(p) for c, p in predicted.items()}, {c: set(v) for c, v in unread.items()})
 
 
 # ----- the rounds, run by the coded survey ------------------------------------------------------------------
@@ -242,10 +250,11 @@ def _round(coded: CodedSurvey, runner: SurveyRunner, camera: str, k: int, views:
 
 def _refine_after(coded: CodedSurvey, runner: SurveyRunner, camera: str, plan: SeparationPlan | None,
                   failed: bool) -> None:
-    """Zoom refinement after the rounds: the wide pass's unexplained blobs, except those whose
-    predicted motes the rounds all read, plus what the rounds' own recordings left unexplained.
+    """Zoom refinement after the rounds: the wide pass's unexplained blobs the rounds did not
+    explain (:func:`sort_wide_blobs`), plus what the rounds' own recordings left unexplained.
     Blobs the rounds explained are still searched by the fallback when the camera has unread
-    motes nobody could place (one of them may hide there)."""
+    motes nobody could place (one of them may hide there), and so are those an unread placed
+    mote may hide in."""
     wide = coded.unexplained(coded.wide_records[camera])
     if plan is None:
         coded.run_refine(runner, camera, wide, failed)
@@ -253,12 +262,46 @@ def _refine_after(coded: CodedSurvey, runner: SurveyRunner, camera: str, plan: S
     st = runner.state
     rounds = _records(st, camera, "s")
     read = {rd["node"] for r in _records(st, camera, "w") + rounds for rd in r["readings"]}
-    intr = coded.intrinsics_at(camera, coded.survey_zoom[camera])
-    left: list[Blob] = []
-    explained: list[Blob] = []
-    for blob in wide:
-        near = crowded_motes(intr, [(blob[0], blob[1])], plan.crowded[camera], RADIUS_PX)
-        (explained if near and set(near) <= read else left).append(blob)
+    left, explained, suspect = sort_wide_blobs(coded.intrinsics_at(camera, coded.survey_zoom[camera]), wide,
+                                               coded.blob_directions(camera, wide), plan, camera, read)
+    if suspect:
+        logger.info(f"{camera}: {len(suspect)} wide-pass blobs whose crowded motes the rounds read are left to the "
+                    "fallback: a mote the camera has not read is predicted near them")
     last = {(r["view"]): r for r in rounds}  # each round view's last recording
     coded.run_refine(runner, camera, left + coded.unexplained(list(last.values())), failed,
-                     explained if plan.unplaced[camera] else [])
+                     (explained if plan.unplaced[camera] else []) + suspect)
+
+
+def sort_wide_blobs(intr: CameraIntrinsics, blobs: Sequence[Blob], directions: np.ndarray, plan: SeparationPlan,
+                    camera: str, read: set[str]) -> tuple[list[Blob], list[Blob], list[Blob]]:
+    """Split ``camera``'s wide-pass unexplained ``blobs`` (pixel and head at the wide zoom
+    ``intr``; ``directions`` their (pan, tilt)) into (left to the zoom refinement, explained by
+    the rounds, suspect). A blob is explained when some crowded mote of the plan is predicted
+    within :data:`RADIUS_PX` of it, the camera has ``read`` (wide pass and rounds) every such
+    mote, and no mote the camera has still not read is predicted within
+    :data:`~fgloc.survey.coded_levers.PREDICTED_RADIUS` of it; suspect when only that last
+    test fails; else left. The crowded motes are only those *predicted* near the blob: a mote
+    one camera read is placed where that bearing meets the ground, which can be a degree off
+    (8.7 px at a 502 px focal length), so a mote merged into the blob may have been predicted
+    outside :data:`RADIUS_PX`, left out of every class (paused through the rounds) and read by
+    none. A suspect blob goes to the fallback, which looks for each unread mote at the
+    unexplained blobs within the same radius of its predicted direction
+    (:func:`~fgloc.survey.coded_levers.blobs_near`): never dropped, or the camera would count
+    as having no blob left and the mote would be journaled not found without a search."""
+    from fgloc.survey.coded_levers import PREDICTED_RADIUS
+
+    pred = plan.predicted.get(camera, {})
+    todo = sorted(n for n in plan.unread.get(camera, set()) - read if n in pred)
+    unread_at = pan_tilt_bearing(*np.array([pred[n] for n in todo], float).T) if todo else np.zeros((0, 3))
+    left: list[Blob] = []
+    explained: list[Blob] = []
+    suspect: list[Blob] = []
+    for blob, d in zip(blobs, np.asarray(directions, float).reshape(-1, 2)):
+        near = crowded_motes(intr, [(blob[0], blob[1])], plan.crowded[camera], RADIUS_PX)
+        if not near or not set(near) <= read:
+            left.append(blob)
+        elif len(unread_at) and float(np.max(unread_at @ pan_tilt_bearing(*d))) >= math.cos(PREDICTED_RADIUS):
+            suspect.append(blob)
+        else:
+            explained.append(blob)
+    return left, explained, suspect
