@@ -332,7 +332,7 @@ def main() -> None:
                     'scenes, side by side against one sequential run per seed')
     ap.add_argument("--field-boxes", action="store_true",
                     help="each camera searches a box around its visible nodes (rig.json cameras[].search, 5 deg "
-                         "margin; all pans for a camera that sees across the +-180 deg seam), both surveys")
+                         "margin; across the +-180 deg seam for a camera whose nodes lie across it), both surveys")
     args = ap.parse_args()
     levers = [json.loads(c) for c in (args.coded or ["{}"])]
     names = ["coded"] if len(levers) == 1 else [f"coded {json.dumps(c, separators=(',', ':'))}" for c in levers]
