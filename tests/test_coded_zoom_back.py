@@ -1,6 +1,7 @@
-"""The coded survey's zoom back after refinement is owed, not priced on the camera's lane: the
-head zooms back to the survey zoom just before its next operation (a fallback search, priced in
-that node's field time) or after the survey's last reading (not priced)."""
+"""The coded survey's zoom back after refinement: on the camera's lane only where it fits before the
+longest lane ends; else owed, the head zooming back to the survey zoom just before its next
+operation (a fallback search, priced in that node's field time) or after the survey's last
+reading (not priced)."""
 
 from __future__ import annotations
 
@@ -49,17 +50,31 @@ def _lanes_at_the_end(monkeypatch) -> dict[str, list]:
     return lanes
 
 
-def test_a_refined_camera_ends_its_lane_at_its_last_recording_and_the_head_still_zooms_back(
+def test_a_refined_camera_zooms_back_on_its_lane_only_in_the_longest_lane_s_slack_and_every_head_ends_wide(
         tmp_path, monkeypatch, head_log):
     rig = parsed(coded_rig(12, width=160))
     lanes = _lanes_at_the_end(monkeypatch)
     rig_opened, sim = opened(rig)
     run_survey(rig, tmp_path, opened=rig_opened)
-    refined = {r["camera"] for r in view_records(tmp_path / "journal.jsonl") if float(r["zoom"]) > 0}
+    records = view_records(tmp_path / "journal.jsonl")
+    refined = {r["camera"] for r in records if float(r["zoom"]) > 0}
     assert refined, "the scene should need refinement"
+    timing = CodedSurvey(rig, rig_opened.open_head, rig_opened.leds, sim).lane_timing
+    ends = {c: price([op for op in ops if not (isinstance(op, Zoom) and op.dzoom < 0)], timing[c]).total
+            for c, ops in lanes.items()}
+    longest = max(ends.values())
+    decided = set()
     for c in refined:
         zooms = [op.dzoom for op in lanes[c] if isinstance(op, Zoom)]
-        assert zooms and all(z > 0 for z in zooms)  # zoomed in rung by rung, never back on the lane
+        assert zooms and zooms[0] > 0  # zoomed in rung by rung
+        last = max(float(r["zoom"]) for r in records if r["camera"] == c)  # the ladder ascends
+        back = price([Zoom(rig.cameras[rig.camera_ids.index(c)].zoom - last)], timing[c]).total
+        fits = ends[c] + back <= longest + 1e-9
+        # back on the lane exactly when it fits before the longest lane ends, as its last operation
+        assert (zooms[-1] < 0) == fits and sum(z < 0 for z in zooms) == int(fits)
+        assert not fits or isinstance(lanes[c][-1], Zoom)
+        decided.add(fits)
+    assert decided == {True, False}  # this scene: cam0 zooms back in cam1's slack, cam1 (the longest) owes it
     for i, cam in enumerate(rig.cameras):  # every head ends at its survey zoom all the same
         assert sim.heads[cam.id]._zoom == cam.zoom
         zooms = [v for k, what, v in head_log if k == i and what == "zoom"]

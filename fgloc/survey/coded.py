@@ -26,9 +26,9 @@ instead of the node loop of :mod:`fgloc.survey.runner` (docs/survey.md, "Coded i
 3. **Refinement** (rigs whose ``record_blinks`` renders other zooms: ``blink_zoom``).
    Blobs no reading explains (:func:`~fgloc.survey.coded_views.unexplained_blob`) are
    recorded again in tiles at the next zoom of :attr:`CodedSettings.levels` until none is
-   left. The head zooms back to the survey zoom only before its next operation (a fallback
-   search, priced there; else after the survey's last reading, not priced: the survey ends at
-   its last recording). Refused blobs are journaled and logged, never guessed.
+   left. The head zooms back to the survey zoom on its lane if that ends no later than the
+   longest lane, else only before its next operation (a fallback search, priced there; else
+   after the survey's last reading, not priced: the survey ends at its last recording). Refused blobs are journaled and logged, never guessed.
    ``ladder "focus"`` (:mod:`fgloc.survey.coded_ladder`): a blob at a reading of the camera
    is that mote; a rung hands on only blobs near what it chased; lamps go to the fallback.
 4. **Stop**, one broadcast.
@@ -181,6 +181,7 @@ class CodedSurvey:
         self._done_views = 0
         self._never_dark: set[tuple[str, Blob]] = set()  # (camera, blob) of unexplained blobs that never went dark
         self._merged: set[tuple[str, Blob]] = set()  # (camera, blob) of blobs refused as two or more LEDs merged
+        self.owed_zoom: dict[str, float] = {}  # camera -> the zoom its head was left at (zoom back owed)
         self.stages = FieldTime({})  # barrier stages done (radio separation: wide pass, rounds), in series
 
     # ----- plan and clock
@@ -409,10 +410,11 @@ class CodedSurvey:
             self.owe_zoom_back(runner, camera, zoom)
 
     def owe_zoom_back(self, runner: SurveyRunner, camera: str, zoom: float) -> None:
-        """The head, left at ``zoom`` by the refinement, zooms back to the survey zoom just before
+        """The head, left at ``zoom`` by the refinement, zooms back to the survey zoom on its lane
+        when that fits before the longest lane ends (:meth:`zoom_back_in_slack`), else just before
         its next operation: a fallback search (priced in that node's field time), the repeats, or
-        the end of the survey (:meth:`settle_heads`, after the last reading: not priced). A camera
-        nothing else needs so ends its lane at its last recording."""
+        the end of the survey (:meth:`settle_heads`, after the last reading: not priced). The
+        camera that finishes last so ends its lane at its last recording."""
         zoom0 = self.survey_zoom[camera]
 
         def back(head: PanTiltHead) -> None:
@@ -420,6 +422,27 @@ class CodedSurvey:
             head.set_zoom(zoom0)
 
         runner.workers[camera].before_next = back
+        self.owed_zoom[camera] = zoom
+
+    def zoom_back_in_slack(self, runner: SurveyRunner) -> None:
+        """After every lane's last recording: a camera owing its zoom back whose lane, the zoom
+        back included, still ends no later than the longest lane zooms back now, priced on its
+        lane (it would have zoomed back while another camera still recorded, at no cost to the
+        survey); the others keep owing it."""
+        ends = {c: price(ops, self.lane_timing[c]).total for c, ops in self.lanes.items()}
+        longest = max(ends.values(), default=0.0)
+        for camera, zoom in sorted(self.owed_zoom.items()):
+            back = Zoom(self.survey_zoom[camera] - zoom)
+            worker = runner.workers[camera]
+            if worker.before_next is None or ends[camera] + price([back], self.lane_timing[camera]).total > longest:
+                continue
+            self.lanes[camera].append(back)
+            worker.before_next = None
+            zoom0 = self.survey_zoom[camera]
+            try:
+                worker.call(lambda h: h.set_zoom(zoom0))  # noqa: B023 - called at once
+            except CameraFailed as exc:
+                logger.warning(f"{camera}: could not zoom back to the survey zoom: {exc}")
 
     def settle_heads(self, runner: SurveyRunner) -> None:
         """Zoom back every head still owing it (the survey's readings are all taken)."""
@@ -502,6 +525,7 @@ class CodedSurvey:
                     from fgloc.survey.coded_separation import run_separation
 
                     run_separation(self, runner, pool, lambda fs: self.pump(runner, fs, total, t0))
+                self.zoom_back_in_slack(runner)
                 self.stop_codes(runner)
                 self.run_fallback(runner, pool, total, t0)
                 if self.rig.repeat_budget > 0:
