@@ -195,7 +195,8 @@ class SimScene:
                 box |= {"pan_min_deg": max(-180.0, float(pan.min()) - margin_deg),
                         "pan_max_deg": min(180.0, float(pan.max()) + margin_deg)}
             elif float(around.max() - around.min()) <= 180.0:
-                box |= {"pan_min_deg": float(around.min()) - margin_deg, "pan_max_deg": float(around.max()) + margin_deg}
+                box |= {"pan_min_deg": float(around.min()) - margin_deg,
+                        "pan_max_deg": float(around.max()) + margin_deg}
             out[c] = box
         return out
 

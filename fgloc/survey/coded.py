@@ -28,7 +28,8 @@ instead of the node loop of :mod:`fgloc.survey.runner` (docs/survey.md, "Coded i
    recorded again in tiles at the next zoom of :attr:`CodedSettings.levels` until none is
    left. The head zooms back to the survey zoom on its lane if that ends no later than the
    longest lane, else only before its next operation (a fallback search, priced there; else
-   after the survey's last reading, not priced: the survey ends at its last recording). Refused blobs are journaled and logged, never guessed.
+   after the survey's last reading, not priced: the survey ends at its last recording).
+   Refused blobs are journaled and logged, never guessed.
    ``ladder "focus"`` (:mod:`fgloc.survey.coded_ladder`): a blob at a reading of the camera
    is that mote; a rung hands on only blobs near what it chased; lamps go to the fallback.
 4. **Stop**, one broadcast.
