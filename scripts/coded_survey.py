@@ -118,7 +118,7 @@ CodedSurvey.run_refine = _pricing_zoom(CodedSurvey.run_refine)  # type: ignore[m
 
 
 def rig_for(seed: int, motes: int, width: int, mode: str, fx: float | None = None, repeatability_deg: float = 0.0,
-            coded: dict | None = None, field_boxes: bool = False):
+            coded: dict | None = None, field_boxes: bool = False, box_margin_deg: float = 5.0):
     data = json.loads(EXAMPLE.read_text())
     data["node_ids"] = [f"n{j:03d}" for j in range(motes)]
     f = fx or width / 2.0
@@ -133,7 +133,7 @@ def rig_for(seed: int, motes: int, width: int, mode: str, fx: float | None = Non
     if repeatability_deg > 0:
         data["head_repeatability_deg"] = repeatability_deg
     if field_boxes:  # each camera searches the box around its visible nodes (SimScene.field_search_boxes)
-        boxes = InProcessRig(parse_rig(data, str(EXAMPLE), EXAMPLE.parent)).scene.field_search_boxes()
+        boxes = InProcessRig(parse_rig(data, str(EXAMPLE), EXAMPLE.parent)).scene.field_search_boxes(box_margin_deg)
         for cam in data["cameras"]:
             if cam["id"] in boxes:
                 cam["search"] = boxes[cam["id"]]
@@ -261,8 +261,9 @@ def errors(survey: Survey, truth) -> tuple[list[float], list[float]]:  # noqa: A
 
 
 def run(seed: int, motes: int, width: int, mode: str, out: Path, fx: float | None = None,
-        repeatability_deg: float = 0.0, coded: dict | None = None, field_boxes: bool = False) -> dict:
-    rig = rig_for(seed, motes, width, mode, fx, repeatability_deg, coded, field_boxes)
+        repeatability_deg: float = 0.0, coded: dict | None = None, field_boxes: bool = False,
+        box_margin_deg: float = 5.0) -> dict:
+    rig = rig_for(seed, motes, width, mode, fx, repeatability_deg, coded, field_boxes, box_margin_deg)
     sim = InProcessRig(rig)
     times: list[FieldTime] = []
     if mode == "sequential":
@@ -333,17 +334,22 @@ def main() -> None:
     ap.add_argument("--field-boxes", action="store_true",
                     help="each camera searches a box around its visible nodes (rig.json cameras[].search, 5 deg "
                          "margin; across the +-180 deg seam for a camera whose nodes lie across it), both surveys")
+    ap.add_argument("--box-margin-deg", type=float, default=5.0,
+                    help="with --field-boxes: the margin around the visible nodes' bearings (degrees, default 5)")
     args = ap.parse_args()
+    if args.box_margin_deg < 0:
+        ap.error(f"--box-margin-deg: degrees >= 0 ({args.box_margin_deg})")
     levers = [json.loads(c) for c in (args.coded or ["{}"])]
     names = ["coded"] if len(levers) == 1 else [f"coded {json.dumps(c, separators=(',', ':'))}" for c in levers]
     rows: dict[str, list[dict]] = {"sequential": [], **{n: [] for n in names}}
     with tempfile.TemporaryDirectory() as tmp:
         for seed in range(1, args.seeds + 1):
             rows["sequential"].append(run(seed, args.motes, args.width, "sequential", Path(tmp) / f"sequential{seed}",
-                                          args.fx, args.repeatability_deg, None, args.field_boxes))
+                                          args.fx, args.repeatability_deg, None, args.field_boxes,
+                                          args.box_margin_deg))
             for i, (name, coded) in enumerate(zip(names, levers)):
                 rows[name].append(run(seed, args.motes, args.width, "coded", Path(tmp) / f"coded{i}-{seed}", args.fx,
-                                      args.repeatability_deg, coded, args.field_boxes))
+                                      args.repeatability_deg, coded, args.field_boxes, args.box_margin_deg))
     for mode, rs in rows.items():
         med = statistics.median
         print(f"{mode}: field time median {med(r['field'].total for r in rs):.1f} s "
