@@ -9,7 +9,7 @@ import numpy as np
 
 from fgloc.camera.blink_codes import code_book
 from fgloc.camera.blink_crowd_decoding import merge_reading, with_neighbour
-from fgloc.camera.blink_decoder import DecodedReading, decode_view
+from fgloc.camera.blink_decoder import DecodedReading, DecoderConfig, decode_view
 from fgloc.camera.blink_pairs import PairConfig, footprint
 from fgloc.camera.intrinsics import CameraIntrinsics
 from fgloc.core.model import CameraPose
@@ -57,7 +57,8 @@ def _field_view(seed: int, uv_of: str, n: int, size_px: float, flux: float
     return frames, uv, ids, pan, tilt, 1.0 / cfg.frame_rate_hz
 
 
-def _read(seed: int, uv_of: str, n: int, size_px: float, flux: float, configs: tuple[PairConfig, ...]) -> list[int]:
+def _read(seed: int, uv_of: str, n: int, size_px: float, flux: float, configs: tuple[PairConfig, ...],
+          decoder: DecoderConfig | None = None) -> list[int]:
     """Readings within LABEL_PX of their mote, per config; asserts no reading elsewhere and
     that every crowd reading names the other LEDs of its own crowd."""
     frames, uv, ids, pan, tilt, period = _field_view(seed, uv_of, n, size_px, flux)
@@ -65,7 +66,7 @@ def _read(seed: int, uv_of: str, n: int, size_px: float, flux: float, configs: t
     size = 2 if uv_of == "pairs" else 3
     out = []
     for cfg in configs:
-        res = decode_view(frames, period, BOOK, FIELD, pan, tilt, pairs=cfg)
+        res = decode_view(frames, period, BOOK, FIELD, pan, tilt, decoder, pairs=cfg)
         for r in res.readings:
             assert math.dist((r.u, r.v), truth[r.index]) < LABEL_PX  # mislabels 0
             k = int(np.flatnonzero(ids == r.index)[0])
@@ -102,20 +103,29 @@ def test_dim_field_pairs_read_with_the_footprint_aperture() -> None:
 
 def test_field_pairs_7px_read_with_a_neighbour() -> None:
     """Pairs 7 px apart in fields: one LED read alone, the other refused (its neighbour's light
-    in its aperture); the neighbour rule reads the pair, naming each other, none wrong."""
+    in its aperture); the neighbour rule reads the pair, naming each other, none wrong. Measured
+    with the level decoder alone (no light-curve fit), which leaves the pairs to the rule; the
+    fit reads most such LEDs singly before the pair stage, and the rule still adds."""
     lone = PairConfig(neighbour_px=0.0)
-    old = new = 0
+    levels = DecoderConfig(word_fit=None)
+    old = new = fit_lone = fit_new = 0
     for seed in (4, 5, 6):
-        o, n = _read(seed, "pairs", 5, 7.0, 750.0, (lone, PairConfig()))
+        o, n = _read(seed, "pairs", 5, 7.0, 750.0, (lone, PairConfig()), levels)
         old, new = old + o, new + n
+        o, n = _read(seed, "pairs", 5, 7.0, 750.0, (lone, PairConfig()))
+        fit_lone, fit_new = fit_lone + o, fit_new + n
     assert new >= old + 8 and new >= 24  # of 30 LEDs (15 -> 26 measured)
+    assert fit_new >= max(new, fit_lone) and fit_lone > old  # with the fit: 24 alone, 29 with the rule
 
 
 def test_field_crowds_of_three_with_neighbours() -> None:
     """Crowds of three linked within 7 px: with neighbours every LED of the view is read (9 of 9),
-    groups naming their own two others; without, 6."""
-    old, new = _read(0, "groups", 3, 7.0, 750.0, (PairConfig(max_group=3, neighbour_px=0.0), PairConfig(max_group=3)))
+    groups naming their own two others; without, 6 (the level decoder alone; with the
+    light-curve fit reading LEDs singly first, still all 9)."""
+    configs = (PairConfig(max_group=3, neighbour_px=0.0), PairConfig(max_group=3))
+    old, new = _read(0, "groups", 3, 7.0, 750.0, configs, DecoderConfig(word_fit=None))
     assert old <= 6 and new == 9
+    assert _read(0, "groups", 3, 7.0, 750.0, configs)[1] == 9
 
 
 def _reading(index: int, u: float, v: float) -> DecodedReading:

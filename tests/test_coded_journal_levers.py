@@ -31,10 +31,10 @@ from fgloc.files.rig_config import RigConfigError, parse_rig
 from fgloc.survey.coded import CodedSettings
 from fgloc.survey.coded_levers import CHOICES, LEGACY, coded_settings, settings_record
 from fgloc.survey.session import run_survey
-from tests.test_survey_coded import EXAMPLE, clean_cuts, coded_rig, opened, parsed, view_records
+from tests.test_survey_coded import EXAMPLE, clean_cuts, coded_rig, levels_rig, opened, parsed, view_records
 
 NEW_DEFAULTS = {"retry": "continue", "separate": "zoom", "fallback": "predicted", "video": "frames", "probe": "on",
-                "pairs": "groups", "rounds": "short", "round_order": "view", "ladder": "focus"}
+                "pairs": "groups", "rounds": "short", "round_order": "view", "ladder": "focus", "decode": "fit"}
 
 
 def lines_of(path: Path) -> list[bytes]:
@@ -112,7 +112,7 @@ class OtherDefaults(CodedSettings):
 
 
 def test_a_new_journal_resumes_with_its_levers_when_the_defaults_change(tmp_path, monkeypatch):
-    rig = parsed(coded_rig(12, width=160))
+    rig = parsed(levels_rig(12, width=160))
     full = tmp_path / "full"
     run_survey(rig, full, opened=opened(rig)[0])
     lines = lines_of(full / "journal.jsonl")
@@ -207,7 +207,7 @@ def every_lever_journal(tmp_path_factory) -> list[dict]:
     plus radio separation (16 motes: continuations, probes, pair readings, short rounds)."""
     out = tmp_path_factory.mktemp("levers")
     data = coded_rig(16, width=160, seed=2)  # a scene with a continued recording (seed 1 needs none since pair decoding reads neighbours)
-    data["coded"] = {"separate": "radio"}
+    data["coded"] = {"separate": "radio", "decode": "levels"}  # the level decoder's misses give it its retries
     rig = parsed(data)
     run_survey(rig, out, opened=opened(rig)[0])
     return [json.loads(x) for x in lines_of(out / "journal.jsonl")]

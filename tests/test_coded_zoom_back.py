@@ -14,7 +14,7 @@ from fgloc.files.journal import read_journal
 from fgloc.survey.clock import Zoom, price
 from fgloc.survey.coded import CodedSurvey
 from fgloc.survey.session import run_survey
-from tests.test_survey_coded import check_labels, coded_rig, opened, parsed, view_records
+from tests.test_survey_coded import check_labels, coded_rig, levels_rig, opened, parsed, view_records
 
 
 @pytest.fixture
@@ -51,7 +51,7 @@ def _lanes_at_the_end(monkeypatch) -> dict[str, list]:
 
 def test_a_refined_camera_zooms_back_on_its_lane_only_in_the_longest_lane_s_slack_and_every_head_ends_wide(
         tmp_path, monkeypatch, head_log):
-    rig = parsed(coded_rig(12, width=160))
+    rig = parsed(levels_rig(12, width=160))
     lanes = _lanes_at_the_end(monkeypatch)
     rig_opened, sim = opened(rig)
     run_survey(rig, tmp_path, opened=rig_opened)

@@ -40,6 +40,15 @@ def coded_rig(n_nodes: int = 30, width: int = 320, identification: str | None = 
     return data
 
 
+def levels_rig(n_nodes: int = 12, width: int = 160, **simulation) -> dict:
+    """:func:`coded_rig` decoding views with the level decoder alone (lever ``decode: levels``):
+    the scenes whose retries, refinement views and continued recordings the tests below cut
+    come from that decoder's misses, which the default light-curve fit reads."""
+    data = coded_rig(n_nodes, width, **simulation)
+    data["coded"] = {"decode": "levels"}
+    return data
+
+
 def parsed(data: dict):
     return parse_rig(data, str(EXAMPLE), EXAMPLE.parent)
 
@@ -176,7 +185,7 @@ def test_kill_mid_view_resumes_without_duplicates_or_re_recorded_views(tmp_path)
     """Cut the uninterrupted coded journal after a view, mid-view (a torn view record), after the
     last view, just after it (torn) and inside the fallback; each resume ends with the
     uncut run's observations, no duplicate reading, and each view recorded exactly once."""
-    rig = parsed(coded_rig(12, width=160))
+    rig = parsed(levels_rig(12, width=160))
     full = tmp_path / "full"
     run_survey(rig, full, opened=opened(rig)[0])
     data = (full / "journal.jsonl").read_bytes()

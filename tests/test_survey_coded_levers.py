@@ -16,7 +16,7 @@ from fgloc.files.journal import read_journal
 from fgloc.survey.clock import CameraTiming
 from fgloc.survey.coded_levers import LEGACY, coded_settings
 from fgloc.survey.session import run_survey
-from tests.test_survey_coded import check_labels, coded_rig, opened, parsed, view_records
+from tests.test_survey_coded import check_labels, coded_rig, levels_rig, opened, parsed, view_records
 
 PERIOD = CameraTiming().frame_period_s
 
@@ -84,7 +84,7 @@ def test_continued_retry_resumes_without_duplicates(tmp_path):
     resumed survey records that retry as a new burst (not continued); nothing is read twice,
     every view is recorded once, every visible pair is read, and what was journaled stays.
     Under the default levers (continue, predicted, probe, pairs)."""
-    rig = parsed(coded_rig(12, width=160))
+    rig = parsed(levels_rig(12, width=160))
     full = tmp_path / "full"
     run_survey(rig, full, opened=opened(rig)[0])
     data = (full / "journal.jsonl").read_bytes()

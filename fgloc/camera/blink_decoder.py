@@ -53,12 +53,13 @@ from __future__ import annotations
 import math
 from collections import Counter
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from fgloc.camera.blink_codes import CodeBook, word_of
 from fgloc.camera.blink_pairs import PairConfig
+from fgloc.camera.blink_word_fit import WordFit, WordFitConfig, fit_word
 from fgloc.camera.intrinsics import CameraIntrinsics
 from fgloc.camera.led_detection import DetectorConfig, LedDetection, detect_led, to_gray
 from fgloc.camera.pixel_angles import pixel_to_pan_tilt
@@ -75,6 +76,11 @@ class DecoderConfig:
     max_centroid_spread_px: float = 0.35  #: robust spread of on-frame centroids (one LED)
     min_on_samples: int = 3
     detector: DetectorConfig = DetectorConfig(max_blobs=5000, max_elongation=2.0)
+    #: step 4b, the light-curve fit of a blob the levels refused (rotation-free books); None: off
+    word_fit: WordFitConfig | None = WordFitConfig()
+
+
+_APERTURE = 3  #: half-width (px) of the square flux aperture
 
 
 @dataclass(frozen=True)
@@ -216,6 +222,44 @@ class BlobSamples:
         return DecodedReading(index, u, v, sig, float(p_), float(t_), int(us.size))
 
 
+def blob_flux(stack: np.ndarray, cand: LedDetection, noise_sigma: float
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float] | None:
+    """Step 3's flux of one blob per sample: the sum over a 7 x 7 aperture minus the
+    aperture's share of the median of a surrounding annulus. Returns (flux (N,), the
+    15 x 15 window stack, its annulus medians (N,), the flux sigma from pixel noise), or
+    None for a blob too close to the image border."""
+    h, w = stack.shape[1:]
+    cu, cv = int(round(cand.u)), int(round(cand.v))
+    r = _APERTURE
+    if not (r + 4 <= cu < w - r - 4 and r + 4 <= cv < h - r - 4):
+        return None
+    big = stack[:, cv - r - 4: cv + r + 5, cu - r - 4: cu + r + 5]
+    yy, xx = np.mgrid[-r - 4: r + 5, -r - 4: r + 5]
+    ring = (np.maximum(abs(yy), abs(xx)) > r + 1)
+    core = (np.maximum(abs(yy), abs(xx)) <= r)
+    bgk = np.median(big[:, ring], axis=1)
+    flux = (big[:, core] - bgk[:, None]).sum(axis=1)
+    return flux, big, bgk, noise_sigma * math.sqrt(core.sum() * 2.0)
+
+
+def lit_centroids(big: np.ndarray, bgk: np.ndarray, lit: np.ndarray, cand: LedDetection
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """Centroid (u, v) px of the aperture in each ``lit`` sample (background-subtracted,
+    negative pixels clipped); ``big``/``bgk`` as :func:`blob_flux`."""
+    r = _APERTURE
+    ys, xs = np.mgrid[-r:r + 1, -r:r + 1]
+    wts = np.clip(big[lit][:, 4:-4, 4:-4] - bgk[lit][:, None, None], 0.0, None)
+    tot = np.maximum(wts.sum(axis=(1, 2)), 1e-9)
+    return (wts * xs).sum(axis=(1, 2)) / tot + int(round(cand.u)), (wts * ys).sum(axis=(1, 2)) / tot + int(round(cand.v))
+
+
+def centroid_spread(us: np.ndarray, vs: np.ndarray) -> tuple[float, np.ndarray]:
+    """Robust spread (px) of per-sample centroids and each one's distance from their median."""
+    spread = float(np.hypot(1.4826 * np.median(np.abs(us - np.median(us))),
+                            1.4826 * np.median(np.abs(vs - np.median(vs)))))
+    return spread, np.hypot(us - np.median(us), vs - np.median(vs))
+
+
 def read_blob(stack: np.ndarray, valid: np.ndarray, cand: LedDetection, noise_sigma: float,
               cfg: DecoderConfig) -> BlobSamples | RefusedBlob:
     """Steps 3 and 5 of the module docstring for one detected blob: its flux per sample, the
@@ -223,19 +267,10 @@ def read_blob(stack: np.ndarray, valid: np.ndarray, cand: LedDetection, noise_si
     alike), and each sample's bit; a :class:`RefusedBlob` when it is no single LED.
     ``stack``/``valid`` as :func:`sample_stack`; ``noise_sigma`` the detector's pixel noise."""
     n = int(valid.size)
-    h, w = stack.shape[1:]
-    cu, cv = int(round(cand.u)), int(round(cand.v))
-    r = 3
-    if not (r + 4 <= cu < w - r - 4 and r + 4 <= cv < h - r - 4):
+    got = blob_flux(stack, cand, noise_sigma)
+    if got is None:
         return RefusedBlob(cand.u, cand.v, "rejected", "too close to the image border")
-    big = stack[:, cv - r - 4: cv + r + 5, cu - r - 4: cu + r + 5]
-    yy, xx = np.mgrid[-r - 4: r + 5, -r - 4: r + 5]
-    ring = (np.maximum(abs(yy), abs(xx)) > r + 1)
-    core = (np.maximum(abs(yy), abs(xx)) <= r)
-    bgk = np.median(big[:, ring], axis=1)
-    win = big[:, core] - bgk[:, None]
-    flux = win.sum(axis=1)
-    noise = noise_sigma * math.sqrt(core.sum() * 2.0)
+    flux, big, bgk, noise = got
     f = flux[valid]
     off, on = _two_means(f)
     amp = on - off
@@ -255,15 +290,9 @@ def read_blob(stack: np.ndarray, valid: np.ndarray, cand: LedDetection, noise_si
     lit = valid & (flux > off + cfg.level_band * amp)  # any frame with light, partial ones too
     if on_f.size < cfg.min_on_samples:
         return RefusedBlob(cand.u, cand.v, "rejected", f"only {on_f.size} on samples")
-    ys, xs = np.mgrid[-r:r + 1, -r:r + 1]
-    wts = np.clip(big[lit][:, 4:-4, 4:-4] - bgk[lit][:, None, None], 0.0, None)
-    tot = np.maximum(wts.sum(axis=(1, 2)), 1e-9)
-    us_all = (wts * xs).sum(axis=(1, 2)) / tot + cu
-    vs_all = (wts * ys).sum(axis=(1, 2)) / tot + cv
-    cspread = float(np.hypot(1.4826 * np.median(np.abs(us_all - np.median(us_all))),
-                             1.4826 * np.median(np.abs(vs_all - np.median(vs_all)))))
+    us_all, vs_all = lit_centroids(big, bgk, lit, cand)
+    cspread, dev = centroid_spread(us_all, vs_all)
     bright = flux[lit] >= off + 0.6 * amp  # centroids of bright frames are precise: one outlier counts
-    dev = np.hypot(us_all - np.median(us_all), vs_all - np.median(vs_all))
     cmax = float(np.max(dev[bright])) if bright.any() else 0.0
     spread = 1.4826 * float(np.median(np.abs(on_f - np.median(on_f)))) / amp
     if spread > cfg.max_on_spread or cspread > cfg.max_centroid_spread_px or cmax > 3 * cfg.max_centroid_spread_px:
@@ -271,6 +300,51 @@ def read_blob(stack: np.ndarray, valid: np.ndarray, cand: LedDetection, noise_si
                            f"lit frames vary (flux spread {spread:.2f}, centroid spread {cspread:.2f} px,"
                            f" max {cmax:.2f} px): LEDs closer than the detector separates")
     return BlobSamples(cand.u, cand.v, bits, us_all[is_on[lit]], vs_all[is_on[lit]], float(cand.sigma_px))
+
+
+def fit_blob(stack: np.ndarray, valid: np.ndarray, cand: LedDetection, noise_sigma: float, book: CodeBook,
+             cfg: DecoderConfig, refusal: RefusedBlob) -> tuple[BlobSamples, int] | RefusedBlob:
+    """Step 4b: a blob the level decoder refused (``refusal``: its levels or its bits) read
+    by the light-curve fit (:func:`fgloc.camera.blink_word_fit.fit_word`), with the single-LED
+    centroid tests of step 5 on its lit samples: (samples, book index), or ``refusal``
+    (same kind, so the survey treats the blob as before) with the fit's reason appended."""
+    got = blob_flux(stack, cand, noise_sigma)
+    if got is None or cfg.word_fit is None:
+        return refusal
+    flux, big, bgk, noise = got
+    fit = fit_word(flux, valid, book, noise, cfg.min_snr, cfg.word_fit)
+    why = fit if isinstance(fit, str) else None
+    if isinstance(fit, WordFit):
+        us, vs = lit_centroids(big, bgk, fit.lit, cand)
+        if us.size < cfg.min_on_samples:
+            why = f"only {us.size} lit samples"
+        else:
+            cspread, dev = centroid_spread(us, vs)
+            if cspread > cfg.max_centroid_spread_px or float(np.max(dev)) > 3 * cfg.max_centroid_spread_px:
+                why = f"lit frames vary (centroid spread {cspread:.2f} px, max {float(np.max(dev)):.2f} px)"
+    if why is not None or not isinstance(fit, WordFit):
+        return replace(refusal, reason=f"{refusal.reason}; light-curve fit: {why}")
+    bits = np.where(fit.lit, 1, -1).astype(np.int8)
+    return BlobSamples(cand.u, cand.v, bits, us, vs, float(cand.sigma_px)), fit.index
+
+
+def _word_of_samples(bits: np.ndarray, positions: np.ndarray, book: CodeBook, shifts: tuple[int, ...]
+                     ) -> tuple[str | None, tuple[int, int] | None]:
+    """Step 4: fold a blob's per-sample bits at ``positions`` into one word and identify it:
+    (None, (book index, rotation or shift)), or (the reason, None)."""
+    length = book.length
+    word_bits = np.full(length, -1, dtype=np.int8)
+    for i in np.flatnonzero(bits >= 0).tolist():
+        p = int(positions[i])
+        if word_bits[p] == -1:
+            word_bits[p] = bits[i]
+        elif word_bits[p] != bits[i]:
+            return "samples one period apart disagree", None
+    if (word_bits < 0).any():
+        return f"{int((word_bits < 0).sum())} of {length} bits never read cleanly", None
+    hit = (book.identify_synchronized(word_of(word_bits), shifts) if book.synchronized
+           else book.identify(word_of(word_bits)))
+    return (None, hit) if hit is not None else ("word is no rotation of a book code", None)
 
 
 def decode_view(
@@ -297,32 +371,23 @@ def decode_view(
     refused: list[RefusedBlob] = [RefusedBlob(b.u, b.v, "ambiguous", f"unresolved blob: {b.reason}")
                                   for b in det.rejected if "elongation" in b.reason]
     decoded: list[tuple[DecodedReading, int]] = []
+    fit_refused = cfg.word_fit is not None and sync is None
     for cand in det.candidates:
         got = read_blob(stack, valid, cand, float(det.noise_sigma), cfg)
-        if isinstance(got, RefusedBlob):
-            refused.append(got)
-            continue
-        bits = got.bits
-        length = book.length
-        word_bits = np.full(length, -1, dtype=np.int8)
-        conflict = False
-        for i in np.flatnonzero(bits >= 0).tolist():
-            p = int(positions[i])
-            if word_bits[p] == -1:
-                word_bits[p] = bits[i]
-            elif word_bits[p] != bits[i]:
-                conflict = True
-        if conflict:
-            refused.append(RefusedBlob(cand.u, cand.v, "rejected", "samples one period apart disagree"))
-            continue
-        if (word_bits < 0).any():
-            refused.append(RefusedBlob(cand.u, cand.v, "rejected",
-                                       f"{int((word_bits < 0).sum())} of {length} bits never read cleanly"))
-            continue
-        hit = (book.identify_synchronized(word_of(word_bits), shifts) if book.synchronized
-               else book.identify(word_of(word_bits)))
-        if hit is None:
-            refused.append(RefusedBlob(cand.u, cand.v, "rejected", "word is no rotation of a book code"))
+        hit: tuple[int, int] | None = None
+        if isinstance(got, BlobSamples):
+            why, hit = _word_of_samples(got.bits, positions, book, shifts)
+            if why is not None:
+                got = RefusedBlob(cand.u, cand.v, "rejected", why)
+        if isinstance(got, RefusedBlob) and fit_refused and got.kind == "rejected" and "border" not in got.reason:
+            fitted = fit_blob(stack, valid, cand, float(det.noise_sigma), book, cfg, got)
+            if isinstance(fitted, tuple):
+                got, hit = fitted[0], (fitted[1], 0)
+            else:
+                got = fitted
+        if isinstance(got, RefusedBlob) or hit is None:
+            refused.append(got if isinstance(got, RefusedBlob) else
+                           RefusedBlob(cand.u, cand.v, "rejected", "word is no rotation of a book code"))
             continue
         decoded.append((got.reading(hit[0], intr, head_pan, head_tilt), hit[0]))
     if pairs is not None and sync is None:

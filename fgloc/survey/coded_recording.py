@@ -70,7 +70,7 @@ def record_view(coded: CodedSurvey, runner: SurveyRunner, camera: str, vid: str,
         count = coded.book.length + 2
         frames = grab_frames(coded, runner, camera, count, t_start, key)
         probed = True
-        if not empty_view(frames, coded.camera.frame_period_s, coded.settings.decoder):  # on to 3L + 2
+        if not empty_view(frames, coded.camera.frame_period_s, coded.settings.view_decoder()):  # on to 3L + 2
             frames += grab_frames(coded, runner, camera, coded.frames - count, t_start + count * coded.camera.frame_period_s,
                                  key + "+")
             count = coded.frames
@@ -85,10 +85,10 @@ def record_view(coded: CodedSurvey, runner: SurveyRunner, camera: str, vid: str,
     elif before:
         frames = before + frames
         dec = decode_windows(frames, coded.camera.frame_period_s, coded.book, intr, head[0], head[1],
-                                         coded.frames, coded.book.length, coded.settings.decoder, pairs=pairs)
+                                         coded.frames, coded.book.length, coded.settings.view_decoder(), pairs=pairs)
     else:
         dec = decode_view(frames, coded.camera.frame_period_s, coded.book, intr, head[0], head[1],
-                          coded.settings.decoder, pairs=pairs)
+                          coded.settings.view_decoder(), pairs=pairs)
     check_steady_loss(coded, camera, vid, frames)
     readings, refused = [], [{"kind": r.kind, "u": r.u, "v": r.v, "reason": r.reason} for r in dec.refused]
     st = runner.state

@@ -7,7 +7,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 from fgloc.camera.blink_decoder import DecoderConfig
 
@@ -68,6 +68,15 @@ class CodedSettings:
     #: (near a chased blob) and hands static lamps to the fallback (:mod:`fgloc.survey.coded_ladder`);
     #: ``"climb"``: every blob its tiles leave unexplained (the default of journals written before this lever)
     ladder: str = "focus"
+    #: view decoding: ``"fit"`` gives a blob the level decoder refuses (its levels or its bits) the
+    #: light-curve fit (:mod:`fgloc.camera.blink_word_fit`: motes whose bit edges fall inside the
+    #: exposure, motes on an offset background); ``"levels"``: the level decoder alone (the default
+    #: of journals written before this lever)
+    decode: str = "fit"
+
+    def view_decoder(self) -> DecoderConfig:
+        """The decoder configuration of the views, as ``decode`` chooses."""
+        return self.decoder if self.decode == "fit" else replace(self.decoder, word_fit=None)
 
 
 @dataclass
