@@ -21,6 +21,8 @@ the measured fastest: continue, predicted, probe on, pairs groups, short view-ma
   chased, lamps to the fallback, :mod:`fgloc.survey.coded_ladder`);
 * ``decode``: ``"levels"`` | ``"fit"`` (a blob the level decoder refuses gets the light-curve
   fit, :mod:`fgloc.camera.blink_word_fit`);
+* ``length``: ``"fixed"`` | ``"adaptive"`` (a first recording stops at 2L + 2 samples when every blob
+  it leaves unexplained is a mote the camera has read, :func:`fgloc.survey.coded_recording.record_adaptive`);
 * ``levels``: the refinement zoom ladder, ascending fractions of the optical range.
 
 **Resume rule.** A coded survey's journal header records the levers it started with
@@ -29,7 +31,7 @@ value or ``--coded`` flag that names a lever with another value is refused in on
 flag or file, the lever, both values), never mixed in. A journal without recorded levers
 (written before they were recorded, or started as a sequential survey) resumes with
 :data:`LEGACY` (the defaults before this rule) overridden by rig.json and the flags, exactly as
-it resumed before. A lever added after a journal was written (``rounds``, ``round_order``, ``ladder``, ``decode``) and
+it resumed before. A lever added after a journal was written (``rounds``, ``round_order``, ``ladder``, ``decode``, ``length``) and
 so missing from its recorded levers resumes with its :data:`LEGACY` value, the only one the
 survey that wrote it knew.
 
@@ -67,14 +69,15 @@ PAIRS_MODES = ("off", "on", "groups")
 ROUNDS_MODES = ("full", "short")
 ROUND_ORDERS = ("class", "view")
 DECODE_MODES = ("levels", "fit")
+LENGTH_MODES = ("fixed", "adaptive")
 CHOICES = {"retry": RETRY_MODES, "separate": SEPARATE_MODES, "fallback": FALLBACK_MODES, "video": VIDEO_MODES,
            "probe": PROBE_MODES, "pairs": PAIRS_MODES, "rounds": ROUNDS_MODES, "round_order": ROUND_ORDERS,
-           "ladder": LADDER_MODES, "decode": DECODE_MODES}
+           "ladder": LADDER_MODES, "decode": DECODE_MODES, "length": LENGTH_MODES}
 #: the defaults before the journal recorded the levers: a journal without recorded levers resumes with these,
 #: and a lever a journal's header does not record (added after it was written) resumes with its value here
 LEGACY: dict[str, Any] = {"retry": "burst", "separate": "zoom", "fallback": "blobs", "video": "frames", "probe": "off",
                           "pairs": "off", "rounds": "full", "round_order": "class", "ladder": "climb",
-                          "decode": "levels"}
+                          "decode": "levels", "length": "fixed"}
 PREDICTED_RADIUS = math.radians(3.0)  #: a blob this close to a mote's predicted direction may hide it
 
 

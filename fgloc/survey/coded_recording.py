@@ -23,7 +23,7 @@ from fgloc.camera.blink_candidates import CandidateDecode
 from fgloc.camera.blink_decoder import ViewDecode, decode_view, decode_windows, unsampled_positions
 from fgloc.camera.blink_pairs import PairConfig
 from fgloc.survey.coded_rounds import RoundCandidates, decode_round, round_frames
-from fgloc.survey.coded_views import coded_observation, empty_view, on_off_centroid
+from fgloc.survey.coded_views import coded_observation, empty_view, on_off_centroid, unexplained_blob
 from fgloc.survey.runner import SurveyRunner
 
 if TYPE_CHECKING:
@@ -64,6 +64,8 @@ def record_view(coded: CodedSurvey, runner: SurveyRunner, camera: str, vid: str,
         t_start = coded._continue_at[(camera, vid)]
     intr = coded.intrinsics_at(camera, zoom)
     probed = False
+    pairs = {"on": PairConfig(), "groups": PairConfig(max_group=3)}.get(coded.settings.pairs)
+    dec: ViewDecode | CandidateDecode | None = None
     if not before and not short and coded.settings.probe == "on":
         # the first L + 2 frames show every blinking mote on and off (each word has both bits in
         # any L samples): a view where they show no blob at all is empty, and the recording stops
@@ -71,15 +73,22 @@ def record_view(coded: CodedSurvey, runner: SurveyRunner, camera: str, vid: str,
         frames = grab_frames(coded, runner, camera, count, t_start, key)
         probed = True
         if not empty_view(frames, coded.camera.frame_period_s, coded.settings.view_decoder()):  # on to 3L + 2
-            frames += grab_frames(coded, runner, camera, coded.frames - count, t_start + count * coded.camera.frame_period_s,
-                                 key + "+")
-            count = coded.frames
+            if coded.settings.length == "adaptive":
+                frames, dec, count = record_adaptive(coded, runner, camera, vid, attempt, head, zoom, t_start, frames,
+                                                     key, pairs)
+            else:
+                frames += grab_frames(coded, runner, camera, coded.frames - count,
+                                      t_start + count * coded.camera.frame_period_s, key + "+")
+                count = coded.frames
+    elif not before and not short and coded.settings.length == "adaptive":
+        frames, dec, count = record_adaptive(coded, runner, camera, vid, attempt, head, zoom, t_start, [], key, pairs)
     else:
         frames = grab_frames(coded, runner, camera, count, t_start, key)
     coded._continue_at[(camera, vid)] = t_start + count * coded.camera.frame_period_s
-    pairs = {"on": PairConfig(), "groups": PairConfig(max_group=3)}.get(coded.settings.pairs)
-    dec: ViewDecode | CandidateDecode
-    if short:
+    stopped = dec is not None and count < coded.frames
+    if dec is not None:
+        pass
+    elif short:
         frames = (before or []) + frames
         dec = decode_round(coded, frames, intr, head, candidates or [])
     elif before:
@@ -113,9 +122,51 @@ def record_view(coded: CodedSurvey, runner: SurveyRunner, camera: str, vid: str,
                         | ({} if obs.view_sigma is None else {"sigma": obs.sigma, "view_sigma": obs.view_sigma}))
     return {"camera": camera, "view": vid, "attempt": attempt, "target": list(target), "head": list(head),
             "zoom": zoom, "frames": count, "erased": dec.erased, "clock_s": t_start, "readings": readings,
-            "refused": refused} | ({"continued": True} if before else {}) | (
+            "refused": refused} | ({"continued": True} if before else {}) | ({"stopped": True} if stopped else {}) | (
                 {"probe": coded.book.length + 2} if probed else {}) | (
                 {"candidates": [n for n, _ in candidates or []]} if short else {}), frames
+
+
+def record_adaptive(coded: CodedSurvey, runner: SurveyRunner, camera: str, vid: str, attempt: int,
+                    head: tuple[float, float], zoom: float, t_start: float, frames: list[Frame], key: str,
+                    pairs: PairConfig | None) -> tuple[list[Frame], ViewDecode, int]:
+    """Lever ``length: adaptive``: record (on from ``frames``, the probe's L + 2, if any) to
+    2L + 2 frame periods and decode them; stop there when another L samples could read nothing
+    new, else go on to 3L + 2 as one recording and decode it whole. Returns (frames, decode,
+    frame periods recorded). Nothing new, in a wide view: every blob the decode leaves
+    unexplained is a mote this camera has read (:meth:`~fgloc.survey.coded.CodedSurvey._retry_helps`,
+    the rule of a second recording); in a refinement tile, which was sent to read such blobs:
+    none is left unexplained (:func:`~fgloc.survey.coded_views.unexplained_blob`). The
+    simulated rigs render the recording a fixed length would (same keys and counts) and
+    hand out its first 2L + 2 periods, so a view that goes on shows the frames it would have."""
+    length, period = coded.book.length, coded.camera.frame_period_s
+    short_count = 2 * length + 2
+    have = length + 2 if frames else 0
+    tail_key = key + ("+" if frames else "")
+    later: list[Frame] = []
+    if coded.recorder is not None:
+        rest = grab_frames(coded, runner, camera, coded.frames - have, t_start + have * period, tail_key)
+        cut = t_start + (short_count - 0.5) * period
+        frames = frames + [f for f in rest if f[0] < cut]
+        later = [f for f in rest if f[0] >= cut]
+    else:
+        frames = frames + grab_frames(coded, runner, camera, short_count - have, t_start + have * period, tail_key)
+    intr = coded.intrinsics_at(camera, zoom)
+    dec = decode_view(frames, period, coded.book, intr, head[0], head[1], coded.settings.view_decoder(), pairs=pairs)
+    refused = [{"kind": r.kind, "u": r.u, "v": r.v, "reason": r.reason} for r in dec.refused]
+    if zoom != coded.survey_zoom[camera]:
+        done = not any(unexplained_blob(r) for r in refused)
+    else:
+        done = not coded._retry_helps(runner, camera, {"camera": camera, "view": vid, "attempt": attempt,
+                                                       "head": list(head), "zoom": zoom, "refused": refused})
+    if done:
+        return frames, dec, short_count
+    if coded.recorder is None:
+        later = grab_frames(coded, runner, camera, coded.frames - short_count, t_start + short_count * period,
+                            key + "++")
+    frames = frames + later
+    dec = decode_view(frames, period, coded.book, intr, head[0], head[1], coded.settings.view_decoder(), pairs=pairs)
+    return frames, dec, coded.frames
 
 
 def check_steady_loss(coded: CodedSurvey, camera: str, vid: str, frames: list[Frame]) -> None:

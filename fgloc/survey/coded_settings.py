@@ -73,6 +73,11 @@ class CodedSettings:
     #: exposure, motes on an offset background); ``"levels"``: the level decoder alone (the default
     #: of journals written before this lever)
     decode: str = "fit"
+    #: a view's first recording: ``"fixed"`` 3L + 2 frames; ``"adaptive"`` stops at 2L + 2 when
+    #: every blob the decode of those leaves unexplained is a mote this camera has read (another L
+    #: samples could read nothing new), else goes on to 3L + 2 as one recording
+    #: (:func:`fgloc.survey.coded_recording.record_adaptive`)
+    length: str = "adaptive"
 
     def view_decoder(self) -> DecoderConfig:
         """The decoder configuration of the views, as ``decode`` chooses."""

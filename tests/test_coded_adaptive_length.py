@@ -1,0 +1,117 @@
+"""Lever ``length: adaptive``: a view's first recording stops at 2L + 2 frames when another L
+samples could read nothing new (:func:`fgloc.survey.coded_recording.record_adaptive`)."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from fgloc.camera.blink_codes import code_book
+from fgloc.files.journal import read_journal
+from fgloc.survey.session import run_survey
+from tests.test_survey_coded import (
+    check_lever_refused_on_resume,
+    coded_rig,
+    cut_and_resume,
+    opened,
+    parsed,
+    view_records,
+)
+from tests.test_survey_coded_levers import survey_reads_every_visible_pair
+
+L = code_book(30).length  # the 30-mote scene's book (15 bits)
+L12 = code_book(12).length
+
+
+def _rig(length: str, n: int = 30, width: int = 320) -> dict:
+    data = coded_rig(n, width)
+    data["coded"] = {"length": length}
+    return data
+
+
+@pytest.fixture(scope="module")
+def both(tmp_path_factory):
+    """The 30-mote scene surveyed with each length: (records, runner) per lever value."""
+    out = {}
+    for length in ("fixed", "adaptive"):
+        path = tmp_path_factory.mktemp(length)
+        runner, _, _ = survey_reads_every_visible_pair(parsed(_rig(length)), path)
+        out[length] = (view_records(path / "journal.jsonl"), runner)
+    return out
+
+
+def test_adaptive_views_stop_at_2l_plus_2_and_read_every_visible_pair(both):
+    fixed, fixed_runner = both["fixed"]
+    adaptive, runner = both["adaptive"]
+    assert not any(r.get("stopped") for r in fixed)
+    stopped = [r for r in adaptive if r.get("stopped")]
+    assert stopped and all(r["frames"] == 2 * L + 2 and r["attempt"] == 0 for r in stopped)
+    going_on = [r for r in adaptive if r["attempt"] == 0 and not r.get("stopped") and r["frames"] != L + 2]
+    assert all(r["frames"] == 3 * L + 2 for r in going_on)  # went on as one recording
+    # priced as recorded: fewer frames on the clock than the fixed survey's
+    assert runner.field_time.phases["frames"] < fixed_runner.field_time.phases["frames"]
+
+
+def test_a_stopped_view_left_nothing_a_longer_recording_could_read(both):
+    """A stopped wide view's unexplained blobs all lie at motes its camera had read (the second
+    recording's rule says another recording could read nothing new, from the journal alone), a
+    stopped refinement tile left none; and the views that went on did have such a blob."""
+    from fgloc.survey.coded_ladder import read_before, retry_helps
+    from fgloc.survey.coded_views import unexplained_blob
+
+    adaptive, runner = both["adaptive"]
+    rig = parsed(_rig("adaptive"))
+    views = runner.state.views
+    checked = 0
+    for r in adaptive:
+        if r["attempt"] or r["frames"] == L + 2 or r["view"][0] not in "wr":
+            continue
+        cam = rig.cameras[rig.camera_ids.index(r["camera"])]
+        if r["view"].startswith("r"):
+            if r.get("stopped"):
+                assert not any(unexplained_blob(x) for x in r["refused"]), r["view"]
+            continue
+        read = read_before(views, r["camera"], 0, r["view"], 0)
+        helps = retry_helps(r, read, cam.intrinsics.at_zoom, cam.zoom)
+        # a stopped view: a longer recording could not help; one that went on (3L + 2) may still
+        # have been decoded whole, so only the stopped direction is a rule
+        if r.get("stopped"):
+            assert not helps, r["view"]
+            checked += 1
+    assert checked >= 2
+
+
+def test_adaptive_views_that_go_on_show_the_fixed_recording(tmp_path):
+    """On the simulated rig a view that goes on to 3L + 2 decodes the very frames the fixed length
+    records: the first such wide view's readings are the fixed survey's, reading for reading."""
+    recs = {}
+    for length in ("fixed", "adaptive"):
+        rig = parsed(_rig(length, 12, 160))
+        run_survey(rig, tmp_path / length, opened=opened(rig)[0])
+        recs[length] = {(r["camera"], r["view"], r["attempt"]): r for r in view_records(tmp_path / length / "journal.jsonl")}
+    went_on = [k for k, r in recs["adaptive"].items() if r["view"] == "w000" and r["frames"] == 3 * L12 + 2]
+    assert went_on, "the scene should have a first wide view that goes on"
+    for k in went_on:
+        assert recs["adaptive"][k]["readings"] == recs["fixed"][k]["readings"]
+
+
+def test_an_adaptive_survey_resumes_to_the_uncut_readings(tmp_path):
+    records, states = cut_and_resume(parsed(_rig("adaptive", 12, 160)), tmp_path, "w")
+    assert any(r.get("stopped") for r in records if r["type"] == "view")
+    uncut = read_journal(tmp_path / "full" / "journal.jsonl").observations
+    for st in states:
+        assert {k: (o.pan, o.tilt) for k, o in st.observations.items()} == {k: (o.pan, o.tilt) for k, o in uncut.items()}
+
+
+def test_the_length_is_kept_on_resume(tmp_path, capsys):
+    check_lever_refused_on_resume(_rig("adaptive", 12, 160), tmp_path, capsys, "length=fixed", "length", "length=adaptive")
+
+
+def test_the_journal_records_the_length_and_a_stopped_view_validates(both, tmp_path):
+    rig = parsed(_rig("adaptive", 12, 160))
+    run_survey(rig, tmp_path, opened=opened(rig)[0])
+    header = json.loads((tmp_path / "journal.jsonl").read_text().splitlines()[0])
+    assert header["coded"]["length"] == "adaptive"
+    state = read_journal(tmp_path / "journal.jsonl")  # validates every record against the schema
+    assert any(v.get("stopped") for v in state.views.values())
