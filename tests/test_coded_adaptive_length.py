@@ -10,14 +10,7 @@ import pytest
 from fgloc.camera.blink_codes import code_book
 from fgloc.files.journal import read_journal
 from fgloc.survey.session import run_survey
-from tests.test_survey_coded import (
-    check_lever_refused_on_resume,
-    coded_rig,
-    cut_and_resume,
-    opened,
-    parsed,
-    view_records,
-)
+from tests import test_survey_coded as sc
 from tests.test_survey_coded_levers import survey_reads_every_visible_pair
 
 L = code_book(30).length  # the 30-mote scene's book (15 bits)
@@ -25,7 +18,7 @@ L12 = code_book(12).length
 
 
 def _rig(length: str, n: int = 30, width: int = 320) -> dict:
-    data = coded_rig(n, width)
+    data = sc.coded_rig(n, width)
     data["coded"] = {"length": length}
     return data
 
@@ -36,8 +29,8 @@ def both(tmp_path_factory):
     out = {}
     for length in ("fixed", "adaptive"):
         path = tmp_path_factory.mktemp(length)
-        runner, _, _ = survey_reads_every_visible_pair(parsed(_rig(length)), path)
-        out[length] = (view_records(path / "journal.jsonl"), runner)
+        runner, _, _ = survey_reads_every_visible_pair(sc.parsed(_rig(length)), path)
+        out[length] = (sc.view_records(path / "journal.jsonl"), runner)
     return out
 
 
@@ -61,7 +54,7 @@ def test_a_stopped_view_left_nothing_a_longer_recording_could_read(both):
     from fgloc.survey.coded_views import unexplained_blob
 
     adaptive, runner = both["adaptive"]
-    rig = parsed(_rig("adaptive"))
+    rig = sc.parsed(_rig("adaptive"))
     views = runner.state.views
     checked = 0
     for r in adaptive:
@@ -87,9 +80,9 @@ def test_adaptive_views_that_go_on_show_the_fixed_recording(tmp_path):
     records: the first such wide view's readings are the fixed survey's, reading for reading."""
     recs = {}
     for length in ("fixed", "adaptive"):
-        rig = parsed(_rig(length, 12, 160))
-        run_survey(rig, tmp_path / length, opened=opened(rig)[0])
-        recs[length] = {(r["camera"], r["view"], r["attempt"]): r for r in view_records(tmp_path / length / "journal.jsonl")}
+        rig = sc.parsed(_rig(length, 12, 160))
+        run_survey(rig, tmp_path / length, opened=sc.opened(rig)[0])
+        recs[length] = {(r["camera"], r["view"], r["attempt"]): r for r in sc.view_records(tmp_path / length / "journal.jsonl")}
     went_on = [k for k, r in recs["adaptive"].items() if r["view"] == "w000" and r["frames"] == 3 * L12 + 2]
     assert went_on, "the scene should have a first wide view that goes on"
     for k in went_on:
@@ -97,7 +90,7 @@ def test_adaptive_views_that_go_on_show_the_fixed_recording(tmp_path):
 
 
 def test_an_adaptive_survey_resumes_to_the_uncut_readings(tmp_path):
-    records, states = cut_and_resume(parsed(_rig("adaptive", 12, 160)), tmp_path, "w")
+    records, states = sc.cut_and_resume(sc.parsed(_rig("adaptive", 12, 160)), tmp_path, "w")
     assert any(r.get("stopped") for r in records if r["type"] == "view")
     uncut = read_journal(tmp_path / "full" / "journal.jsonl").observations
     for st in states:
@@ -105,12 +98,12 @@ def test_an_adaptive_survey_resumes_to_the_uncut_readings(tmp_path):
 
 
 def test_the_length_is_kept_on_resume(tmp_path, capsys):
-    check_lever_refused_on_resume(_rig("adaptive", 12, 160), tmp_path, capsys, "length=fixed", "length", "length=adaptive")
+    sc.check_lever_refused_on_resume(_rig("adaptive", 12, 160), tmp_path, capsys, "length=fixed", "length", "length=adaptive")
 
 
 def test_the_journal_records_the_length_and_a_stopped_view_validates(both, tmp_path):
-    rig = parsed(_rig("adaptive", 12, 160))
-    run_survey(rig, tmp_path, opened=opened(rig)[0])
+    rig = sc.parsed(_rig("adaptive", 12, 160))
+    run_survey(rig, tmp_path, opened=sc.opened(rig)[0])
     header = json.loads((tmp_path / "journal.jsonl").read_text().splitlines()[0])
     assert header["coded"]["length"] == "adaptive"
     state = read_journal(tmp_path / "journal.jsonl")  # validates every record against the schema
