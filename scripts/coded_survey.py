@@ -387,7 +387,8 @@ def _report(name: str, rows: dict[str, list[dict]], args: argparse.Namespace) ->
     ratio = [c["rms"] / s["rms"] for c, s in zip(rows[name], rows["sequential"])]
     speed = [s["field"].total / c["field"].total for c, s in zip(rows[name], rows["sequential"])]
     print(f"coded / sequential: RMS ratio median {statistics.median(ratio):.3f} (range {min(ratio):.3f}-{max(ratio):.3f}); "
-          f"field-time speed-up median {statistics.median(speed):.2f}x (range {min(speed):.2f}-{max(speed):.2f})")
+          f"field-time speed-up median {statistics.median(speed):.2f}x (range {min(speed):.2f}-{max(speed):.2f}); "
+          f"per seed {' '.join(f'{x:.2f}x' for x in speed)}")
     print(f"accuracy over {args.seeds} seeds, head repeatability {args.repeatability_deg} deg "
           f"({sum(r['named_views'] for r in rows[name])} views named in the coded survey.json files):")
     for label, mode, key in (("sequential", "sequential", ""), ("coded, views solved", name, ""),
