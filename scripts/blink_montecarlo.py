@@ -26,7 +26,7 @@ within 4 px of either LED: :func:`blink_crowds.pair_pixels`) and is decoded with
 (:mod:`fgloc.camera.blink_pairs`). A *pair decode* is one such pair; it is resolved when
 both its motes are read within 2 px; mislabels are counted over all readings as above.
 
-    OPENBLAS_NUM_THREADS=1 .venv/bin/python scripts/blink_montecarlo.py --trials 250 [--fields] [--sync] [--slide 1]
+    OPENBLAS_NUM_THREADS=1 .venv/bin/python scripts/blink_montecarlo.py --trials 250 [--fields] [--sync] [--slide 1] [--word-fit]
         [--pairs 40 [--time-decode]] [--groups 20] [--partner]
 
 ``--readout S``: a rolling shutter whose last row starts its exposure S seconds after the
@@ -64,8 +64,9 @@ from blink_crowds import (  # noqa: E402
 from blink_views import add_view_arguments, render_motes, video_label, view_camera  # noqa: E402
 
 from fgloc.camera.blink_codes import CodeBookError, code_book, sync_code_book  # noqa: E402
-from fgloc.camera.blink_decoder import decode_view, decode_windows  # noqa: E402
+from fgloc.camera.blink_decoder import DecoderConfig, decode_view, decode_windows  # noqa: E402
 from fgloc.camera.blink_pairs import PairConfig  # noqa: E402
+from fgloc.camera.blink_word_fit import WordFitConfig  # noqa: E402
 from fgloc.camera.pixel_angles import pixel_to_pan_tilt  # noqa: E402
 from fgloc.core.geometry import pan_tilt_bearing  # noqa: E402
 from fgloc.drivers.blink_frames import close_groups  # noqa: E402
@@ -76,7 +77,7 @@ def trial(seed: int, n_motes: int, book_size: int, glints: int, fields: bool = F
           frames: int | None = None, extend: int = 0, sync: bool = False, resync_s: float = 10.0,
           slide: int = 0, pairs: int = 0, time_decode: bool = False, groups: int = 0,
           partner: bool = False, readout_s: float = 0.0, rate_fall_s: float | None = None,
-          length: int | None = None) -> dict[str, float]:
+          length: int | None = None, word_fit: bool = False) -> dict[str, float]:
     """One view. ``frames`` recorded (default 3L + 2); with ``extend`` > 0 the recording
     goes on for ``extend`` more frames and the whole stack is decoded again (keys ``ext_*``):
     the retry of a view whose motes were missed, without moving the head. ``slide``:
@@ -88,8 +89,10 @@ def trial(seed: int, n_motes: int, book_size: int, glints: int, fields: bool = F
     known-partner decoder given one (two) of its motes (keys ``ptn_*``, :func:`blink_crowds.partner_stats`).
     ``readout_s``, ``rate_fall_s``: rolling shutter and rate fall of the video
     (:class:`fgloc.drivers.blink_frames.BlinkRenderConfig`). ``length``: the book's word length
-    (default the shortest that holds ``book_size`` words)."""
+    (default the shortest that holds ``book_size`` words). ``word_fit``: the decoder's light-curve
+    fit on (:mod:`fgloc.camera.blink_word_fit`; rotation-free books)."""
     rng = np.random.default_rng(seed)
+    dcfg = DecoderConfig(word_fit=WordFitConfig()) if word_fit and not sync else None
     book = sync_code_book(book_size, length) if sync else code_book(book_size, length)
     intr, head_pan, head_tilt = view_camera(rng, fields)
     uv = np.column_stack([rng.uniform(15, intr.width - 15, n_motes), rng.uniform(15, intr.height - 15, n_motes)])
@@ -120,12 +123,12 @@ def trial(seed: int, n_motes: int, book_size: int, glints: int, fields: bool = F
     pc = PairConfig(max_group=3) if groups else PairConfig() if pairs else None
     for prefix in runs:
         if prefix == "sl_":
-            res = decode_windows(stack, 1.0 / cfg.frame_rate_hz, book, intr, head_pan, head_tilt, k0, sync=timing,
+            res = decode_windows(stack, 1.0 / cfg.frame_rate_hz, book, intr, head_pan, head_tilt, k0, config=dcfg, sync=timing,
                                  pairs=pc)
         else:
             t_on = time.perf_counter()
             res = decode_view(within(k0 + (extend if prefix else 0)), 1.0 / cfg.frame_rate_hz, book, intr,
-                              head_pan, head_tilt, sync=timing, pairs=pc)
+                              head_pan, head_tilt, dcfg, sync=timing, pairs=pc)
             t_on = time.perf_counter() - t_on
             if time_decode and not prefix:
                 t_off = time.perf_counter()
@@ -186,6 +189,8 @@ def main() -> None:
     ap.add_argument("--rate-fall", type=float, default=None, metavar="S",
                     help="from S seconds after the start of each recording every second frame is lost (a camera "
                     "falling from 60 to 30 Hz); default never")
+    ap.add_argument("--word-fit", action="store_true",
+                    help="decode with the light-curve fit on (fgloc.camera.blink_word_fit; rotation-free books)")
     ap.add_argument("--length", type=int, default=None, metavar="L",
                     help="word length of the book (default: the shortest that holds --book words)")
     args = ap.parse_args()
@@ -207,7 +212,8 @@ def main() -> None:
     for k in range(args.trials):
         for key, v in trial(args.seed + k, args.motes, args.book, args.glints, args.fields, args.frames,
                              args.extend, args.sync, args.resync, args.slide, args.pairs, args.time_decode,
-                             args.groups, args.partner, args.readout, args.rate_fall, args.length).items():
+                             args.groups, args.partner, args.readout, args.rate_fall, args.length,
+                             args.word_fit).items():
             if key in times:
                 times[key].append(v)
             else:

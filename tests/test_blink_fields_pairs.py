@@ -11,6 +11,7 @@ from fgloc.camera.blink_codes import code_book
 from fgloc.camera.blink_crowd_decoding import merge_reading, with_neighbour
 from fgloc.camera.blink_decoder import DecodedReading, DecoderConfig, decode_view
 from fgloc.camera.blink_pairs import PairConfig, footprint
+from fgloc.camera.blink_word_fit import WordFitConfig
 from fgloc.camera.intrinsics import CameraIntrinsics
 from fgloc.core.model import CameraPose
 from fgloc.drivers.blink_frames import (
@@ -55,6 +56,9 @@ def _field_view(seed: int, uv_of: str, n: int, size_px: float, flux: float
     cam = RenderedCamera(CameraPose(np.zeros(3), np.eye(3)), LedScene(positions={}))
     frames = render_view(cam, FIELD, pan, tilt, motes, frames_for(BOOK.length), rng, cfg)
     return frames, uv, ids, pan, tilt, 1.0 / cfg.frame_rate_hz
+
+
+FIT = DecoderConfig(word_fit=WordFitConfig())  #: the decoder with the light-curve fit (step 8)
 
 
 def _read(seed: int, uv_of: str, n: int, size_px: float, flux: float, configs: tuple[PairConfig, ...],
@@ -112,7 +116,7 @@ def test_field_pairs_7px_read_with_a_neighbour() -> None:
     for seed in (4, 5, 6):
         o, n = _read(seed, "pairs", 5, 7.0, 750.0, (lone, PairConfig()), levels)
         old, new = old + o, new + n
-        o, n = _read(seed, "pairs", 5, 7.0, 750.0, (lone, PairConfig()))
+        o, n = _read(seed, "pairs", 5, 7.0, 750.0, (lone, PairConfig()), FIT)
         fit_lone, fit_new = fit_lone + o, fit_new + n
     assert new >= old + 8 and new >= 24  # of 30 LEDs (15 -> 26 measured)
     assert fit_new >= max(new, fit_lone) and fit_lone > old  # with the fit: 24 alone, 29 with the rule
@@ -125,7 +129,7 @@ def test_field_crowds_of_three_with_neighbours() -> None:
     configs = (PairConfig(max_group=3, neighbour_px=0.0), PairConfig(max_group=3))
     old, new = _read(0, "groups", 3, 7.0, 750.0, configs, DecoderConfig(word_fit=None))
     assert old <= 6 and new == 9
-    assert _read(0, "groups", 3, 7.0, 750.0, configs)[1] == 9
+    assert _read(0, "groups", 3, 7.0, 750.0, configs, FIT)[1] == 9
 
 
 def _reading(index: int, u: float, v: float) -> DecodedReading:

@@ -131,9 +131,9 @@ def _straddling_view(edge_share: float, seed: int = 6) -> tuple[list, float, flo
 def test_decoder_reads_motes_whose_bit_edges_fall_mid_exposure() -> None:
     frames, pan, tilt, uv, ids = _straddling_view(0.5)
     period = 1 / BlinkRenderConfig().frame_rate_hz
-    levels_only = decode_view(frames, period, BOOK, INTR, pan, tilt, DecoderConfig(word_fit=None))
+    levels_only = decode_view(frames, period, BOOK, INTR, pan, tilt)  # the decoder's default: levels alone
     assert not levels_only.readings  # every sample at a transition lies between the levels
-    res = decode_view(frames, period, BOOK, INTR, pan, tilt)
+    res = decode_view(frames, period, BOOK, INTR, pan, tilt, DecoderConfig(word_fit=WordFitConfig()))
     got = {r.index: r for r in res.readings}
     assert set(got) == set(ids)
     for k, i in enumerate(ids):

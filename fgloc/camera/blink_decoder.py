@@ -76,8 +76,9 @@ class DecoderConfig:
     max_centroid_spread_px: float = 0.35  #: robust spread of on-frame centroids (one LED)
     min_on_samples: int = 3
     detector: DetectorConfig = DetectorConfig(max_blobs=5000, max_elongation=2.0)
-    #: step 4b, the light-curve fit of a blob the levels refused (rotation-free books); None: off
-    word_fit: WordFitConfig | None = WordFitConfig()
+    #: step 8, the light-curve fit of a blob the levels refused (rotation-free books), e.g.
+    #: ``WordFitConfig()``; None (default): off
+    word_fit: WordFitConfig | None = None
 
 
 _APERTURE = 3  #: half-width (px) of the square flux aperture

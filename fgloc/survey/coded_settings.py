@@ -10,6 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 
 from fgloc.camera.blink_decoder import DecoderConfig
+from fgloc.camera.blink_word_fit import WordFitConfig
 
 
 @dataclass(frozen=True)
@@ -70,18 +71,19 @@ class CodedSettings:
     ladder: str = "focus"
     #: view decoding: ``"fit"`` gives a blob the level decoder refuses (its levels or its bits) the
     #: light-curve fit (:mod:`fgloc.camera.blink_word_fit`: motes whose bit edges fall inside the
-    #: exposure, motes on an offset background); ``"levels"``: the level decoder alone (the default
-    #: of journals written before this lever)
-    decode: str = "fit"
+    #: exposure, motes on an offset background); ``"levels"``: the level decoder alone (the default:
+    #: the fit mislabelled one reading in a 1000-mote survey, docs/blink-codes.md)
+    decode: str = "levels"
     #: a view's first recording: ``"fixed"`` 3L + 2 frames; ``"adaptive"`` stops at 2L + 2 when
     #: every blob the decode of those leaves unexplained is a mote this camera has read (another L
     #: samples could read nothing new), else goes on to 3L + 2 as one recording
-    #: (:func:`fgloc.survey.coded_recording.record_adaptive`)
-    length: str = "adaptive"
+    #: (:func:`fgloc.survey.coded_recording.record_adaptive`). Default ``"fixed"``: with the fit, the
+    #: adaptive length lost visible pairs in a 1000-mote survey (docs/blink-codes.md)
+    length: str = "fixed"
 
     def view_decoder(self) -> DecoderConfig:
         """The decoder configuration of the views, as ``decode`` chooses."""
-        return self.decoder if self.decode == "fit" else replace(self.decoder, word_fit=None)
+        return replace(self.decoder, word_fit=WordFitConfig() if self.decode == "fit" else None)
 
 
 @dataclass
