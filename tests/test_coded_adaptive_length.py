@@ -46,33 +46,16 @@ def test_adaptive_views_stop_at_2l_plus_2_and_read_every_visible_pair(both):
     assert runner.field_time.phases["frames"] < fixed_runner.field_time.phases["frames"]
 
 
-def test_a_stopped_view_left_nothing_a_longer_recording_could_read(both):
-    """A stopped wide view's unexplained blobs all lie at motes its camera had read (the second
-    recording's rule says another recording could read nothing new, from the journal alone), a
-    stopped refinement tile left none; and the views that went on did have such a blob."""
-    from fgloc.survey.coded_ladder import read_before, retry_helps
+def test_a_stopped_view_left_no_blob_unexplained(both):
+    """Every stopped view, wide or refinement tile, journaled no blob a longer recording could
+    read (only border refusals)."""
     from fgloc.survey.coded_views import unexplained_blob
 
-    adaptive, runner = both["adaptive"]
-    rig = sc.parsed(_rig("adaptive"))
-    views = runner.state.views
-    checked = 0
-    for r in adaptive:
-        if r["attempt"] or r["frames"] == L + 2 or r["view"][0] not in "wr":
-            continue
-        cam = rig.cameras[rig.camera_ids.index(r["camera"])]
-        if r["view"].startswith("r"):
-            if r.get("stopped"):
-                assert not any(unexplained_blob(x) for x in r["refused"]), r["view"]
-            continue
-        read = read_before(views, r["camera"], 0, r["view"], 0)
-        helps = retry_helps(r, read, cam.intrinsics.at_zoom, cam.zoom)
-        # a stopped view: a longer recording could not help; one that went on (3L + 2) may still
-        # have been decoded whole, so only the stopped direction is a rule
-        if r.get("stopped"):
-            assert not helps, r["view"]
-            checked += 1
-    assert checked >= 2
+    adaptive, _ = both["adaptive"]
+    stopped = [r for r in adaptive if r.get("stopped")]
+    assert len(stopped) >= 2
+    for r in stopped:
+        assert not any(unexplained_blob(x) for x in r["refused"]), r["view"]
 
 
 def test_adaptive_views_that_go_on_show_the_fixed_recording(tmp_path):

@@ -22,8 +22,8 @@ view-major rounds, ladder focus, decode levels, length fixed):
   chased, lamps to the fallback, :mod:`fgloc.survey.coded_ladder`);
 * ``decode``: ``"levels"`` | ``"fit"`` (a blob the level decoder refuses gets the light-curve
   fit, :mod:`fgloc.camera.blink_word_fit`);
-* ``length``: ``"fixed"`` | ``"adaptive"`` (a first recording stops at 2L + 2 samples when every blob
-  it leaves unexplained is a mote the camera has read, :func:`fgloc.survey.coded_recording.record_adaptive`);
+* ``length``: ``"fixed"`` | ``"adaptive"`` (a first recording stops at 2L + 2 samples when it leaves
+  no blob unexplained, :func:`fgloc.survey.coded_recording.record_adaptive`);
 * ``levels``: the refinement zoom ladder, ascending fractions of the optical range.
 
 **Resume rule.** A coded survey's journal header records the levers it started with

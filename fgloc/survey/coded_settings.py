@@ -75,8 +75,7 @@ class CodedSettings:
     #: the fit mislabelled one reading in a 1000-mote survey, docs/blink-codes.md)
     decode: str = "levels"
     #: a view's first recording: ``"fixed"`` 3L + 2 frames; ``"adaptive"`` stops at 2L + 2 when
-    #: every blob the decode of those leaves unexplained is a mote this camera has read (another L
-    #: samples could read nothing new), else goes on to 3L + 2 as one recording
+    #: the decode of those leaves no blob unexplained, else goes on to 3L + 2 as one recording
     #: (:func:`fgloc.survey.coded_recording.record_adaptive`). Default ``"fixed"``: with the fit, the
     #: adaptive length lost visible pairs in a 1000-mote survey (docs/blink-codes.md)
     length: str = "fixed"
