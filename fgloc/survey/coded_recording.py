@@ -74,28 +74,25 @@ def record_view(coded: CodedSurvey, runner: SurveyRunner, camera: str, vid: str,
         probed = True
         if not empty_view(frames, coded.camera.frame_period_s, coded.settings.view_decoder()):  # on to 3L + 2
             if coded.settings.length == "adaptive":
-                frames, dec, count = record_adaptive(coded, runner, camera, vid, attempt, head, zoom, t_start, frames,
-                                                     key, pairs)
+                frames, dec, count = record_adaptive(coded, runner, camera, head, zoom, t_start, frames, key, pairs)
             else:
                 frames += grab_frames(coded, runner, camera, coded.frames - count,
                                       t_start + count * coded.camera.frame_period_s, key + "+")
                 count = coded.frames
     elif not before and not short and coded.settings.length == "adaptive":
-        frames, dec, count = record_adaptive(coded, runner, camera, vid, attempt, head, zoom, t_start, [], key, pairs)
+        frames, dec, count = record_adaptive(coded, runner, camera, head, zoom, t_start, [], key, pairs)
     else:
         frames = grab_frames(coded, runner, camera, count, t_start, key)
     coded._continue_at[(camera, vid)] = t_start + count * coded.camera.frame_period_s
-    stopped = dec is not None and count < coded.frames
-    if dec is not None:
-        pass
-    elif short:
+    stopped = dec is not None and count < coded.frames  # decoded by record_adaptive
+    if dec is None and short:
         frames = (before or []) + frames
         dec = decode_round(coded, frames, intr, head, candidates or [])
-    elif before:
+    elif dec is None and before:
         frames = before + frames
         dec = decode_windows(frames, coded.camera.frame_period_s, coded.book, intr, head[0], head[1],
-                                         coded.frames, coded.book.length, coded.settings.view_decoder(), pairs=pairs)
-    else:
+                             coded.frames, coded.book.length, coded.settings.view_decoder(), pairs=pairs)
+    elif dec is None:
         dec = decode_view(frames, coded.camera.frame_period_s, coded.book, intr, head[0], head[1],
                           coded.settings.view_decoder(), pairs=pairs)
     check_steady_loss(coded, camera, vid, frames)
@@ -127,8 +124,8 @@ def record_view(coded: CodedSurvey, runner: SurveyRunner, camera: str, vid: str,
                 {"candidates": [n for n, _ in candidates or []]} if short else {}), frames
 
 
-def record_adaptive(coded: CodedSurvey, runner: SurveyRunner, camera: str, vid: str, attempt: int,
-                    head: tuple[float, float], zoom: float, t_start: float, frames: list[Frame], key: str,
+def record_adaptive(coded: CodedSurvey, runner: SurveyRunner, camera: str, head: tuple[float, float], zoom: float,
+                    t_start: float, frames: list[Frame], key: str,
                     pairs: PairConfig | None) -> tuple[list[Frame], ViewDecode, int]:
     """Lever ``length: adaptive``: record (on from ``frames``, the probe's L + 2, if any) to
     2L + 2 frame periods and decode them; stop there when the decode leaves no blob unexplained
