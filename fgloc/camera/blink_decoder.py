@@ -20,7 +20,10 @@ period, and the :class:`~fgloc.camera.blink_codes.CodeBook`. Steps:
 4. **Word.** With L the book's length, samples ``i`` and ``i + L`` carry the same bit:
    every bit position needs at least one sample, and all samples of a position must
    agree. The folded word must equal a rotation of a book word **exactly**; with a
-   book distance of 3, up to two bit errors are detected, never corrected.
+   book distance of 3, up to two bit errors are detected, never corrected. With
+   ``DecoderConfig.word_fit`` (off by default; rotation-free books) a blob rejected in
+   steps 3-4 gets a second look, the light-curve fit (:func:`fit_blob`,
+   :mod:`fgloc.camera.blink_word_fit`), and keeps its refusal unless that names one word.
 5. **Refusals.** A blob whose on-frame fluxes or centroids vary more than one LED's
    can (two LEDs closer than the detector separates) is reported *ambiguous*. An ID
    decoded from two blobs is reported *duplicate* for both. Unknown words, conflicts
@@ -305,7 +308,7 @@ def read_blob(stack: np.ndarray, valid: np.ndarray, cand: LedDetection, noise_si
 
 def fit_blob(stack: np.ndarray, valid: np.ndarray, cand: LedDetection, noise_sigma: float, book: CodeBook,
              cfg: DecoderConfig, refusal: RefusedBlob) -> tuple[BlobSamples, int] | RefusedBlob:
-    """Step 4b: a blob the level decoder refused (``refusal``: its levels or its bits) read
+    """Step 4's second look: a blob the level decoder refused (``refusal``: its levels or its bits) read
     by the light-curve fit (:func:`fgloc.camera.blink_word_fit.fit_word`), with the single-LED
     centroid tests of step 5 on its lit samples: (samples, book index), or ``refusal``
     (same kind, so the survey treats the blob as before) with the fit's reason appended."""
