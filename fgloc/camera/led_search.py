@@ -196,6 +196,7 @@ class LedLocator:
         self.find_spot = spot_finder or brightest_spot(search.threshold)
         self.cells = search_cells(search, pixel_model.field_of_view())
         self.stats = MeasureStats()
+        self.last_look: tuple[float, float] | None = None  #: (pan, tilt) radians of the last move, None before
         # For on-off detection: blink(grab) -> (LED-on frame, LED-off frame); set per node by the runner.
         self.blink: Callable[[Callable[[], np.ndarray]], tuple[np.ndarray, np.ndarray]] | None = None
 
@@ -229,6 +230,7 @@ class LedLocator:
     def _look(self, call: Callable[[Callable[[PanTiltHead], object]], object], pan: float, tilt: float) -> Spot | None:
         pan, tilt = self.clamp(pan, tilt)
         call(lambda h: h.move_to(pan, tilt))
+        self.last_look = (pan, tilt)
         self.stats.moves += 1
         if self.search.settle_s > 0:
             time.sleep(self.search.settle_s)
@@ -247,6 +249,8 @@ class LedLocator:
         spot = self._look(call, *start)
         if spot is None:
             for cell in nearest_first(self.cells, start):
+                if self.clamp(*cell) == start:
+                    continue  # looked at already
                 spot = self._look(call, *cell)
                 if spot is not None:
                     break

@@ -8,9 +8,11 @@ from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Mapping
 from concurrent.futures import ThreadPoolExecutor
 from typing import TYPE_CHECKING
 
+from fgloc.camera.led_search import nearest_first
 from fgloc.survey.coded_levers import PREDICTED_RADIUS, blobs_near, predicted_directions
 
 if TYPE_CHECKING:
@@ -20,16 +22,31 @@ if TYPE_CHECKING:
 logger = logging.getLogger("fgloc.survey.coded")  # the coded survey's log, as before the split
 
 
+def sweep_key(search: tuple[str, Mapping[str, list[tuple[float, float]]]]) -> tuple[int, float, str]:
+    """Order of the sequential searches: nodes with looks by the pan of the first camera's
+    first look (its smallest pan; the search starts there) (one sweep across each camera's box, as most nodes are searched by one camera
+    only), then the others by id. A function of the node's looks alone, so a resume keeps it."""
+    node, looks = search
+    pans = [min(looks[c])[0] for c in sorted(looks) if looks[c]]
+    return (0, pans[0], node) if pans else (1, 0.0, node)
+
+
+def nearest_look(cells: list[tuple[float, float]], head: tuple[float, float] | None) -> tuple[float, float]:
+    """The cell of ``cells`` nearest to ``head`` (its last look; None: the smallest pan, where the sweep starts)."""
+    return nearest_first(cells, head)[0] if head is not None else min(cells)
+
+
 def run_fallback(coded: CodedSurvey, runner: SurveyRunner, pool: ThreadPoolExecutor, total: int, t0: float) -> None:
     """Finish every node some camera has not read. A camera whose views left no blob
     unexplained did not see a mote that confirmed its code: that is journaled ``not_found``
     without a search. The rest (and motes that never confirmed) are measured the
-    sequential way, priced per node."""
+    sequential way, priced per node, in one sweep across the boxes (:func:`sweep_key`)."""
     st = runner.state
     clean = {c for c in coded.rig.camera_ids if coded.remaining.get(c, 1) == 0}
-    predicted = predicted_directions(runner) if coded.settings.fallback == "predicted" else None
+    predicted = predicted_directions(runner) if coded.settings.fallback in ("predicted", "round") else None
     starts = [set(r.get("silent", [])) for r in st.codes if r.get("action") == "start"]
     silent = set.intersection(*starts) if starts else set(coded.rig.node_ids)  # never confirmed a start
+    searches: list[tuple[str, dict[str, list[tuple[float, float]]]]] = []  # (node, camera -> its looks)
     for node in coded.rig.node_ids:
         if node in st.done:
             continue
@@ -62,10 +79,13 @@ def run_fallback(coded: CodedSurvey, runner: SurveyRunner, pool: ThreadPoolExecu
             runner.journal.node_done(node)
             st.done.add(node)
             continue
+        searches.append((node, looks))
+    for node, looks in sorted(searches, key=sweep_key):
         coded.stats.fallback_nodes += 1
         logger.info(f"{node}: not decoded by every camera; measured the sequential way")
         coded.clock.begin()
         grids = {c: w.locator.cells for c, w in runner.workers.items()}
+        start_at = {}
         try:
             for cam, worker in runner.workers.items():
                 blobs = looks.get(cam, coded.blobs.get(cam))
@@ -73,7 +93,9 @@ def run_fallback(coded: CodedSurvey, runner: SurveyRunner, pool: ThreadPoolExecu
                     # a mote that blinks its code and was not decoded is in a blob no reading
                     # explains (or not in view): look there only, not over the whole grid
                     worker.locator.cells = [worker.locator.clamp(p, t) for p, t in blobs]
-            runner.run_node(node, pool, check_misses=False)
+                if node not in silent and blobs:  # from its look nearest the head, not the last reading
+                    start_at[cam] = nearest_look(worker.locator.cells, worker.locator.last_look)
+            runner.run_node(node, pool, check_misses=False, start_at=start_at)
         finally:
             node_time = coded.clock.end()
             for cam, worker in runner.workers.items():

@@ -37,7 +37,7 @@ import functools
 import logging
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
@@ -273,9 +273,11 @@ class SurveyRunner:
         last = self.state.last_observation(camera)
         return None if last is None else (last.pan, last.tilt)
 
-    def run_node(self, node: str, pool: ThreadPoolExecutor, check_misses: bool = True) -> None:
+    def run_node(self, node: str, pool: ThreadPoolExecutor, check_misses: bool = True,
+                 start_at: Mapping[str, tuple[float, float]] | None = None) -> None:
         """Measure one node with every camera that still needs it (``check_misses``: apply
-        ``retry.max_consecutive_misses``; off for a coded survey's fallback nodes)."""
+        ``retry.max_consecutive_misses``; off for a coded survey's fallback nodes). A camera's
+        search starts at its previous reading, or at ``start_at[camera]`` (pan, tilt) when given."""
         st = self.state
         if node not in st.started:
             self.journal.node_started(node)
@@ -296,7 +298,7 @@ class SurveyRunner:
                         continue
                     have = {o.index for o in st.observations_of(node, cam)}
                     indices = [k for k in range(self.rig.repeats) if k not in have]
-                    jobs.append((cam, indices, self._start_for(cam)))
+                    jobs.append((cam, indices, (start_at or {}).get(cam) or self._start_for(cam)))
                 blink = (lambda grab: self._blink(node, grab)) if self.rig.search.detection == "on-off" else None
                 def recorder(cam: str) -> Callable[[int, float, float], None]:
                     return lambda index, pan, tilt: self._record_observation(
