@@ -75,7 +75,7 @@ import logging
 import math
 import queue
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import replace
 from typing import Any
@@ -177,6 +177,7 @@ class CodedSurvey:
         self._continue_at: dict[tuple[str, str], float] = {}  # (camera, view) -> clock s its recording ends
         self._head_at: dict[str, tuple[float, float] | None] = {}  # camera -> read-back head of its last view
         self.final_blobs: dict[str, np.ndarray] = {}  # camera -> (M, 2) directions of its unexplained blobs
+        self.final_lamps: dict[str, np.ndarray] = {}  # camera -> (K, 2) those of them the ladder took for lamps
         self.here: dict[str, tuple[float, float]] = {}  # camera -> head (pan, tilt) after its last view
         self.wide_records: dict[str, list[dict[str, Any] | None]] = {}
         self._done_views = 0
@@ -290,7 +291,7 @@ class CodedSurvey:
                 break  # every blob it leaves unexplained is a mote this camera read (coded_ladder.retry_helps)
         return last
 
-    def unexplained(self, records: list[dict[str, Any] | None]) -> list[Blob]:
+    def unexplained(self, records: Sequence[dict[str, Any] | None]) -> list[Blob]:
         """The blobs no reading explains (:func:`unexplained_blob`) in ``records``: pixel, the
         recording's head (pan, tilt) and zoom."""
         out = []
@@ -405,6 +406,7 @@ class CodedSurvey:
         self.remaining[camera] = int(failed) + len(blobs)
         fov = min(runner.workers[camera].locator.pixels.field_of_view())  # at the survey zoom
         self.final_blobs[camera] = self.blob_directions(camera, blobs)
+        self.final_lamps[camera] = self.blob_directions(camera, handed)
         self.blobs[camera] = None if failed else distinct_directions(self.final_blobs[camera], 0.25 * fov)
         self.here[camera] = here
         if zoom != zoom0:
@@ -527,6 +529,10 @@ class CodedSurvey:
 
                     run_separation(self, runner, pool, lambda fs: self.pump(runner, fs, total, t0))
                 self.zoom_back_in_slack(runner)
+                if self.settings.fallback == "round":
+                    from fgloc.survey.coded_fallback_round import run_fallback_round
+
+                    run_fallback_round(self, runner, pool, lambda fs: self.pump(runner, fs, total, t0), todo)
                 self.stop_codes(runner)
                 self.run_fallback(runner, pool, total, t0)
                 if self.rig.repeat_budget > 0:

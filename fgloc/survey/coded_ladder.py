@@ -65,12 +65,15 @@ def direction(blob: Blob, intrinsics_at: Callable[[float], CameraIntrinsics]) ->
 
 def view_order(view: str) -> tuple[int, int, int]:
     """Where view id ``view`` falls in a camera's survey: the wide pass (``w<k>``), the radio
-    rounds (``s...``, all at one place), then rung n's tiles (``r<n>-<k>``), in that order."""
+    rounds (``s...``, all at one place), then rung n's tiles (``r<n>-<k>``), then the fallback
+    round (``f<k>``), in that order."""
     if view.startswith("w"):
         return 0, 0, int(view[1:])
     if view.startswith("r"):
         rung, k = view[1:].split("-")
         return 2, int(rung), int(k)
+    if view.startswith("f"):
+        return 3, 0, int(view[1:])
     return 1, 0, 0
 
 

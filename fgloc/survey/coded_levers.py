@@ -9,7 +9,8 @@ view-major rounds, ladder focus, decode levels, length fixed):
 * ``retry``: ``"burst"`` | ``"continue"`` (a retry goes on recording L frames, sliding windows);
 * ``separate``: ``"zoom"`` | ``"radio"`` (crowded motes paused by colour class first,
   :mod:`fgloc.survey.coded_separation`);
-* ``fallback``: ``"blobs"`` | ``"predicted"`` (:func:`predicted_directions`, :func:`blobs_near`);
+* ``fallback``: ``"blobs"`` | ``"predicted"`` (:func:`predicted_directions`, :func:`blobs_near`) | ``"round"``
+  (first the motes it would search blink alone, :mod:`fgloc.survey.coded_fallback_round`);
 * ``video``: ``"frames"`` | ``"fields"`` (interlaced fields at 59.94 Hz);
 * ``probe``: ``"off"`` | ``"on"`` (a view whose first L + 2 frames show no blob stops there);
 * ``pairs``: ``"off"`` | ``"on"`` (refused blobs decoded as two LEDs, :mod:`fgloc.camera.blink_pairs`)
@@ -63,7 +64,7 @@ if TYPE_CHECKING:
 
 RETRY_MODES = ("burst", "continue")
 SEPARATE_MODES = ("zoom", "radio")
-FALLBACK_MODES = ("blobs", "predicted")
+FALLBACK_MODES = ("blobs", "predicted", "round")
 VIDEO_MODES = ("frames", "fields")
 PROBE_MODES = ("off", "on")
 PAIRS_MODES = ("off", "on", "groups")

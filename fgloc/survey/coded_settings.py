@@ -41,7 +41,9 @@ class CodedSettings:
     #: fallback of a mote a camera did not decode: ``"blobs"`` looks at every blob the camera left
     #: unexplained; ``"predicted"`` first places the mote from the other cameras' readings
     #: (:func:`~fgloc.survey.coded_separation.predict_directions`) and looks only at the blobs
-    #: within :data:`~fgloc.survey.coded_levers.PREDICTED_RADIUS` of where it must be (none there: not found, no search)
+    #: within :data:`~fgloc.survey.coded_levers.PREDICTED_RADIUS` of where it must be (none there: not found, no search);
+    #: ``"round"``: as ``"predicted"``, after one round in which only the motes it would search blink, recorded
+    #: at the survey zoom where it pays (:mod:`fgloc.survey.coded_fallback_round`)
     fallback: str = "predicted"
     #: ``"fields"``: record and decode interlaced video field by field (59.94 Hz, every second
     #: row; the motes' bit period one field), on rigs that record fields and heads with
@@ -101,6 +103,7 @@ class CodedStats:
     fallback_nodes: int = 0
     classes: int = 0  #: radio separation: colour classes (rounds)
     round_views: int = 0  #: radio separation: views recorded in rounds
+    fallback_round_views: int = 0  #: fallback "round": views recorded with only the fallback's motes lit
     pause_updates: int = 0  #: radio separation: pause-by-bitmap updates sent
     rounds_s: float = 0.0  #: radio separation: priced field time of the rounds (their lanes and pause updates)
     failed_views: list[str] = field(default_factory=list)

@@ -1,0 +1,125 @@
+"""The fallback round (lever ``fallback: "round"``): the motes left to the fallback blink alone,
+recorded at the survey zoom, before any sequential search; it runs only where it pays."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import fgloc.survey.coded_fallback_round as fallback_round
+from fgloc.camera.intrinsics import CameraIntrinsics
+from fgloc.files.journal import read_journal
+from fgloc.survey.coded import CodedSurvey
+from fgloc.survey.coded_fallback_round import ROUND_PREFIX, blobs_after_round, radius_px, round_pays, round_views
+from fgloc.survey.session import run_survey
+from fgloc.survey.view_planner import coverage
+from tests.test_survey_coded import check_labels, coded_rig, cut_and_resume, opened, parsed, view_records
+
+K = CameraIntrinsics(fx=160.0, fy=160.0, cx=160.0, cy=120.0, width=320, height=240)
+
+
+def test_blobs_after_round_keeps_what_no_round_view_saw_and_adds_the_rounds_own() -> None:
+    before = np.array([(0.05, 0.02), (1.2, 0.0), (-0.1, -0.05), (0.0, 0.6)])
+    after = np.array([(0.07, 0.01)])
+    out = blobs_after_round(K, before, [(0.0, 0.0)], 16.0, after)
+    # (0.05, 0.02) and (-0.1, -0.05) lie well inside the view at (0, 0); 1.2 rad of pan and
+    # 0.6 rad of tilt lie outside its 90 x 74 deg
+    assert out.tolist() == [[1.2, 0.0], [0.0, 0.6], [0.07, 0.01]]
+    assert blobs_after_round(K, before, [], 16.0, after).shape == (5, 2)  # no round view: nothing replaced
+
+
+def test_round_views_hold_every_predicted_direction_with_the_radius_inside_the_image() -> None:
+    rng = np.random.default_rng(4)
+    for trial in range(10):
+        pts = np.column_stack([rng.uniform(-1.5, 1.5, 40), rng.uniform(-0.6, 0.1, 40)])
+        views = round_views(K, pts, 16.0, (0.0, 0.0), (-1.2, 0.4))
+        seen = coverage(K, pts, np.array(views), 16.0 + radius_px(K)).any(axis=0)
+        assert seen.all(), (trial, pts[~seen])
+        assert len(views) < 40  # views, not one per mote
+
+
+def _coded(tmp_path: Path) -> CodedSurvey:
+    rig = parsed(coded_rig(30, 320))
+    _opened, sim = opened(rig)
+    coded = CodedSurvey(rig, sim.open_head, sim.leds, sim)
+    coded.here = {c: (0.0, -0.3) for c in rig.camera_ids}
+    return coded
+
+
+def test_the_round_pays_by_the_searches_it_saves_and_lamps_are_not_saved(tmp_path: Path) -> None:
+    coded = _coded(tmp_path)
+    rng = np.random.default_rng(5)
+    spots = [(float(p), float(t)) for p, t in zip(rng.uniform(-1.0, 1.0, 20), rng.uniform(-0.5, -0.1, 20))]
+    looks = {"cam0": {f"n{k:03d}": [spots[k]] for k in range(20)}, "cam1": {}}
+    one_view = {"cam0": [(0.0, -0.3)]}
+    assert round_pays(coded, one_view, looks, 1)  # 20 searches across the box against one view
+    assert not round_pays(coded, {"cam0": [(0.0, -0.3)] * 6}, looks, 1)  # six recordings cost more
+    few = {"cam0": {"n000": [spots[0]], "n001": [spots[1]]}, "cam1": {}}
+    assert not round_pays(coded, one_view, few, 1)  # two searches cost less than a recording
+    coded.final_lamps = {"cam0": np.array(spots), "cam1": np.zeros((0, 2))}
+    assert not round_pays(coded, one_view, looks, 1)  # every look is at a lamp: the searches stay
+
+
+def _scene(fallback: str, seed: int = 1) -> dict:
+    """60 motes, 30 % of the pairs occluded: the predicted fallback searches (tests/test_coded_fallback_order.py).
+    Seed 4's forced round records four views over both cameras and reads a mote there."""
+    data = coded_rig(60, 320, occlusion=0.3, seed=seed)
+    data["coded"] = {"fallback": fallback}
+    return data
+
+
+def _force_round(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(fallback_round, "round_pays", lambda *args: True)
+
+
+def test_the_round_lights_the_unread_motes_alone_and_every_visible_pair_is_read(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    _force_round(monkeypatch)
+    rig = parsed(_scene("round", seed=4))
+    rig_opened, sim = opened(rig)
+    out = tmp_path / "o"
+    run_survey(rig, out, opened=rig_opened)
+    records = view_records(out / "journal.jsonl")
+    before = [r for r in records if not r["view"].startswith(ROUND_PREFIX)]
+    rounds = [r for r in records if r["view"].startswith(ROUND_PREFIX)]
+    assert rounds, "the forced round records views"
+    starts = [r for r in map(json.loads, (out / "journal.jsonl").read_text().splitlines())
+              if r["type"] == "codes" and r["action"] == "start"]
+    silent = set().union(*(r.get("silent", []) for r in starts))
+    read = {c: {rd["node"] for r in before if r["camera"] == c for rd in r["readings"]} for c in rig.camera_ids}
+    unread = sorted(n for n in rig.node_ids if n not in silent and any(n not in read[c] for c in rig.camera_ids))
+    assert all(r["lit"] == unread for r in rounds)
+    # paused motes are dark: a round view reads lit motes only; here it reads one the camera had not
+    st = read_journal(out / "journal.jsonl")
+    round_obs = [o for o in st.observations.values() if o.view is not None and o.view.startswith(ROUND_PREFIX)]
+    assert round_obs and all(o.node in unread and o.node not in read[o.camera] for o in round_obs)
+    assert all(r["zoom"] == rig.cameras[rig.camera_ids.index(r["camera"])].zoom for r in rounds)
+    assert not sim.scene.visible_pairs() - {(c, n) for (n, c, _) in st.observations}
+    assert check_labels(rig, sim.scene, st, 0.5) > 50
+
+
+def test_the_round_resumes_to_the_uncut_readings(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    _force_round(monkeypatch)
+    records, states = cut_and_resume(parsed(_scene("round", seed=4)), tmp_path, ROUND_PREFIX)
+    lit = {tuple(r["lit"]) for r in records if r["type"] == "view" and r["view"].startswith(ROUND_PREFIX)}
+    assert len(lit) == 1  # one round, the same lit motes in every view
+    for st in states:  # resume_from_cuts checked the readings; the round was recorded once, as planned
+        assert {v for (_c, v, _a) in st.views if v.startswith(ROUND_PREFIX)} == {
+            r["view"] for r in records if r["type"] == "view" and r["view"].startswith(ROUND_PREFIX)}
+
+
+def test_where_the_round_does_not_pay_the_survey_is_the_predicted_one(tmp_path: Path) -> None:
+    results = {}
+    for fallback in ("predicted", "round"):
+        rig = parsed(_scene(fallback))
+        rig_opened, _sim = opened(rig)
+        _survey, runner = run_survey(rig, tmp_path / fallback, opened=rig_opened)
+        st = read_journal(tmp_path / fallback / "journal.jsonl")
+        results[fallback] = (runner.field_time.total, sorted((k, (o.pan, o.tilt)) for k, o in st.observations.items()))
+    assert not [r for r in view_records(tmp_path / "round" / "journal.jsonl") if r["view"].startswith(ROUND_PREFIX)]
+    assert results["round"] == results["predicted"]
+    assert math.isfinite(results["round"][0])
