@@ -43,7 +43,7 @@ def coded_rig(n_nodes: int = 30, width: int = 320, identification: str | None = 
 def levels_rig(n_nodes: int = 12, width: int = 160, **simulation) -> dict:
     """:func:`coded_rig` decoding views with the level decoder alone (lever ``decode: levels``):
     the scenes whose retries, refinement views and continued recordings the tests below cut
-    come from that decoder's misses, which the default light-curve fit reads."""
+    come from that decoder's misses, which the light-curve fit (``decode: fit``) reads."""
     data = coded_rig(n_nodes, width, **simulation)
     data["coded"] = {"decode": "levels"}
     return data

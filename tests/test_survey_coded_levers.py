@@ -134,7 +134,7 @@ def test_bad_coded_settings_are_one_line_and_exit_2(tmp_path, capsys, coded, pro
 def test_coded_settings_defaults_and_rig_values():
     s = coded_settings(parsed(coded_rig(4, width=160)))  # a new survey: the measured fastest levers
     assert (s.retry, s.separate, s.fallback, s.video, s.probe, s.pairs) == (
-        "continue", "zoom", "predicted", "frames", "on", "groups")
+        "continue", "zoom", "round", "frames", "on", "groups")
     s = coded_settings(parsed(lever_rig(4, width=160, retry="continue", separate="radio")))
     assert (s.retry, s.separate) == ("continue", "radio")
     assert coded_settings(parsed(lever_rig(4, width=160, retry="continue")), {"retry": "burst"}).retry == "burst"

@@ -32,9 +32,12 @@ The round asks all of them at once, by code:
    ``lit``), decoded blind like a wide view. With its neighbours dark, a mote that merged
    into a crowd is alone; an occluded one shows nothing.
 5. **What is left.** The camera's unexplained blobs inside a round view are replaced by
-   the round views' own (:func:`blobs_after_round`): the fallback then searches a mote the
-   round did not read only at a blob the round left unexplained (near it, if placed) (a
-   static lamp, a mote that missed the pause), and journals it ``not_found`` without a
+   the round views' own (:func:`blobs_after_round`), less those at a mote the camera read
+   at the survey zoom (:func:`fgloc.survey.coded_ladder.unread`; merged blobs are kept; a
+   reading at a ladder zoom does not count, since at the wide zoom a neighbour a few tenths
+   of a degree away merges with it): the fallback then searches a mote the round did not
+   read only at a blob the round left unexplained (near it, if placed: a static lamp, a
+   mote that missed the pause, lit motes merged), and journals it ``not_found`` without a
    search when there is none.
 
 The codes stop after the round, as before the fallback. Angles radians; pixels OpenCV

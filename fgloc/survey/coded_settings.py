@@ -43,8 +43,8 @@ class CodedSettings:
     #: (:func:`~fgloc.survey.coded_separation.predict_directions`) and looks only at the blobs
     #: within :data:`~fgloc.survey.coded_levers.PREDICTED_RADIUS` of where it must be (none there: not found, no search);
     #: ``"round"``: as ``"predicted"``, after one round in which only the motes it would search blink, recorded
-    #: at the survey zoom where it pays (:mod:`fgloc.survey.coded_fallback_round`)
-    fallback: str = "predicted"
+    #: at the survey zoom where it pays (:mod:`fgloc.survey.coded_fallback_round`; the default)
+    fallback: str = "round"
     #: ``"fields"``: record and decode interlaced video field by field (59.94 Hz, every second
     #: row; the motes' bit period one field), on rigs that record fields and heads with
     #: interlaced video; ``"frames"``: whole frames at 29.97 Hz
