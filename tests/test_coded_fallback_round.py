@@ -123,3 +123,21 @@ def test_where_the_round_does_not_pay_the_survey_is_the_predicted_one(tmp_path: 
     assert not [r for r in view_records(tmp_path / "round" / "journal.jsonl") if r["view"].startswith(ROUND_PREFIX)]
     assert results["round"] == results["predicted"]
     assert math.isfinite(results["round"][0])
+
+
+def test_the_fallback_lever_is_schema_checked_and_a_disagreeing_flag_refused_on_resume(tmp_path: Path, capsys) -> None:
+    from fgloc.core.errors import FglocError
+    from fgloc.files.json_io import check
+    from fgloc.files.rig_config import RigConfigError
+    from fgloc.survey.coded_levers import coded_settings
+    from tests.test_survey_coded import check_lever_refused_on_resume
+
+    data = coded_rig(6, width=160) | {"coded": {"fallback": "round"}}
+    check(data, "rig", "rig.json", RigConfigError)
+    with pytest.raises(RigConfigError, match="coded.fallback"):
+        check(data | {"coded": {"fallback": "rounds"}}, "rig", "rig.json", RigConfigError)
+    assert coded_settings(parsed(coded_rig(6, width=160))).fallback == "round"  # the default
+    with pytest.raises(FglocError, match=r"--coded: fallback: expected one of blobs, predicted, round, got 'x'"):
+        coded_settings(parsed(coded_rig(6, width=160)), {"fallback": "x"})
+    check_lever_refused_on_resume(coded_rig(6, width=160), tmp_path, capsys, "fallback=predicted", "fallback",
+                                  "fallback=round")
