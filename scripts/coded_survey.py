@@ -81,6 +81,12 @@ CodedSurvey.run = _keeping_stats(CodedSurvey.run)  # type: ignore[method-assign]
 _PRICED: dict = {}  # camera -> view kind ("wide", "r1", ...) -> priced lane seconds of the current coded run
 
 
+def view_kind(view: str) -> str:
+    """A view id's kind in the breakdown: ``wide``, a rung (``r1``...), a radio round's class (``s0``...),
+    or ``round`` (the fallback round's ``f<k>``)."""
+    return "wide" if view.startswith("w") else "round" if view.startswith("f") else view.split("-")[0]
+
+
 def _pricing_visits(visit):  # noqa: ANN001, ANN202
     """Wrap ``CodedSurvey._visit``: the camera's priced lane time since its previous view (the
     move, settle, position read, recordings, and a rung's zoom travel before its first tile)
@@ -94,7 +100,7 @@ def _pricing_visits(visit):  # noqa: ANN001, ANN202
         before = before if lane is ops else 0.0  # a barrier (radio separation) starts new lanes
         after = price(ops, self.lane_timing[camera]).total
         last[camera] = (ops, after)
-        kind = "wide" if vid.startswith("w") else vid.split("-")[0]
+        kind = view_kind(vid)
         _PRICED.setdefault(camera, {}).setdefault(kind, 0.0)
         _PRICED[camera][kind] += after - before
         return out
@@ -165,7 +171,7 @@ def breakdown(rig, sim, state) -> dict:  # noqa: ANN001
         kinds: dict[str, list[int]] = {}
         for r in recs:
             v = str(r["view"])
-            kind = "wide" if v.startswith("w") else v.split("-")[0]
+            kind = view_kind(v)
             kinds.setdefault(kind, [0, 0, 0])
             kinds[kind][0 if int(r["attempt"]) == 0 else 1] += 1
             kinds[kind][2] += int(r.get("frames", 0))
