@@ -23,9 +23,10 @@ logger = logging.getLogger("fgloc.survey.coded")  # the coded survey's log, as b
 
 
 def sweep_key(search: tuple[str, Mapping[str, list[tuple[float, float]]]]) -> tuple[int, float, str]:
-    """Order of the sequential searches: nodes with looks by the pan of the first camera's
-    first look (its smallest pan; the search starts there) (one sweep across each camera's box, as most nodes are searched by one camera
-    only), then the others by id. A function of the node's looks alone, so a resume keeps it."""
+    """Order of the sequential searches: nodes with looks by the smallest pan among the first
+    camera's looks, so that each camera sweeps its box once (most nodes are searched by one
+    camera only; each search starts at its look nearest the head, :func:`nearest_look`), then
+    the others by id. A function of the node's looks alone, so a resume keeps it."""
     node, looks = search
     pans = [min(looks[c])[0] for c in sorted(looks) if looks[c]]
     return (0, pans[0], node) if pans else (1, 0.0, node)
@@ -85,7 +86,7 @@ def run_fallback(coded: CodedSurvey, runner: SurveyRunner, pool: ThreadPoolExecu
         logger.info(f"{node}: not decoded by every camera; measured the sequential way")
         coded.clock.begin()
         grids = {c: w.locator.cells for c, w in runner.workers.items()}
-        start_at = {}
+        start_at: dict[str, tuple[float, float]] = {}
         try:
             for cam, worker in runner.workers.items():
                 blobs = looks.get(cam, coded.blobs.get(cam))

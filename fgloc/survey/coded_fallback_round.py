@@ -204,8 +204,8 @@ def run_fallback_round(coded: CodedSurvey, runner: SurveyRunner, pool: ThreadPoo
                 (s.tilt_min, s.tilt_max))]
     if not any(looks.values()):
         return
-    packets = pause_packets({coded.addresses[n] for n in rig.node_ids} - {coded.addresses[n] for n in lit},
-                            range(coded.first, max(coded.addresses.values()) + 1))
+    paused = {coded.addresses[n] for n in rig.node_ids} - {coded.addresses[n] for n in lit}
+    packets = pause_packets(paused, range(coded.first, max(coded.addresses.values()) + 1))
     if not round_pays(coded, views, looks, len(packets)):
         return
     recorded = all((c, f"{ROUND_PREFIX}{k:03d}", 0) in st.views for c, vs in views.items() for k in range(len(vs)))
@@ -215,7 +215,7 @@ def run_fallback_round(coded: CodedSurvey, runner: SurveyRunner, pool: ThreadPoo
                 + ", ".join(f"{c} {len(v)} views" for c, v in views.items()))
     coded.next_stage()  # the pause waits for every camera's ladder
     if codes_running:
-        coded.pause({coded.addresses[n] for n in rig.node_ids} - {coded.addresses[n] for n in lit})
+        coded.pause(paused)
     futures = [pool.submit(_record_round, coded, runner, c, views[c], lit) for c in views]
     pump(futures)
     coded.stats.fallback_round_views += sum(len(v) for v in views.values())
