@@ -160,3 +160,11 @@ def test_radio_separation_plan_by_hand() -> None:
     empty = {"a": [RadioRound(0, [], ())]}
     assert coded_survey_time(views, 100, 20, timing, radio_rounds=empty).time.total == pytest.approx(
         coded_survey_time(views, 100, 20, timing).time.total)
+
+
+def test_a_slew_between_two_heads_takes_pan_the_short_way_round() -> None:
+    from fgloc.survey.clock import Slew
+
+    s = Slew.between((math.radians(170), 0.1), (math.radians(-170), -0.2))
+    assert s.dpan == pytest.approx(math.radians(20)) and s.dtilt == pytest.approx(-0.3)
+    assert Slew.between((0.3, 0.0), (-0.2, 0.4)) == Slew(-0.5, 0.4)

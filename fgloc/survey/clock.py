@@ -160,6 +160,11 @@ class Slew:
     dtilt: float
     phase: str = "slew"
 
+    @classmethod
+    def between(cls, start: tuple[float, float], end: tuple[float, float]) -> Slew:
+        """The slew from head (pan, tilt) ``start`` to ``end``, radians, pan the short way round."""
+        return cls(math.remainder(end[0] - start[0], 2 * math.pi), end[1] - start[1])
+
 
 @dataclass(frozen=True)
 class Settle:

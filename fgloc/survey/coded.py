@@ -72,7 +72,6 @@ move back to where it stopped is not priced). Angles radians, times seconds.
 from __future__ import annotations
 
 import logging
-import math
 import queue
 import time
 from collections.abc import Callable, Sequence
@@ -248,7 +247,7 @@ class CodedSurvey:
         ``head`` its read-back angles if this process read them (None: read them on recording)."""
         worker, lane = runner.workers[camera], self.lanes[camera]
         if here is not None:
-            lane += [Slew(math.remainder(target[0] - here[0], 2 * math.pi), target[1] - here[1]), Settle(),
+            lane += [Slew.between(here, target), Settle(),
                      PositionRead()]
             head = None
         self._head_at[camera] = head

@@ -10,7 +10,6 @@ Nothing here sleeps or changes what the devices do. Angles radians, times second
 
 from __future__ import annotations
 
-import math
 import threading
 from collections.abc import Callable
 from typing import Any
@@ -73,7 +72,7 @@ class ClockedHeadProxy:
 
     def move_to(self, pan: float, tilt: float) -> None:
         last = self._sink.where.get(self._camera, (0.0, 0.0))
-        self._sink.add(self._camera, Slew(math.remainder(pan - last[0], 2 * math.pi), tilt - last[1]), Settle())
+        self._sink.add(self._camera, Slew.between(last, (pan, tilt)), Settle())
         self._head.move_to(pan, tilt)
         self._sink.where[self._camera] = (pan, tilt)
 

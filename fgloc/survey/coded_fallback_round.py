@@ -60,7 +60,7 @@ from fgloc.core.geometry import pan_tilt_bearing
 from fgloc.survey.clock import Frames, PositionRead, Radio, Settle, Slew, Wait, parallel, price
 from fgloc.survey.coded_levers import PREDICTED_RADIUS, blobs_near
 from fgloc.survey.coded_views import distinct_directions
-from fgloc.survey.view_planner import coverage
+from fgloc.survey.view_planner import coverage, plan_views
 
 if TYPE_CHECKING:
     from fgloc.survey.coded import CodedSurvey
@@ -75,8 +75,6 @@ def round_views(intr: CameraIntrinsics, predicted: np.ndarray, margin_px: float,
                 tilt_limits: tuple[float, float]) -> list[tuple[float, float]]:
     """Head (pan, tilt) of views covering every ``predicted`` (M, 2) direction with the
     fallback's radius, plus ``margin_px``, inside the image (``intr`` at the survey zoom, whole frames)."""
-    from fgloc.survey.view_planner import plan_views
-
     return plan_views(intr, np.asarray(predicted, float).reshape(-1, 2), margin_px + radius_px(intr),
                       start=start, tilt_limits=tilt_limits)
 
@@ -117,7 +115,7 @@ def round_pays(coded: CodedSurvey, views: Mapping[str, list[tuple[float, float]]
         ops: list[Any] = []
         here = coded.here[c]
         for target in targets:
-            ops += [Slew(math.remainder(target[0] - here[0], 2 * math.pi), target[1] - here[1]), Settle(),
+            ops += [Slew.between(here, target), Settle(),
                     PositionRead(), Frames(coded.frames)]
             here = target
         lanes.append(price(ops, coded.lane_timing[c]))
@@ -155,7 +153,7 @@ def _searches_s(coded: CodedSurvey, looks: Mapping[str, Mapping[str, list[tuple[
             ops: list[Any] = []
             at = head[c] or nearest_look(cells, None)
             for target in nearest_first(cells, nearest_look(cells, head[c])):
-                ops += [Slew(math.remainder(target[0] - at[0], 2 * math.pi), target[1] - at[1]), Settle()]
+                ops += [Slew.between(at, target), Settle()]
                 at = head[c] = target
             node_lanes.append(price(ops, coded.timing[c]))
         total += price([Radio(unicast=2), Wait(coded.rig.search.led_wait_s)], first).total + parallel(node_lanes).total

@@ -35,7 +35,6 @@ Angles radians; lane times seconds.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from typing import TYPE_CHECKING
@@ -92,7 +91,7 @@ def run_view_major(coded: CodedSurvey, runner: SurveyRunner, pool: ThreadPoolExe
 
     def move(c: str, target: tuple[float, float]) -> None:  # priced now; the head moves on its first recording
         here = coded.here[c]
-        coded.lanes[c] += [Slew(math.remainder(target[0] - here[0], 2 * math.pi), target[1] - here[1]), Settle(),
+        coded.lanes[c] += [Slew.between(here, target), Settle(),
                            PositionRead()]
         coded.here[c] = target
         coded._head_at[c] = None

@@ -69,7 +69,7 @@ def coded_view_ops(views: Sequence[tuple[float, float]], frames_per_view: int, r
     ops: list[Op] = []
     pan, tilt = start
     for p, t in views:
-        ops += [Slew(math.remainder(p - pan, 2 * math.pi), t - tilt), Settle(), PositionRead(),
+        ops += [Slew.between((pan, tilt), (p, t)), Settle(), PositionRead(),
                 Frames(frames_per_view + extend_frames)]
         pan, tilt = p, t
     extra = round(retry_fraction * len(views))
@@ -198,7 +198,7 @@ def view_major_round_time(
             ops: list[Op] = []
             if cam in slot.moves:
                 to = slot.moves[cam]
-                ops += [Slew(math.remainder(to[0] - here[cam][0], 2 * math.pi), to[1] - here[cam][1]), Settle(),
+                ops += [Slew.between(here[cam], to), Settle(),
                         PositionRead()]
                 here[cam] = to
             if cam in slot.records:
