@@ -206,3 +206,43 @@ def test_sliding_windows_report_each_refused_blob_once(monkeypatch: pytest.Monke
     frames = [(i / 30.0, np.zeros((2, 2), np.uint8)) for i in range(66)]
     res = bd.decode_windows(frames, 1 / 30.0, BOOK, INTR, 0.0, 0.0, window=50)
     assert res.readings == () and res.refused == (glint,)
+
+
+def _never_dark_view(second_led: bool, seed: int = 3) -> ViewDecode:
+    """64 x 64 frames (uint8-like DN, noise 1.5): at (30, 32) an LED running book word 5 and,
+    with ``second_led``, a dimmer LED 1.6 px away lit exactly when the first is dark (so the
+    blob is never dark and its light moves); without it, a lamp there, flickering at 100 Hz."""
+    rng = np.random.default_rng(seed)
+    period, n = 1 / 30.0, 62
+    yy, xx = np.mgrid[0:64, 0:64].astype(float)
+
+    def spot(u: float, v: float) -> np.ndarray:
+        return np.exp(-((xx - u) ** 2 + (yy - v) ** 2) / (2 * 1.2 ** 2))
+
+    a, b = spot(30.0, 32.0), spot(31.6, 32.0)
+    bits = BOOK.bits(5)
+    frames = []
+    for i in range(n):
+        t = i * period
+        if second_led:
+            img = 120.0 * a if bits[i % BOOK.length] else 60.0 * b
+        else:
+            img = 120.0 * (1.0 + 0.5 * math.cos(2 * math.pi * 100.0 * t + 0.3)) * a
+        frames.append((t, np.clip(20.0 + img + rng.normal(0.0, 1.5, img.shape), 0, 255)))
+    return decode_view(frames, period, BOOK, CameraIntrinsics.from_fov(64, 64, 10.0), 0.0, 0.0)
+
+
+def test_never_dark_blob_whose_light_moves_is_merged_motes_not_a_lamp() -> None:
+    """A lamp's centroid stays put however it flickers; two motes merged so that one is lit in
+    every sample move it by their separation. Both are refused as never dark, never read; only
+    the lamp's reason names a flickering light (the zoom ladder hands that one to the fallback,
+    fgloc.survey.coded_ladder.never_dark, and chases the merged one)."""
+    from fgloc.survey.coded_ladder import never_dark
+
+    lamp = _never_dark_view(second_led=False)
+    merged = _never_dark_view(second_led=True)
+    assert not lamp.readings and not merged.readings
+    assert [r.kind for r in lamp.refused] == [r.kind for r in merged.refused] == ["rejected"]
+    assert "flickering light" in lamp.refused[0].reason and never_dark(vars(lamp.refused[0]))
+    assert merged.refused[0].reason.startswith("never dark, yet its light moves 1.")  # 1.6 px apart, dimmer LED
+    assert not never_dark(vars(merged.refused[0]))

@@ -49,11 +49,16 @@ FOCUS_PX = 12.0
 #: a refused blob this close (pixels of its own recording) to a reading of the same camera is that mote
 EXPLAINED_PX = 1.5
 _NEVER_DARK = "never dark"
+_MOVES = "its light moves"
 
 
 def never_dark(refused: dict[str, object]) -> bool:
-    """A refused blob that stayed lit in every frame (a static lamp, or motes merged so that one is always on)."""
-    return refused.get("kind") == "rejected" and str(refused.get("reason", "")).startswith(_NEVER_DARK)
+    """A refused blob that stayed lit in every frame with its light in one place: a static lamp
+    (or motes merged closer than the decoder sees them move). Not one whose light moved between
+    its bright and dim samples (:mod:`fgloc.camera.blink_decoder`, step 3): motes merged so
+    that one is always on, which a higher zoom separates."""
+    reason = str(refused.get("reason", ""))
+    return refused.get("kind") == "rejected" and reason.startswith(_NEVER_DARK) and _MOVES not in reason
 
 
 def direction(blob: Blob, intrinsics_at: Callable[[float], CameraIntrinsics]) -> tuple[float, float]:
