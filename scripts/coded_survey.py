@@ -14,7 +14,8 @@ seed; per seed and camera the recordings, frames and priced lane seconds of the 
 each refinement rung, ``r1``, ``r2``, ...: a view's move, settle, position read and recordings, a
 rung's zoom travel with its first tile; the wide pass's unexplained blobs the ladder starts
 from, how many lie at a reading of the same camera and how many at a crowded mote), readings decoded in views and measured by the fallback, mislabelled readings (a
-decoded reading whose nearest visible node bearing is another node's), readings more than
+decoded reading whose nearest visible node bearing is another node's; the two readings of a
+pair-decoded blob judged together, :func:`labels`), readings more than
 0.05 deg from their node's bearing, and the RMS node position error of the joint solve
 (baseline units); with radio separation also the priced rounds alone (their lanes and pause
 updates, ``CodedStats.rounds_s``), colour classes, pause updates and round recordings.
@@ -147,17 +148,45 @@ def rig_for(seed: int, motes: int, width: int, mode: str, fx: float | None = Non
 
 
 def labels(rig, scene, state) -> tuple[int, int, int]:
-    """(decoded readings, mislabelled, more than 0.05 deg off)."""
+    """(decoded readings, mislabelled, more than 0.05 deg off their own node's bearing).
+
+    Mislabelled: another visible node's bearing lies nearer than the reading's own. The two
+    readings of one pair-decoded blob (``partner``, same recording) are judged together: when
+    the nearer node is the partner, they are mislabelled only if the swapped labels fit both
+    readings better (their summed angular errors), since a shift common to the pair (the blob's
+    noise) can carry one reading nearer its partner's mote than its own."""
     decoded = [o for o in state.observations.values() if o.view is not None]
-    wrong = far = 0
-    for o in decoded:
+    partner: dict[tuple[str, str, str], str] = {}  # (camera, view, node) -> its pair partner's node
+    for (cam, vid, _att), rec in state.views.items():
+        by_code = {int(r["code"]): str(r["node"]) for r in rec.get("readings", []) if "code" in r}
+        for r in rec.get("readings", []):
+            if r.get("partner") is not None and int(r["partner"]) in by_code:
+                partner[(cam, vid, str(r["node"]))] = by_code[int(r["partner"])]
+    by_view = {(o.camera, o.view, o.node): o for o in decoded}
+
+    def errors_to_nodes(o) -> dict[str, float]:  # noqa: ANN001
         i = rig.camera_ids.index(o.camera)
         seen = [j for j in range(len(rig.node_ids)) if scene.visible[i, j] and rig.node_ids[j] not in scene.dead]
         app = scene.apparent[i, seen]
         err = np.hypot((np.remainder(o.pan - app[:, 0] + math.pi, 2 * math.pi) - math.pi) * np.cos(app[:, 1]),
                        o.tilt - app[:, 1])
-        wrong += rig.node_ids[seen[int(np.argmin(err))]] != o.node
-        far += math.degrees(float(err.min())) > 0.05
+        return {rig.node_ids[j]: float(e) for j, e in zip(seen, err)}
+
+    wrong = far = 0
+    for o in decoded:
+        err = errors_to_nodes(o)
+        own = err.get(o.node, math.inf)
+        nearest = min(err, key=err.__getitem__)
+        far += math.degrees(own) > 0.05
+        if nearest == o.node:
+            continue
+        mate = partner.get((o.camera, o.view, o.node))
+        q = by_view.get((o.camera, o.view, mate)) if mate == nearest else None
+        if q is not None:
+            q_err = errors_to_nodes(q)
+            if own + q_err.get(q.node, math.inf) <= err[nearest] + q_err.get(o.node, math.inf):
+                continue  # the pair's labels fit better as they are than swapped
+        wrong += 1
     return len(decoded), wrong, far
 
 

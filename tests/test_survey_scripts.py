@@ -3,10 +3,13 @@
 from __future__ import annotations
 
 import json
+import math
 import os
 import subprocess
 import sys
 from pathlib import Path
+
+import numpy as np
 
 from fgloc.files.survey_result import read_result, read_survey
 from tests.test_survey_acceptance import write_rig
@@ -64,3 +67,35 @@ def test_live_survey_rerun_hook(tmp_path):
     else:
         assert run.returncode == 0, run.stderr
         assert (tmp_path / "live.rrd").stat().st_size > 10_000
+
+
+def test_coded_survey_labels_judge_a_pair_decoded_blob_by_both_readings() -> None:
+    """scripts/coded_survey.py's label check: one camera, motes a and b 0.06 deg apart in tilt
+    and c far away. A pair read of a and b shifted together by 0.035 deg (noise common to the
+    blob) puts a's reading nearer b: not mislabelled, the labels fit better as they are. The
+    same readings with the labels swapped are both mislabelled; a lone reading nearer another
+    mote is mislabelled; "far" is measured from the reading's own mote."""
+    from types import SimpleNamespace
+
+    from tests.conftest import load_script
+
+    labels = load_script("coded_survey").labels
+    d = math.radians(1.0)
+    apparent = np.radians(np.array([[[10.0, -5.0], [10.0, -5.06], [20.0, -5.0]]]))
+    rig = SimpleNamespace(camera_ids=["cam0"], node_ids=["a", "b", "c"])
+    scene = SimpleNamespace(visible=np.ones((1, 3), bool), dead=set(), apparent=apparent)
+
+    def state(readings: list[tuple[str, float, float, str | None]]):  # noqa: ANN202 - (node, pan, tilt deg, partner)
+        code = {"a": 0, "b": 1, "c": 2}
+        obs = {(n, "cam0", k): SimpleNamespace(camera="cam0", view="r1-000", node=n, pan=p * d, tilt=t * d)
+               for k, (n, p, t, _) in enumerate(readings)}
+        rec = {"readings": [{"node": n, "code": code[n]} | ({"partner": code[m]} if m else {})
+                            for n, _, t, m in readings]}
+        return SimpleNamespace(observations=obs, views={("cam0", "r1-000", 0): rec})
+
+    shifted = [("a", 10.0, -5.035, "b"), ("b", 10.0, -5.095, "a")]
+    assert labels(rig, scene, state(shifted)) == (2, 0, 0)
+    swapped = [("b", 10.0, -5.0, "a"), ("a", 10.0, -5.06, "b")]
+    assert labels(rig, scene, state(swapped)) == (2, 2, 2)
+    assert labels(rig, scene, state([("a", 10.0, -5.035, None)])) == (1, 1, 0)
+    assert labels(rig, scene, state([("c", 20.0, -5.06, None)])) == (1, 0, 1)
