@@ -28,7 +28,9 @@ from fgloc.files.journal import JournalHeader, JournalState
 from fgloc.survey.coded_ladder import (
     EXPLAINED_PX,
     FOCUS_PX,
+    SEPARATION_PX,
     focused,
+    light_before,
     never_dark,
     read_before,
     retry_helps,
@@ -97,6 +99,37 @@ def test_a_rung_carries_on_only_what_lies_where_it_looked():
     carried, handed = focused([chased], [False], [inside], [True], k)
     assert carried == [inside] and handed == []
     assert focused([], [], [inside], [False], k) == ([], [])
+
+
+def test_a_rung_carries_on_new_light_no_coarser_recording_showed():
+    """A blob away from every chased one is dropped only where a coarser recording showed light
+    (a reading within EXPLAINED_PX of its pixels, a refused blob within SEPARATION_PX); light
+    no coarser recording showed (a faint mote the wide zoom did not detect) is carried on."""
+    k = intrinsics_at()
+    chased, level = blob_at(k, HEAD, 0.0), 1 / 9
+    intr = k(level)
+    scale = intr.fx / k(0.0).fx
+    away = (float(intr.cx) + (FOCUS_PX + 20.0) * scale, float(intr.cy)), HEAD, level  # 32 wide px off
+    wide_u = k(0.0).cx + FOCUS_PX + 20.0
+
+    def views(kind: str, du: float) -> dict:  # the wide view's one item, du wide pixels from the found blob
+        item = {"u": wide_u + du, "v": k(0.0).cy}
+        rec = {"head": list(HEAD), "zoom": 0.0, "readings": [], "refused": []}
+        rec[kind].append(item)
+        return {("cam0", "w000", 0): rec, ("cam0", "r1-000", 0): {"head": list(HEAD), "zoom": level,
+                                                                  "readings": [{"u": 0.0, "v": 0.0}], "refused": []}}
+
+    def carried(v: dict) -> bool:
+        seen = light_before(v, "cam0", 1, k, 0.0)
+        return focused([chased], [False], [away], [False], k, seen)[0] == [away]
+
+    assert carried({})  # nothing before: new light
+    assert not carried(views("readings", EXPLAINED_PX - 0.5))  # that reading's mote, read
+    assert carried(views("readings", EXPLAINED_PX + 1.5))  # a neighbour read beside it: new light
+    assert not carried(views("refused", SEPARATION_PX - 1.0))  # inside a coarser blob: decided there
+    assert carried(views("refused", SEPARATION_PX + 1.0))
+    assert focused([chased], [False], [away], [False], k) == ([], [])  # without ``seen``: dropped, as before
+    assert len(light_before(views("refused", 0.0), "cam0", 2, k, 0.0)[0]) == 2  # rung 1's tiles count for rung 2
 
 
 def test_never_dark_is_the_decoders_steady_light_refusal():

@@ -103,7 +103,7 @@ from fgloc.survey.clock import (
     sum_times,
 )
 from fgloc.survey.coded_clock import SequentialClock
-from fgloc.survey.coded_ladder import Blob, focused, never_dark, read_before, retry_helps, unread
+from fgloc.survey.coded_ladder import Blob, focused, light_before, never_dark, read_before, retry_helps, unread
 from fgloc.survey.coded_radio import pause_motes, start_codes, stop_codes
 from fgloc.survey.coded_readings import field_intrinsics
 from fgloc.survey.coded_recording import Frame, record_view
@@ -396,8 +396,11 @@ class CodedSurvey:
             self.stats.views += len(tiles)
             chased, failed, blobs = blobs, any(r is None for r in last), self.unexplained(last)
             if focus:
+                with runner._state_lock:
+                    seen = light_before(runner.state.views, camera, rung, lambda z: self.intrinsics_at(camera, z),
+                                        zoom0)
                 blobs, lamps = focused(chased, self._dark(camera, chased), blobs, self._dark(camera, blobs),
-                                       lambda z: self.intrinsics_at(camera, z))
+                                       lambda z: self.intrinsics_at(camera, z), seen)
                 handed += lamps
         if focus and not failed:
             blobs = self._unread(runner, camera, blobs, len(self.levels))

@@ -48,6 +48,8 @@ LADDER_MODES = ("climb", "focus")
 FOCUS_PX = 12.0
 #: a refused blob this close (pixels of its own recording) to a reading of the same camera is that mote
 EXPLAINED_PX = 1.5
+#: two LEDs closer than this (pixels of one recording) make one blob there (the decoder's separation)
+SEPARATION_PX = 6.0
 _NEVER_DARK = "never dark"
 _MOVES = "its light moves"
 
@@ -144,12 +146,40 @@ def unread(found: Sequence[Blob], read: np.ndarray, intrinsics_at: Callable[[flo
     return keep
 
 
+def light_before(views: Mapping[tuple[str, str, int], Mapping[str, Any]], camera: str, rung: int,
+                 intrinsics_at: Callable[[float], CameraIntrinsics], survey_zoom: float) -> tuple[np.ndarray, np.ndarray]:
+    """Where ``camera``'s journaled recordings before refinement rung ``rung`` (the wide pass,
+    the radio rounds, the rungs below) showed light: (M, 3) unit bearings of their readings and
+    refused blobs, and (M,) the cosine of the angle each one covers in its own recording: a
+    reading its own LED (:data:`EXPLAINED_PX`), a refused blob every LED merged into it
+    (:data:`SEPARATION_PX`)."""
+    bound = (2, rung, 0)
+    dirs, cos = [], []
+    for (cam, vid, _att), rec in views.items():
+        if cam != camera or not view_order(vid) < bound:
+            continue
+        zoom = float(rec.get("zoom", survey_zoom))
+        intr = intrinsics_at(zoom)
+        head = (float(rec["head"][0]), float(rec["head"][1]))
+        for px, items in ((EXPLAINED_PX, rec.get("readings", [])), (SEPARATION_PX, rec.get("refused", []))):
+            for item in items:
+                if "u" in item:
+                    dirs.append(pan_tilt_bearing(*direction(((float(item["u"]), float(item["v"])), head, zoom),
+                                                            intrinsics_at)))
+                    cos.append(math.cos(px / max(intr.fx, intr.fy)))
+    return np.array(dirs, dtype=float).reshape(-1, 3), np.array(cos, dtype=float)
+
+
 def focused(chased: Sequence[Blob], chased_dark: Sequence[bool], found: Sequence[Blob], found_dark: Sequence[bool],
-            intrinsics_at: Callable[[float], CameraIntrinsics]) -> tuple[list[Blob], list[Blob]]:
+            intrinsics_at: Callable[[float], CameraIntrinsics],
+            seen: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[list[Blob], list[Blob]]:
     """Split ``found`` (the blobs a rung's tiles left unexplained) into (carried on to the next
     rung, handed to the fallback); the rest are dropped (module docstring). ``chased``: the blobs
     the rung's tiles were planned over; ``*_dark``: which of them never went dark
-    (:func:`never_dark`); ``intrinsics_at(zoom)``: the camera's intrinsics at a zoom."""
+    (:func:`never_dark`); ``intrinsics_at(zoom)``: the camera's intrinsics at a zoom; ``seen``:
+    where coarser recordings showed light (:func:`light_before`). A blob away from every chased
+    one is dropped only where a coarser recording showed light; one no coarser recording saw (a
+    faint mote, or a crowd the wide zoom's detector took for no LED) is carried on."""
     if not chased or not found:
         return [], []
     centres = np.array([pan_tilt_bearing(*direction(b, intrinsics_at)) for b in chased])
@@ -161,6 +191,9 @@ def focused(chased: Sequence[Blob], chased_dark: Sequence[bool], found: Sequence
     for blob, lamp in zip(found, found_dark):
         near = centres @ pan_tilt_bearing(*direction(blob, intrinsics_at)) >= reach
         if not near.any():
+            if seen is not None and not bool(np.any(seen[0] @ pan_tilt_bearing(*direction(blob, intrinsics_at))
+                                                    >= seen[1])):
+                carried.append(blob)  # new light: no coarser recording showed any here
             continue  # a coarser view decoded this direction or chases it itself
         (handed if lamp and bool(dark[near].any()) else carried).append(blob)
     return carried, handed
