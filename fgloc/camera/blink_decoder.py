@@ -16,10 +16,7 @@ period, and the :class:`~fgloc.camera.blink_codes.CodeBook`. Steps:
    cancels). The fluxes are split into an off and an on level (two-means); the on-off
    amplitude must exceed ``min_snr`` flux sigmas, the off level must be that of the
    background (a flickering lamp never goes dark; an LED does), and each sample within
-   ``level_band`` x amplitude of its level is a bit, anything between is an erasure. A blob
-   that never goes dark but whose light moves between its bright and dim samples is no lamp
-   but motes merged, one lit in every sample: still rejected as never dark, with that reason
-   (the survey's zoom ladder chases it instead of taking it for a lamp).
+   ``level_band`` x amplitude of its level is a bit, anything between is an erasure.
 4. **Word.** With L the book's length, samples ``i`` and ``i + L`` carry the same bit:
    every bit position needs at least one sample, and all samples of a position must
    agree. The folded word must equal a rotation of a book word **exactly**; with a
@@ -267,28 +264,6 @@ def centroid_spread(us: np.ndarray, vs: np.ndarray) -> tuple[float, np.ndarray]:
     return spread, np.hypot(us - np.median(us), vs - np.median(vs))
 
 
-def _light_moves(big: np.ndarray, bgk: np.ndarray, flux: np.ndarray, valid: np.ndarray, cand: LedDetection,
-                 cfg: DecoderConfig) -> float | None:
-    """How far (px) a never-dark blob's light moves between its bright and its dim samples
-    (the centroids of their mean background-subtracted apertures, split at mid-flux) when that
-    exceeds one LED's centroid spread (``max_centroid_spread_px``), else None. A lamp keeps its
-    centroid however it flickers; motes merged so that one or another is lit in every sample
-    move it by up to their separation as their bits change."""
-    lo, hi = _two_means(flux[valid])
-    bright, dim = valid & (flux > 0.5 * (lo + hi)), valid & (flux <= 0.5 * (lo + hi))
-    if bright.sum() < cfg.min_on_samples or dim.sum() < cfg.min_on_samples:
-        return None
-    r = _APERTURE
-    ys, xs = np.mgrid[-r:r + 1, -r:r + 1]
-    centres = []
-    for sel in (bright, dim):
-        wts = np.clip((big[sel][:, 4:-4, 4:-4] - bgk[sel][:, None, None]).mean(axis=0), 0.0, None)
-        tot = max(float(wts.sum()), 1e-9)
-        centres.append(((wts * xs).sum() / tot, (wts * ys).sum() / tot))
-    moved = math.hypot(centres[0][0] - centres[1][0], centres[0][1] - centres[1][1])
-    return moved if moved > cfg.max_centroid_spread_px else None
-
-
 def read_blob(stack: np.ndarray, valid: np.ndarray, cand: LedDetection, noise_sigma: float,
               cfg: DecoderConfig) -> BlobSamples | RefusedBlob:
     """Steps 3 and 5 of the module docstring for one detected blob: its flux per sample, the
@@ -308,11 +283,6 @@ def read_blob(stack: np.ndarray, valid: np.ndarray, cand: LedDetection, noise_si
         why = f"on-off amplitude {amp:.0f} < {cfg.min_snr} x {noise:.1f}"
     elif abs(off) > cfg.max_off_level * amp + 4.0 * noise:
         why = f"never dark (off level {off:.0f} of amplitude {amp:.0f}): a flickering light"
-    if why is not None and why.startswith("never dark"):
-        moves = _light_moves(big, bgk, flux, valid, cand, cfg)
-        if moves is not None:  # not a lamp: a hint for the survey's zoom ladder (coded_ladder.never_dark)
-            why = (f"never dark, yet its light moves {moves:.2f} px between its bright and dim samples: "
-                   "motes merged, one lit in every sample")
     if why is not None:
         return RefusedBlob(cand.u, cand.v, "rejected", why)
     bits = np.full(n, -1, dtype=np.int8)

@@ -51,16 +51,11 @@ EXPLAINED_PX = 1.5
 #: two LEDs closer than this (pixels of one recording) make one blob there (the decoder's separation)
 SEPARATION_PX = 6.0
 _NEVER_DARK = "never dark"
-_MOVES = "its light moves"
 
 
 def never_dark(refused: dict[str, object]) -> bool:
-    """A refused blob that stayed lit in every frame with its light in one place: a static lamp
-    (or motes merged closer than the decoder sees them move). Not one whose light moved between
-    its bright and dim samples (:mod:`fgloc.camera.blink_decoder`, step 3): motes merged so
-    that one is always on, which a higher zoom separates."""
-    reason = str(refused.get("reason", ""))
-    return refused.get("kind") == "rejected" and reason.startswith(_NEVER_DARK) and _MOVES not in reason
+    """A refused blob that stayed lit in every frame (a static lamp, or motes merged so that one is always on)."""
+    return refused.get("kind") == "rejected" and str(refused.get("reason", "")).startswith(_NEVER_DARK)
 
 
 def direction(blob: Blob, intrinsics_at: Callable[[float], CameraIntrinsics]) -> tuple[float, float]:
