@@ -35,6 +35,7 @@ from fgloc.survey.coded_ladder import (
     read_before,
     retry_helps,
     unread,
+    unseen,
     view_order,
 )
 from fgloc.survey.coded_levers import LEGACY, coded_settings
@@ -101,10 +102,11 @@ def test_a_rung_carries_on_only_what_lies_where_it_looked():
     assert focused([], [], [inside], [False], k) == ([], [])
 
 
-def test_a_rung_carries_on_new_light_no_coarser_recording_showed():
-    """A blob away from every chased one is dropped only where a coarser recording showed light
-    (a reading within EXPLAINED_PX of its pixels, a refused blob within SEPARATION_PX); light
-    no coarser recording showed (a faint mote the wide zoom did not detect) is carried on."""
+def test_light_no_coarser_recording_showed_is_unseen():
+    """A rung's blob away from every chased one is dropped by :func:`focused` (a coarser view
+    decided that direction); :func:`unseen` names those no coarser recording showed light at
+    (no reading within EXPLAINED_PX of its pixels, no refused blob within SEPARATION_PX), which
+    the survey hands to the fallback: a faint mote the wide zoom did not detect."""
     k = intrinsics_at()
     chased, level = blob_at(k, HEAD, 0.0), 1 / 9
     intr = k(level)
@@ -119,16 +121,15 @@ def test_a_rung_carries_on_new_light_no_coarser_recording_showed():
         return {("cam0", "w000", 0): rec, ("cam0", "r1-000", 0): {"head": list(HEAD), "zoom": level,
                                                                   "readings": [{"u": 0.0, "v": 0.0}], "refused": []}}
 
-    def carried(v: dict) -> bool:
-        seen = light_before(v, "cam0", 1, k, 0.0)
-        return focused([chased], [False], [away], [False], k, seen)[0] == [away]
+    def new_light(v: dict) -> bool:
+        return unseen([away], light_before(v, "cam0", 1, k, 0.0), k) == [away]
 
-    assert carried({})  # nothing before: new light
-    assert not carried(views("readings", EXPLAINED_PX - 0.5))  # that reading's mote, read
-    assert carried(views("readings", EXPLAINED_PX + 1.5))  # a neighbour read beside it: new light
-    assert not carried(views("refused", SEPARATION_PX - 1.0))  # inside a coarser blob: decided there
-    assert carried(views("refused", SEPARATION_PX + 1.0))
-    assert focused([chased], [False], [away], [False], k) == ([], [])  # without ``seen``: dropped, as before
+    assert focused([chased], [False], [away], [False], k) == ([], [])
+    assert new_light({})  # nothing before
+    assert not new_light(views("readings", EXPLAINED_PX - 0.5))  # that reading's mote, read
+    assert new_light(views("readings", EXPLAINED_PX + 1.5))  # a neighbour read beside it
+    assert not new_light(views("refused", SEPARATION_PX - 1.0))  # inside a coarser blob: decided there
+    assert new_light(views("refused", SEPARATION_PX + 1.0))
     assert len(light_before(views("refused", 0.0), "cam0", 2, k, 0.0)[0]) == 2  # rung 1's tiles count for rung 2
 
 

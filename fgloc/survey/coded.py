@@ -103,7 +103,16 @@ from fgloc.survey.clock import (
     sum_times,
 )
 from fgloc.survey.coded_clock import SequentialClock
-from fgloc.survey.coded_ladder import Blob, focused, light_before, never_dark, read_before, retry_helps, unread
+from fgloc.survey.coded_ladder import (
+    Blob,
+    focused,
+    light_before,
+    never_dark,
+    read_before,
+    retry_helps,
+    unread,
+    unseen,
+)
 from fgloc.survey.coded_radio import pause_motes, start_codes, stop_codes
 from fgloc.survey.coded_readings import field_intrinsics
 from fgloc.survey.coded_recording import Frame, record_view
@@ -376,6 +385,7 @@ class CodedSurvey:
         zoom = zoom0
         s = self.rig.search_for(camera)
         handed: list[Blob] = []  # ladder "focus": static lamps the fallback searches instead of the next rung
+        fresh: list[Blob] = []  # ladder "focus": light no coarser recording showed, away from what a rung chased
         focus = self.settings.ladder == "focus"
         for rung, level in enumerate(self.levels, start=1):
             if failed:
@@ -399,11 +409,14 @@ class CodedSurvey:
                 with runner._state_lock:
                     seen = light_before(runner.state.views, camera, rung, lambda z: self.intrinsics_at(camera, z),
                                         zoom0)
-                blobs, lamps = focused(chased, self._dark(camera, chased), blobs, self._dark(camera, blobs),
-                                       lambda z: self.intrinsics_at(camera, z), seen)
+                found = blobs
+                blobs, lamps = focused(chased, self._dark(camera, chased), found, self._dark(camera, found),
+                                       lambda z: self.intrinsics_at(camera, z))
                 handed += lamps
+                fresh += [b for b in unseen(found, seen, lambda z: self.intrinsics_at(camera, z))
+                          if b not in blobs and b not in lamps]
         if focus and not failed:
-            blobs = self._unread(runner, camera, blobs, len(self.levels))
+            blobs = self._unread(runner, camera, blobs + fresh, len(self.levels))
         blobs = blobs + handed + (keep or [])
         self.remaining[camera] = int(failed) + len(blobs)
         fov = min(runner.workers[camera].locator.pixels.field_of_view())  # at the survey zoom

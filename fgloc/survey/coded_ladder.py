@@ -165,16 +165,27 @@ def light_before(views: Mapping[tuple[str, str, int], Mapping[str, Any]], camera
     return np.array(dirs, dtype=float).reshape(-1, 3), np.array(cos, dtype=float)
 
 
+def unseen(found: Sequence[Blob], seen: tuple[np.ndarray, np.ndarray],
+           intrinsics_at: Callable[[float], CameraIntrinsics]) -> list[Blob]:
+    """The blobs of ``found`` no coarser recording showed light at (``seen``,
+    :func:`light_before`): a faint mote the wide zoom did not detect, or a crowd its detector
+    took for no LED, turning up in a tile planned for other blobs. :func:`focused` drops such a
+    blob when it lies away from what the rung chased (it assumes a coarser view decided that
+    direction); the survey hands it to the fallback instead, which searches it only where a
+    mote is still unread near it (a glint draws nothing)."""
+    out = []
+    for blob in found:
+        if not bool(np.any(seen[0] @ pan_tilt_bearing(*direction(blob, intrinsics_at)) >= seen[1])):
+            out.append(blob)
+    return out
+
+
 def focused(chased: Sequence[Blob], chased_dark: Sequence[bool], found: Sequence[Blob], found_dark: Sequence[bool],
-            intrinsics_at: Callable[[float], CameraIntrinsics],
-            seen: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[list[Blob], list[Blob]]:
+            intrinsics_at: Callable[[float], CameraIntrinsics]) -> tuple[list[Blob], list[Blob]]:
     """Split ``found`` (the blobs a rung's tiles left unexplained) into (carried on to the next
     rung, handed to the fallback); the rest are dropped (module docstring). ``chased``: the blobs
     the rung's tiles were planned over; ``*_dark``: which of them never went dark
-    (:func:`never_dark`); ``intrinsics_at(zoom)``: the camera's intrinsics at a zoom; ``seen``:
-    where coarser recordings showed light (:func:`light_before`). A blob away from every chased
-    one is dropped only where a coarser recording showed light; one no coarser recording saw (a
-    faint mote, or a crowd the wide zoom's detector took for no LED) is carried on."""
+    (:func:`never_dark`); ``intrinsics_at(zoom)``: the camera's intrinsics at a zoom."""
     if not chased or not found:
         return [], []
     centres = np.array([pan_tilt_bearing(*direction(b, intrinsics_at)) for b in chased])
@@ -186,9 +197,6 @@ def focused(chased: Sequence[Blob], chased_dark: Sequence[bool], found: Sequence
     for blob, lamp in zip(found, found_dark):
         near = centres @ pan_tilt_bearing(*direction(blob, intrinsics_at)) >= reach
         if not near.any():
-            if seen is not None and not bool(np.any(seen[0] @ pan_tilt_bearing(*direction(blob, intrinsics_at))
-                                                    >= seen[1])):
-                carried.append(blob)  # new light: no coarser recording showed any here
             continue  # a coarser view decoded this direction or chases it itself
         (handed if lamp and bool(dark[near].any()) else carried).append(blob)
     return carried, handed
