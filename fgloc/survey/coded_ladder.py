@@ -18,7 +18,9 @@ for a blob no reading explains (:func:`retry_helps`); and (:func:`focused`) a ru
 blob on only when it lies where the rung looked:
 within :data:`FOCUS_PX` pixels (of the chased blob's own, coarser, recording) of a chased blob.
 Any other blob lies in a direction a coarser view already decoded or chases itself (every
-direction is at least 8 px inside some wide view, :mod:`fgloc.survey.view_planner`). A blob
+direction is at least 8 px inside some wide view, :mod:`fgloc.survey.view_planner`), unless
+no coarser recording showed light there (:func:`unseen`: a faint mote or a crowd the wide
+zoom's detector did not report), which the survey hands to the fallback. A blob
 that never goes dark where the blob it refines never went dark either (a zoom step of at
 least 2x split nothing and made nothing blink: a static lamp) is not chased further but
 handed to the fallback (:mod:`fgloc.survey.coded_fallback`), which searches it the

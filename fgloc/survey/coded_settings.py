@@ -74,7 +74,7 @@ class CodedSettings:
     #: view decoding: ``"fit"`` gives a blob the level decoder refuses (its levels or its bits) the
     #: light-curve fit (:mod:`fgloc.camera.blink_word_fit`: motes whose bit edges fall inside the
     #: exposure, motes on an offset background); ``"levels"``: the level decoder alone (the default:
-    #: in a 1000-mote survey the fit read a blob of two motes 0.05 deg apart as one, docs/blink-codes.md)
+    #: the fit is faster at 100 motes but slower at 1000, docs/blink-codes.md)
     decode: str = "levels"
     #: a view's first recording: ``"fixed"`` 3L + 2 frames; ``"adaptive"`` stops at 2L + 2 when
     #: the decode of those leaves no blob unexplained, else goes on to 3L + 2 as one recording
