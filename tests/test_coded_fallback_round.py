@@ -66,9 +66,11 @@ def test_the_round_pays_by_the_searches_it_saves_and_lamps_are_not_saved(tmp_pat
 
 def _scene(fallback: str, seed: int = 1) -> dict:
     """60 motes, 30 % of the pairs occluded: the predicted fallback searches (tests/test_coded_fallback_order.py).
-    Seed 4's forced round records four views over both cameras and reads a mote there."""
+    Seed 4's forced round records four views over both cameras and reads a mote there, with
+    the level decoder and the fixed length (with the default fit and adaptive length it reads
+    nothing new in this scene)."""
     data = coded_rig(60, 320, occlusion=0.3, seed=seed)
-    data["coded"] = {"fallback": fallback}
+    data["coded"] = {"fallback": fallback, "decode": "levels", "length": "fixed"}
     return data
 
 

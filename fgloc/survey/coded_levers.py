@@ -4,7 +4,7 @@ remembered by the journal, and the predicted fallback.
 rig.json ``"coded"`` (optional) and ``fgloc survey --coded KEY=VALUE`` choose them
 (:func:`coded_settings`; a new survey's defaults are :class:`~fgloc.survey.coded_settings.CodedSettings`'s,
 the measured fastest free of mislabels and misses: continue, round (fallback), probe on, pairs groups, short
-view-major rounds, ladder focus, decode levels, length fixed):
+view-major rounds, ladder focus, decode fit, length adaptive):
 
 * ``retry``: ``"burst"`` | ``"continue"`` (a retry goes on recording L frames, sliding windows);
 * ``separate``: ``"zoom"`` | ``"radio"`` (crowded motes paused by colour class first,

@@ -73,14 +73,15 @@ class CodedSettings:
     ladder: str = "focus"
     #: view decoding: ``"fit"`` gives a blob the level decoder refuses (its levels or its bits) the
     #: light-curve fit (:mod:`fgloc.camera.blink_word_fit`: motes whose bit edges fall inside the
-    #: exposure, motes on an offset background); ``"levels"``: the level decoder alone (the default:
-    #: the fit is faster at 100 motes but slower at 1000, docs/blink-codes.md)
-    decode: str = "levels"
+    #: exposure, motes on an offset background; the default, with ``length "adaptive"`` measured
+    #: fastest at 100 and 1000 motes, docs/blink-codes.md "New light and pair labels");
+    #: ``"levels"``: the level decoder alone (the default of journals written before this lever)
+    decode: str = "fit"
     #: a view's first recording: ``"fixed"`` 3L + 2 frames; ``"adaptive"`` stops at 2L + 2 when
     #: the decode of those leaves no blob unexplained, else goes on to 3L + 2 as one recording
-    #: (:func:`fgloc.survey.coded_recording.record_adaptive`). Default ``"fixed"``: the adaptive
-    #: length left 4 visible pairs unread in a 1000-mote survey (docs/blink-codes.md)
-    length: str = "fixed"
+    #: (:func:`fgloc.survey.coded_recording.record_adaptive`; the default, with ``decode "fit"``);
+    #: ``"fixed"``: always ``3L + 2`` (the default of journals written before this lever)
+    length: str = "adaptive"
 
     def view_decoder(self) -> DecoderConfig:
         """The decoder configuration of the views, as ``decode`` chooses."""
