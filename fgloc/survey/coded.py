@@ -103,16 +103,7 @@ from fgloc.survey.clock import (
     sum_times,
 )
 from fgloc.survey.coded_clock import SequentialClock
-from fgloc.survey.coded_ladder import (
-    Blob,
-    focused,
-    light_before,
-    never_dark,
-    read_before,
-    retry_helps,
-    unread,
-    unseen,
-)
+from fgloc.survey.coded_ladder import Blob, focused, light_before, never_dark, read_before, retry_helps, unread, unseen
 from fgloc.survey.coded_radio import pause_motes, start_codes, stop_codes
 from fgloc.survey.coded_readings import field_intrinsics
 from fgloc.survey.coded_recording import Frame, record_view
