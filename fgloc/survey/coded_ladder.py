@@ -173,8 +173,8 @@ def unseen(found: Sequence[Blob], seen: tuple[np.ndarray, np.ndarray],
     :func:`light_before`): a faint mote the wide zoom did not detect, or a crowd its detector
     took for no LED, turning up in a tile planned for other blobs. :func:`focused` drops such a
     blob when it lies away from what the rung chased (it assumes a coarser view decided that
-    direction); the survey hands it to the fallback instead, which searches it only where a
-    mote is still unread near it (a glint draws nothing)."""
+    direction); the survey hands it to the fallback instead (the predicted fallback and its
+    round search it only where a mote is still unread near it: a glint draws no search)."""
     out = []
     for blob in found:
         if not bool(np.any(seen[0] @ pan_tilt_bearing(*direction(blob, intrinsics_at)) >= seen[1])):
