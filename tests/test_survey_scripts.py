@@ -90,7 +90,7 @@ def test_coded_survey_labels_judge_a_pair_decoded_blob_by_both_readings() -> Non
         obs = {(n, "cam0", k): SimpleNamespace(camera="cam0", view="r1-000", node=n, pan=p * d, tilt=t * d)
                for k, (n, p, t, _) in enumerate(readings)}
         rec = {"readings": [{"node": n, "code": code[n]} | ({"partner": code[m]} if m else {})
-                            for n, _, t, m in readings]}
+                            for n, _, _, m in readings]}
         return SimpleNamespace(observations=obs, views={("cam0", "r1-000", 0): rec})
 
     shifted = [("a", 10.0, -5.035, "b"), ("b", 10.0, -5.095, "a")]

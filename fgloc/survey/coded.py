@@ -71,6 +71,7 @@ move back to where it stopped is not priced). Angles radians, times seconds.
 
 from __future__ import annotations
 
+import functools
 import logging
 import queue
 import time
@@ -397,15 +398,13 @@ class CodedSurvey:
             self.stats.views += len(tiles)
             chased, failed, blobs = blobs, any(r is None for r in last), self.unexplained(last)
             if focus:
+                at = functools.partial(self.intrinsics_at, camera)
                 with runner._state_lock:
-                    seen = light_before(runner.state.views, camera, rung, lambda z: self.intrinsics_at(camera, z),
-                                        zoom0)
+                    seen = light_before(runner.state.views, camera, rung, at, zoom0)
                 found = blobs
-                blobs, lamps = focused(chased, self._dark(camera, chased), found, self._dark(camera, found),
-                                       lambda z: self.intrinsics_at(camera, z))
+                blobs, lamps = focused(chased, self._dark(camera, chased), found, self._dark(camera, found), at)
                 handed += lamps
-                fresh += [b for b in unseen(found, seen, lambda z: self.intrinsics_at(camera, z))
-                          if b not in blobs and b not in lamps]
+                fresh += [b for b in unseen(found, seen, at) if b not in blobs and b not in lamps]
         if focus and not failed:
             blobs = self._unread(runner, camera, blobs + fresh, len(self.levels))
         blobs = blobs + handed + (keep or [])

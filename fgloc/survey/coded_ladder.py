@@ -151,20 +151,18 @@ def light_before(views: Mapping[tuple[str, str, int], Mapping[str, Any]], camera
     reading its own LED (:data:`EXPLAINED_PX`), a refused blob every LED merged into it
     (:data:`SEPARATION_PX`)."""
     bound = (2, rung, 0)
-    dirs, cos = [], []
+    dirs, cos = [np.zeros((0, 3))], [np.zeros(0)]
     for (cam, vid, _att), rec in views.items():
         if cam != camera or not view_order(vid) < bound:
             continue
-        zoom = float(rec.get("zoom", survey_zoom))
-        intr = intrinsics_at(zoom)
-        head = (float(rec["head"][0]), float(rec["head"][1]))
+        intr = intrinsics_at(float(rec.get("zoom", survey_zoom)))
         for px, items in ((EXPLAINED_PX, rec.get("readings", [])), (SEPARATION_PX, rec.get("refused", []))):
-            for item in items:
-                if "u" in item:
-                    dirs.append(pan_tilt_bearing(*direction(((float(item["u"]), float(item["v"])), head, zoom),
-                                                            intrinsics_at)))
-                    cos.append(math.cos(px / max(intr.fx, intr.fy)))
-    return np.array(dirs, dtype=float).reshape(-1, 3), np.array(cos, dtype=float)
+            uv = np.array([(float(i["u"]), float(i["v"])) for i in items if "u" in i]).reshape(-1, 2)
+            if len(uv):
+                pan, tilt = pixel_to_pan_tilt(intr, uv, float(rec["head"][0]), float(rec["head"][1]))
+                dirs.append(pan_tilt_bearing(pan, tilt).reshape(-1, 3))
+                cos.append(np.full(len(uv), math.cos(px / max(intr.fx, intr.fy))))
+    return np.concatenate(dirs), np.concatenate(cos)
 
 
 def unseen(found: Sequence[Blob], seen: tuple[np.ndarray, np.ndarray],
