@@ -88,14 +88,15 @@ def test_leftover_peaks_finds_light_off_the_decoded_leds() -> None:
     """Step 7 on a synthetic image: a pair decoded at (40, 30) and (41, 32.3) with a third spot
     5 px beside it (as cam0 saw n077, n097 and n081 at 3x in fields, 100 motes, seed 2): the third's
     peak is refused; nothing without it, nothing when it lies within ``peak_px`` of the pair, when
-    it is dimmer than ``peak_fraction`` of the crowd, or when a reading or a refused blob is there."""
+    it is dimmer than ``peak_fraction`` of the crowd, or when a reading or a refused blob is there.
+    A third LED between the two LEDs of a wide pair is refused too."""
     cfg = PairConfig(max_group=3)
     pair = [_reading(40.0, 30.0), _reading(41.0, 32.3)]
     spots = [(40.0, 30.0, 800.0), (41.0, 32.3, 800.0)]
     third = (38.3, 25.4)
     got = leftover_peaks(_lit(spots + [(*third, 600.0)]), (40.0, 29.0), pair, pair, [], 2.0, cfg)
     assert len(got) == 1 and got[0].kind == "ambiguous" and math.dist((got[0].u, got[0].v), third) < 1.0
-    assert hull_distance(got[0].u, got[0].v, pair) > cfg.peak_px
+    assert min(math.dist((got[0].u, got[0].v), (r.u, r.v)) for r in pair) > cfg.peak_px
     assert leftover_peaks(_lit(spots), (40.0, 29.0), pair, pair, [], 2.0, cfg) == []
     near = (39.2, 28.6)  # 1.5 px off the pair's hull: its own light's shoulder, not another LED
     assert leftover_peaks(_lit(spots + [(*near, 600.0)]), (40.0, 29.0), pair, pair, [], 2.0, cfg) == []
@@ -103,6 +104,15 @@ def test_leftover_peaks_finds_light_off_the_decoded_leds() -> None:
     assert leftover_peaks(faint, (40.0, 29.0), pair, pair, [], 2.0, cfg) == []
     lit = _lit(spots + [(*third, 600.0)])
     assert leftover_peaks(lit, (40.0, 29.0), pair, pair + [_reading(*third)], [], 2.0, cfg) == []
+    # a third LED 2.4 px off the segment between a pair 11 px apart (n453 beside n507 and n386 at
+    # 3x, 1000 motes): inside any hull margin, yet 5 px from either LED, and a peak of its own
+    wide = [_reading(30.0, 30.0), _reading(38.6, 36.8)]
+    between = (31.94, 34.64)
+    assert hull_distance(*between, wide) < cfg.peak_px
+    lit = _lit([(30.0, 30.0, 800.0), (38.6, 36.8, 800.0), (*between, 600.0)])
+    got = leftover_peaks(lit, (34.0, 33.0), wide, wide, [], 2.0, cfg)
+    assert len(got) == 1 and math.dist((got[0].u, got[0].v), between) < 1.0
+    assert leftover_peaks(_lit([(30.0, 30.0, 800.0), (38.6, 36.8, 800.0)]), (34.0, 33.0), wide, wide, [], 2.0, cfg) == []
     assert leftover_peaks(lit, (40.0, 29.0), pair, pair, [RefusedBlob(*third, "rejected", "x")], 2.0, cfg) == []
 
 

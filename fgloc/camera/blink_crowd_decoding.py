@@ -31,8 +31,8 @@ decoders (exact book words, uniqueness checked); this module only chooses where 
    saw nothing left to chase.)
 7. **Light off the LEDs.** A decoded candidate whose refused blobs step 6 dropped may still
    hold another LED, its blob's centroid pulled near the decoded ones: a peak of the lit image
-   (max minus min over the samples) more than ``peak_px`` from the decoded LEDs and from every
-   reading, at least a quarter as bright as the crowd's brightest pixel, is refused as an
+   (max minus min over the samples) more than ``peak_px`` from every decoded LED (the crowd's
+   and every reading's), at least a quarter as bright as the crowd's brightest pixel, is refused as an
    ambiguous blob for the survey to chase (:func:`leftover_peaks`). (At 3x in fields a third
    LED 5 px beside a decoded pair merged into one blob whose centroid lay 0.6 px from the
    pair; the zoom ladder saw nothing left, and the mote was never searched.)
@@ -230,9 +230,12 @@ def leftover_peaks(lit: np.ndarray, at: tuple[float, float], leds: list[DecodedR
     within ``cfg.group_radius_px`` of a decoded crowd's centre ``at`` that no decoded LED
     explains: each a local maximum over its 5 x 5 neighbourhood, at least ``cfg.peak_fraction``
     of the crowd's brightest pixel and ``cfg.peak_sigmas`` noise sigmas above the window's
-    median, more than ``cfg.peak_px`` from the convex hull of the crowd's ``leds`` and from every
-    reading, and not beside a blob still refused. Each is returned as an ambiguous refused blob
-    (at the peak pixel) for the survey to chase."""
+    median, more than ``cfg.peak_px`` from every decoded LED (the crowd's ``leds`` and every
+    reading), and not beside a blob still refused. Each is returned as an ambiguous refused blob
+    (at the peak pixel) for the survey to chase. Distances are to the LEDs themselves, not to
+    their convex hull (step 6's test for a blob's centroid): two spots more than about two spot
+    widths apart leave no peak between them, so a peak between two decoded LEDs is a third
+    (at 3x, 1000 motes, a mote 2.4 px off the segment between a pair 11 px apart)."""
     r = cfg.group_radius_px
     h, w = lit.shape
     u0, v0 = int(round(at[0])), int(round(at[1]))
@@ -251,15 +254,11 @@ def leftover_peaks(lit: np.ndarray, at: tuple[float, float], leds: list[DecodedR
                 continue
             if lit[y, x] < pad[y:y + 5, x:x + 5].max():
                 continue
-            if hull_distance(x, y, leds) <= cfg.peak_px:
+            d = min(math.hypot(rd.u - x, rd.v - y) for rd in leds + readings)
+            if d <= cfg.peak_px or any(math.hypot(rf.u - x, rf.v - y) <= cfg.peak_px for rf in refused + out):
                 continue
-            if any(math.hypot(rd.u - x, rd.v - y) <= cfg.peak_px for rd in readings):
-                continue
-            if any(math.hypot(rf.u - x, rf.v - y) <= cfg.peak_px for rf in refused + out):
-                continue
-            d = hull_distance(x, y, leds)
             out.append(RefusedBlob(float(x), float(y), "ambiguous",
-                                   f"light {d:.1f} px off the LEDs decoded here (another LED?)"))
+                                   f"light {d:.1f} px from the LEDs decoded here (another LED?)"))
     return out
 
 

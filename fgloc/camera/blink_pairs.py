@@ -79,8 +79,8 @@ class PairConfig:
     #: a refused blob more than this many px from the LEDs its candidate decoded to stays refused
     #: (:func:`fgloc.camera.blink_crowd_decoding.crowd_readings`, step 6)
     explain_px: float = 1.5
-    #: a peak of lit light more than this many px from a decoded crowd's LEDs (and from every
-    #: reading) is refused as another LED (step 7 of :mod:`fgloc.camera.blink_crowd_decoding`; inf: off)
+    #: a peak of lit light more than this many px from every decoded LED (a crowd's and every
+    #: reading's) is refused as another LED (step 7 of :mod:`fgloc.camera.blink_crowd_decoding`; inf: off)
     peak_px: float = 2.5
     peak_fraction: float = 0.25  #: ... when at least this fraction of the crowd's brightest pixel
     peak_sigmas: float = 10.0  #: ... and this many noise sigmas above the window's median
