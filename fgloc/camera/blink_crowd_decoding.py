@@ -215,18 +215,23 @@ def crowd_readings(
     drop = {j for gi in done for j in groups[gi]
             if gi not in explained or hull_distance(refused[j].u, refused[j].v, explained[gi]) <= cfg.explain_px}
     left = [rf for k, rf in enumerate(refused) if k not in drop]
-    if explained and cfg.peak_px < math.inf:  # step 7: a peak of light off the decoded LEDs
-        lit = stack[valid].max(axis=0).astype(float) - stack[valid].min(axis=0)
+    if cfg.peak_px < math.inf:  # step 7: a peak of light off the decoded LEDs
+        reach = cfg.group_radius_px + 2
+        h, w = stack.shape[1:3]
         for gi, leds in explained.items():
             if any(j in drop for j in groups[gi]):
-                left += leftover_peaks(lit, centre[gi], leds, every, left, noise_sigma, cfg)
+                x0, y0 = max(int(round(centre[gi][0])) - reach, 0), max(int(round(centre[gi][1])) - reach, 0)
+                crop = stack[:, y0:min(y0 + 2 * reach + 1, h), x0:min(x0 + 2 * reach + 1, w)][valid]
+                lit = crop.max(axis=0).astype(float) - crop.min(axis=0)
+                left += leftover_peaks(lit, centre[gi], leds, every, left, noise_sigma, cfg, origin=(x0, y0))
     return left, every
 
 
 def leftover_peaks(lit: np.ndarray, at: tuple[float, float], leds: list[DecodedReading],
                    readings: list[DecodedReading], refused: list[RefusedBlob], noise_sigma: float,
-                   cfg: PairConfig) -> list[RefusedBlob]:
-    """Step 7: peaks of the lit-difference image ``lit`` (max minus min over the samples, DN)
+                   cfg: PairConfig, origin: tuple[int, int] = (0, 0)) -> list[RefusedBlob]:
+    """Step 7: peaks of the lit-difference image ``lit`` (max minus min over the samples, DN;
+    a crop whose top-left pixel is ``origin`` (u, v) of the view, the whole view by default)
     within ``cfg.group_radius_px`` of a decoded crowd's centre ``at`` that no decoded LED
     explains: each a local maximum over its 5 x 5 neighbourhood, at least ``cfg.peak_fraction``
     of the crowd's brightest pixel and ``cfg.peak_sigmas`` noise sigmas above the window's
@@ -238,22 +243,22 @@ def leftover_peaks(lit: np.ndarray, at: tuple[float, float], leds: list[DecodedR
     (at 3x, 1000 motes, a mote 2.4 px off the segment between a pair 11 px apart)."""
     r = cfg.group_radius_px
     h, w = lit.shape
-    u0, v0 = int(round(at[0])), int(round(at[1]))
+    u0, v0 = int(round(at[0])) - origin[0], int(round(at[1])) - origin[1]
     y0, y1, x0, x1 = max(v0 - r, 0), min(v0 + r + 1, h), max(u0 - r, 0), min(u0 + r + 1, w)
     win = lit[y0:y1, x0:x1]
     if win.size == 0:
         return []
     floor = float(np.median(win))
     top = float(win.max()) - floor
-    pad = np.pad(lit, 2, mode="edge")
     out: list[RefusedBlob] = []
-    for y in range(y0, y1):
-        for x in range(x0, x1):
-            val = float(lit[y, x]) - floor
+    for j in range(y0, y1):
+        for i in range(x0, x1):
+            val = float(lit[j, i]) - floor
             if val < max(cfg.peak_fraction * top, cfg.peak_sigmas * noise_sigma):
                 continue
-            if lit[y, x] < pad[y:y + 5, x:x + 5].max():
+            if lit[j, i] < lit[max(j - 2, 0):j + 3, max(i - 2, 0):i + 3].max():
                 continue
+            x, y = i + origin[0], j + origin[1]
             d = min(math.hypot(rd.u - x, rd.v - y) for rd in leds + readings)
             if d <= cfg.peak_px or any(math.hypot(rf.u - x, rf.v - y) <= cfg.peak_px for rf in refused + out):
                 continue
