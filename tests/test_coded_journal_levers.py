@@ -29,7 +29,7 @@ from fgloc.files.journal import JournalError, JournalHeader, JournalState, read_
 from fgloc.files.json_io import check
 from fgloc.files.rig_config import RigConfigError, parse_rig
 from fgloc.survey.coded import CodedSettings
-from fgloc.survey.coded_levers import CHOICES, LEGACY, coded_settings, settings_record
+from fgloc.survey.coded_levers import CHOICES, LEGACY, LEGACY_LEVELS, coded_settings, settings_record
 from fgloc.survey.session import run_survey
 from tests.test_survey_coded import EXAMPLE, clean_cuts, coded_rig, levels_rig, opened, parsed, view_records
 
@@ -65,20 +65,22 @@ def test_a_new_survey_records_the_measured_fastest_levers(tmp_path):
     rig = parsed(coded_rig(8, width=160))
     run_survey(rig, tmp_path, opened=opened(rig)[0])
     header = read_journal(tmp_path / "journal.jsonl").header
-    assert header.coded == NEW_DEFAULTS | {"levels": [1 / 9, 3 / 9, 1.0]}
+    assert header.coded == NEW_DEFAULTS | {"levels": [2 / 9, 1.0]}  # 3x, then 10x
     assert header.coded == settings_record(CodedSettings())
     recs = view_records(tmp_path / "journal.jsonl")
     assert all(r["probe"] == code_book(8).length + 2 for r in recs if r["attempt"] == 0)  # probe on by default
 
 
-def test_an_old_journal_resumes_with_the_old_defaults(tmp_path):
+def test_an_old_journal_resumes_with_the_old_defaults(tmp_path, monkeypatch):
     """An old writer's journal (header without ``coded``) of a rig without a ``coded`` block:
     cut before a refinement view and resumed with today's defaults in force, it goes on with
-    bursts, no probe, no pairs, the blob fallback, and ends with exactly the readings the old
-    survey takes uninterrupted."""
+    bursts, no probe, no pairs, the blob fallback and the old zoom ladder, and ends with exactly
+    the readings the old survey takes uninterrupted."""
     rig = parsed(coded_rig(12, width=160))
     full = tmp_path / "full"
-    run_survey(rig, full, opened=opened(rig)[0], coded_levers=LEGACY)  # the survey as the old defaults ran it
+    with monkeypatch.context() as m:  # the survey as the old defaults ran it, on the old ladder
+        m.setattr(coded_module, "CodedSettings", OldLadder)
+        run_survey(rig, full, opened=opened(rig)[0], coded_levers=LEGACY)
     lines = lines_of(full / "journal.jsonl")
     header = json.loads(lines[0])
     assert header["coded"]["probe"] == "off"
@@ -99,6 +101,13 @@ def test_an_old_journal_resumes_with_the_old_defaults(tmp_path):
     assert again and all("probe" not in r and not r.get("continued") for r in again)
     assert all(r["frames"] == 3 * code_book(12).length + 2 for r in again)  # every recording a full burst
     assert not any("partner" in x for r in again for x in r["readings"])
+
+
+@dataclass(frozen=True)
+class OldLadder(CodedSettings):
+    """CodedSettings as before the two-rung ladder became the default."""
+
+    levels: tuple[float, ...] = LEGACY_LEVELS
 
 
 @dataclass(frozen=True)
@@ -177,7 +186,7 @@ def test_a_lever_that_disagrees_with_the_journal_is_refused_in_one_line(tmp_path
     assert named in err[0] and str(journal) in err[0] and was in err[0] and now.strip('"') in err[0], err
     assert journal.read_bytes() == before  # nothing written
     # the same values the journal recorded, given explicitly, are no disagreement
-    rig_json.write_text(json.dumps(data | {"coded": {"probe": "on", "levels": [1 / 9, 3 / 9, 1.0]}}))
+    rig_json.write_text(json.dumps(data | {"coded": {"probe": "on", "levels": [2 / 9, 1.0]}}))
     assert main(args + ["--resume", "--coded", "retry=continue"]) == 0
 
 
@@ -187,6 +196,9 @@ def test_an_old_journal_takes_rig_json_and_flag_levers_as_before():
     old = read_journal_header_only(coded=None)
     s = coded_settings(rig, {"pairs": "on"}, old)
     assert {k: getattr(s, k) for k in CHOICES} == LEGACY | {"probe": "on", "pairs": "on"}
+    assert s.levels == LEGACY_LEVELS == (1 / 9, 3 / 9, 1.0) != CodedSettings().levels  # the ladder it climbed
+    no_ladder = read_journal_header_only(coded=dict(NEW_DEFAULTS))  # levers recorded, the ladder not
+    assert coded_settings(parsed(coded_rig(4, width=160)), None, no_ladder).levels == LEGACY_LEVELS
     recorded = read_journal_header_only(coded=NEW_DEFAULTS | {"levels": [0.5, 1.0]})
     s = coded_settings(parsed(coded_rig(4, width=160)), None, recorded)
     assert {k: getattr(s, k) for k in CHOICES} == NEW_DEFAULTS and s.levels == (0.5, 1.0)

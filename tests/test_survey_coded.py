@@ -41,11 +41,13 @@ def coded_rig(n_nodes: int = 30, width: int = 320, identification: str | None = 
 
 
 def levels_rig(n_nodes: int = 12, width: int = 160, **simulation) -> dict:
-    """:func:`coded_rig` decoding views with the level decoder alone (lever ``decode: levels``):
-    the scenes whose retries, refinement views and continued recordings the tests below cut
-    come from that decoder's misses, which the light-curve fit (``decode: fit``) reads."""
+    """:func:`coded_rig` decoding views with the level decoder alone (lever ``decode: levels``)
+    on the three-rung zoom ladder (2x, 4x, 10x; the default before ``[2/9, 1]``): the scenes
+    whose retries, refinement views and continued recordings the tests below cut come from
+    that decoder's misses, which the light-curve fit (``decode: fit``) reads, and from that
+    ladder's tiles."""
     data = coded_rig(n_nodes, width, **simulation)
-    data["coded"] = {"decode": "levels"}
+    data["coded"] = {"decode": "levels", "levels": [1 / 9, 3 / 9, 1.0]}
     return data
 
 

@@ -14,7 +14,7 @@ from fgloc.cli import main
 from fgloc.core.errors import FglocError
 from fgloc.files.journal import read_journal
 from fgloc.survey.clock import CameraTiming
-from fgloc.survey.coded_levers import LEGACY, coded_settings
+from fgloc.survey.coded_levers import LEGACY, LEGACY_LEVELS, coded_settings
 from fgloc.survey.session import run_survey
 from tests.test_survey_coded import check_labels, coded_rig, levels_rig, opened, parsed, view_records
 
@@ -23,9 +23,10 @@ PERIOD = CameraTiming().frame_period_s
 
 def lever_rig(n_nodes: int = 30, width: int = 320, **coded):
     """A coded rig with the old defaults (:data:`LEGACY`: burst, zoom, blobs, frames, probe and
-    pairs off) written out, each lever test turning on its own lever against that baseline."""
+    pairs off; the old ladder :data:`LEGACY_LEVELS`) written out, each lever test turning on its
+    own lever against that baseline."""
     data = coded_rig(n_nodes, width)
-    data["coded"] = LEGACY | coded
+    data["coded"] = LEGACY | {"levels": list(LEGACY_LEVELS)} | coded
     return data
 
 

@@ -4,7 +4,7 @@ remembered by the journal, and the predicted fallback.
 rig.json ``"coded"`` (optional) and ``fgloc survey --coded KEY=VALUE`` choose them
 (:func:`coded_settings`; a new survey's defaults are :class:`~fgloc.survey.coded_settings.CodedSettings`'s,
 the measured fastest free of mislabels and misses: continue, round (fallback), probe on, pairs groups, short
-view-major rounds, ladder focus, decode fit, length adaptive):
+view-major rounds, ladder focus, decode fit, length adaptive, zoom ladder 3x then 10x):
 
 * ``retry``: ``"burst"`` | ``"continue"`` (a retry goes on recording L frames, sliding windows);
 * ``separate``: ``"zoom"`` | ``"radio"`` (crowded motes paused by colour class first,
@@ -25,7 +25,8 @@ view-major rounds, ladder focus, decode fit, length adaptive):
   fit, :mod:`fgloc.camera.blink_word_fit`);
 * ``length``: ``"fixed"`` | ``"adaptive"`` (a first recording stops at 2L + 2 samples when it leaves
   no blob unexplained, :func:`fgloc.survey.coded_recording.record_adaptive`);
-* ``levels``: the refinement zoom ladder, ascending fractions of the optical range.
+* ``levels``: the refinement zoom ladder, ascending fractions of the optical range (default
+  ``[2/9, 1]``: 3x, then 10x).
 
 **Resume rule.** A coded survey's journal header records the levers it started with
 (:func:`settings_record`, header ``coded``). A resume runs with the recorded levers; a rig.json
@@ -35,7 +36,7 @@ flag or file, the lever, both values), never mixed in. A journal without recorde
 :data:`LEGACY` (the defaults before this rule) overridden by rig.json and the flags, exactly as
 it resumed before. A lever added after a journal was written (``rounds``, ``round_order``, ``ladder``, ``decode``, ``length``) and
 so missing from its recorded levers resumes with its :data:`LEGACY` value, the only one the
-survey that wrote it knew.
+survey that wrote it knew; a journal without a recorded ladder climbs :data:`LEGACY_LEVELS`.
 
 Angles radians.
 """
@@ -80,6 +81,8 @@ CHOICES = {"retry": RETRY_MODES, "separate": SEPARATE_MODES, "fallback": FALLBAC
 LEGACY: dict[str, Any] = {"retry": "burst", "separate": "zoom", "fallback": "blobs", "video": "frames", "probe": "off",
                           "pairs": "off", "rounds": "full", "round_order": "class", "ladder": "climb",
                           "decode": "levels", "length": "fixed"}
+#: the zoom ladder of journals that recorded none (the default before ``(2/9, 1)``)
+LEGACY_LEVELS: tuple[float, ...] = (1 / 9, 3 / 9, 1.0)
 PREDICTED_RADIUS = math.radians(3.0)  #: a blob this close to a mote's predicted direction may hide it
 
 
@@ -133,15 +136,14 @@ def coded_settings(rig: RigConfig, overrides: Mapping[str, str] | None = None,
     recorded = None if journal is None else journal.header.coded
     if recorded is not None:  # the levers the survey started with, whatever the defaults are now
         base = replace(CodedSettings(), **{k: recorded.get(k, LEGACY[k]) for k in CHOICES})
-        if "levels" in recorded:
-            base = replace(base, levels=tuple(float(z) for z in recorded["levels"]))
+        base = replace(base, levels=tuple(float(z) for z in recorded.get("levels", LEGACY_LEVELS)))
         for key, (where, value) in explicit.items():
             if value != getattr(base, key):
                 raise FglocError(f"{where}: {journal_path} was started with {key} {_show(getattr(base, key))}, "
                                  f"got {_show(value)} (a resume runs with the journal's levers: drop or "
                                  "match it, or survey into a new directory)")
         return base
-    base = replace(CodedSettings(), **LEGACY) if journal is not None else CodedSettings()
+    base = replace(CodedSettings(), **LEGACY, levels=LEGACY_LEVELS) if journal is not None else CodedSettings()
     return replace(base, **{key: value for key, (_, value) in explicit.items()})
 
 
