@@ -94,26 +94,26 @@ def test_leftover_peaks_finds_light_off_the_decoded_leds() -> None:
     pair = [_reading(40.0, 30.0), _reading(41.0, 32.3)]
     spots = [(40.0, 30.0, 800.0), (41.0, 32.3, 800.0)]
     third = (38.3, 25.4)
-    got = leftover_peaks(_lit(spots + [(*third, 600.0)]), (40.0, 29.0), pair, pair, [], 2.0, cfg)
+    got = leftover_peaks(_lit(spots + [(*third, 600.0)]), (40.0, 29.0), pair, [], 2.0, cfg)
     assert len(got) == 1 and got[0].kind == "ambiguous" and math.dist((got[0].u, got[0].v), third) < 1.0
     assert min(math.dist((got[0].u, got[0].v), (r.u, r.v)) for r in pair) > cfg.peak_px
-    assert leftover_peaks(_lit(spots), (40.0, 29.0), pair, pair, [], 2.0, cfg) == []
+    assert leftover_peaks(_lit(spots), (40.0, 29.0), pair, [], 2.0, cfg) == []
     near = (39.2, 28.6)  # 1.6 px from the nearer LED: its own light's shoulder, not another LED
-    assert leftover_peaks(_lit(spots + [(*near, 600.0)]), (40.0, 29.0), pair, pair, [], 2.0, cfg) == []
+    assert leftover_peaks(_lit(spots + [(*near, 600.0)]), (40.0, 29.0), pair, [], 2.0, cfg) == []
     faint = _lit(spots + [(*third, 100.0)])  # peak under a quarter of the crowd's
-    assert leftover_peaks(faint, (40.0, 29.0), pair, pair, [], 2.0, cfg) == []
+    assert leftover_peaks(faint, (40.0, 29.0), pair, [], 2.0, cfg) == []
     lit = _lit(spots + [(*third, 600.0)])
-    assert leftover_peaks(lit, (40.0, 29.0), pair, pair + [_reading(*third)], [], 2.0, cfg) == []
-    assert leftover_peaks(lit, (40.0, 29.0), pair, pair, [RefusedBlob(*third, "rejected", "x")], 2.0, cfg) == []
+    assert leftover_peaks(lit, (40.0, 29.0), pair + [_reading(*third)], [], 2.0, cfg) == []
+    assert leftover_peaks(lit, (40.0, 29.0), pair, [RefusedBlob(*third, "rejected", "x")], 2.0, cfg) == []
     # a third LED 2.4 px off the segment between a pair 11 px apart (n453 beside n507 and n386 at
     # 3x, 1000 motes): inside any hull margin, yet 5 px from either LED, and a peak of its own
     wide = [_reading(30.0, 30.0), _reading(38.6, 36.8)]
     between = (31.94, 34.64)
     assert hull_distance(*between, wide) < cfg.peak_px
     lit = _lit([(30.0, 30.0, 800.0), (38.6, 36.8, 800.0), (*between, 600.0)])
-    got = leftover_peaks(lit, (34.0, 33.0), wide, wide, [], 2.0, cfg)
+    got = leftover_peaks(lit, (34.0, 33.0), wide, [], 2.0, cfg)
     assert len(got) == 1 and math.dist((got[0].u, got[0].v), between) < 1.0
-    assert leftover_peaks(_lit([(30.0, 30.0, 800.0), (38.6, 36.8, 800.0)]), (34.0, 33.0), wide, wide, [], 2.0, cfg) == []
+    assert leftover_peaks(_lit([(30.0, 30.0, 800.0), (38.6, 36.8, 800.0)]), (34.0, 33.0), wide, [], 2.0, cfg) == []
 
 
 def test_rendered_field_crowds_peaks_only_at_unread_leds() -> None:

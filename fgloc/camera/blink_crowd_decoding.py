@@ -218,25 +218,25 @@ def crowd_readings(
     if cfg.peak_px < math.inf:  # step 7: a peak of light off the decoded LEDs
         reach = cfg.group_radius_px + 2
         h, w = stack.shape[1:3]
-        for gi, leds in explained.items():
+        for gi in explained:
             if any(j in drop for j in groups[gi]):
                 x0, y0 = max(int(round(centre[gi][0])) - reach, 0), max(int(round(centre[gi][1])) - reach, 0)
                 crop = stack[:, y0:min(y0 + 2 * reach + 1, h), x0:min(x0 + 2 * reach + 1, w)][valid]
                 lit = crop.max(axis=0).astype(float) - crop.min(axis=0)
-                left += leftover_peaks(lit, centre[gi], leds, every, left, noise_sigma, cfg, origin=(x0, y0))
+                left += leftover_peaks(lit, centre[gi], every, left, noise_sigma, cfg, origin=(x0, y0))
     return left, every
 
 
-def leftover_peaks(lit: np.ndarray, at: tuple[float, float], leds: list[DecodedReading],
-                   readings: list[DecodedReading], refused: list[RefusedBlob], noise_sigma: float,
+def leftover_peaks(lit: np.ndarray, at: tuple[float, float], readings: list[DecodedReading],
+                   refused: list[RefusedBlob], noise_sigma: float,
                    cfg: PairConfig, origin: tuple[int, int] = (0, 0)) -> list[RefusedBlob]:
     """Step 7: peaks of the lit-difference image ``lit`` (max minus min over the samples, DN;
     a crop whose top-left pixel is ``origin`` (u, v) of the view, the whole view by default)
     within ``cfg.group_radius_px`` of a decoded crowd's centre ``at`` that no decoded LED
     explains: each a local maximum over its 5 x 5 neighbourhood, at least ``cfg.peak_fraction``
     of the crowd's brightest pixel and ``cfg.peak_sigmas`` noise sigmas above the window's
-    median, more than ``cfg.peak_px`` from every decoded LED (the crowd's ``leds`` and every
-    reading), and not beside a blob still refused. Each is returned as an ambiguous refused blob
+    median, more than ``cfg.peak_px`` from every decoded LED (``readings``: the view's, the
+    crowd's among them), and not beside a blob still refused. Each is returned as an ambiguous refused blob
     (at the peak pixel) for the survey to chase. Distances are to the LEDs themselves, not to
     their convex hull (step 6's test for a blob's centroid): two spots more than about two spot
     widths apart leave no peak between them, so a peak between two decoded LEDs is a third
@@ -259,7 +259,7 @@ def leftover_peaks(lit: np.ndarray, at: tuple[float, float], leds: list[DecodedR
             if lit[j, i] < lit[max(j - 2, 0):j + 3, max(i - 2, 0):i + 3].max():
                 continue
             x, y = i + origin[0], j + origin[1]
-            d = min(math.hypot(rd.u - x, rd.v - y) for rd in leds + readings)
+            d = min(math.hypot(rd.u - x, rd.v - y) for rd in readings)
             if d <= cfg.peak_px or any(math.hypot(rf.u - x, rf.v - y) <= cfg.peak_px for rf in refused + out):
                 continue
             out.append(RefusedBlob(float(x), float(y), "ambiguous",
