@@ -12,9 +12,17 @@ import pytest
 
 import fgloc.survey.coded_fallback_round as fallback_round
 from fgloc.camera.intrinsics import CameraIntrinsics
+from fgloc.core.geometry import pan_tilt_bearing
 from fgloc.files.journal import read_journal
 from fgloc.survey.coded import CodedSurvey
-from fgloc.survey.coded_fallback_round import ROUND_PREFIX, blobs_after_round, radius_px, round_pays, round_views
+from fgloc.survey.coded_fallback_round import (
+    ROUND_PREFIX,
+    blobs_after_round,
+    darkened_lamps,
+    radius_px,
+    round_pays,
+    round_views,
+)
 from fgloc.survey.session import run_survey
 from fgloc.survey.view_planner import coverage
 from tests.test_survey_coded import check_labels, coded_rig, cut_and_resume, opened, parsed, view_records
@@ -62,6 +70,40 @@ def test_the_round_pays_by_the_searches_it_saves_and_lamps_are_not_saved(tmp_pat
     assert not round_pays(coded, one_view, few, 1)  # two searches cost less than a recording
     coded.final_lamps = {"cam0": np.array(spots), "cam1": np.zeros((0, 2))}
     assert not round_pays(coded, one_view, looks, 1)  # every look is at a lamp: the searches stay
+
+
+def test_a_lamp_at_two_read_motes_the_round_pauses_is_darkened() -> None:
+    lamps = np.array([(0.10, -0.20), (0.30, -0.20), (0.50, -0.20), (0.70, -0.20), (0.90, -0.20)])
+    radii = np.full(5, 0.004)  # rad
+    near = {  # node -> bearing: two motes 0.002 rad either side of lamps 0-3, one beside lamp 4
+        "a0": (0.098, -0.20), "b0": (0.102, -0.20),
+        "a1": (0.298, -0.20), "b1": (0.302, -0.20),
+        "a2": (0.498, -0.20), "b2": (0.502, -0.20),
+        "a3": (0.690, -0.20), "b3": (0.710, -0.20),  # 0.01 rad off: outside the lamp's radius
+        "a4": (0.899, -0.20),
+    }
+    readings = {n: pan_tilt_bearing(p, t) for n, (p, t) in near.items()}
+    lit = {"a1", "a2", "b2", "a4"}
+    # lamp 0: both paused; lamp 1: one stays lit (it blinks alone); lamp 2: both lit (still merged);
+    # lamp 3: no reading inside; lamp 4: one read mote inside (a lamp beside a mote stays lit)
+    assert darkened_lamps(lamps, radii, readings, lit) == [True, True, False, False, False]
+    assert darkened_lamps(lamps, radii, {}, lit) == [False] * 5
+    assert darkened_lamps(lamps, np.full(5, 0.012), readings, set())[3]  # a wider radius holds lamp 3's pair
+
+
+def test_the_round_pays_where_the_ladders_lamps_are_crowds_it_darkens(tmp_path: Path) -> None:
+    coded = _coded(tmp_path)
+    rng = np.random.default_rng(5)
+    spots = [(float(p), float(t)) for p, t in zip(rng.uniform(-1.0, 1.0, 20), rng.uniform(-0.5, -0.1, 20))]
+    looks = {"cam0": {f"n{k:03d}": [spots[k]] for k in range(20)}, "cam1": {}}
+    one_view = {"cam0": [(0.0, -0.3)]}
+    coded.final_lamps = {"cam0": np.array(spots), "cam1": np.zeros((0, 2))}
+    coded.final_lamp_radii = {"cam0": np.full(20, 0.004), "cam1": np.zeros(0)}
+    pairs = {f"{side}{k:03d}": pan_tilt_bearing(p + d, t) for k, (p, t) in enumerate(spots)
+             for side, d in (("a", -0.002), ("b", 0.002))}  # two read motes in every lamp
+    assert round_pays(coded, one_view, looks, 1, {"cam0": pairs}, set())  # all paused: the looks are saved
+    assert not round_pays(coded, one_view, looks, 1, {"cam0": pairs}, set(pairs))  # all lit: merged still
+    assert not round_pays(coded, one_view, looks, 1)  # no readings: lamps, as before
 
 
 def _scene(fallback: str, seed: int = 1) -> dict:

@@ -104,7 +104,17 @@ from fgloc.survey.clock import (
     sum_times,
 )
 from fgloc.survey.coded_clock import SequentialClock
-from fgloc.survey.coded_ladder import Blob, focused, light_before, never_dark, read_before, retry_helps, unread, unseen
+from fgloc.survey.coded_ladder import (
+    SEPARATION_PX,
+    Blob,
+    focused,
+    light_before,
+    never_dark,
+    read_before,
+    retry_helps,
+    unread,
+    unseen,
+)
 from fgloc.survey.coded_radio import pause_motes, start_codes, stop_codes
 from fgloc.survey.coded_readings import field_intrinsics
 from fgloc.survey.coded_recording import Frame, record_view
@@ -178,6 +188,9 @@ class CodedSurvey:
         self._head_at: dict[str, tuple[float, float] | None] = {}  # camera -> read-back head of its last view
         self.final_blobs: dict[str, np.ndarray] = {}  # camera -> (M, 2) directions of its unexplained blobs
         self.final_lamps: dict[str, np.ndarray] = {}  # camera -> (K, 2) those of them the ladder took for lamps
+        #: camera -> (K,) the angle (radians) two LEDs merge within around each lamp: the decoder's
+        #: separation (coded_ladder.SEPARATION_PX) at the zoom of the recording that handed it
+        self.final_lamp_radii: dict[str, np.ndarray] = {}
         self.here: dict[str, tuple[float, float]] = {}  # camera -> head (pan, tilt) after its last view
         self.wide_records: dict[str, list[dict[str, Any] | None]] = {}
         self._done_views = 0
@@ -412,6 +425,8 @@ class CodedSurvey:
         fov = min(runner.workers[camera].locator.pixels.field_of_view())  # at the survey zoom
         self.final_blobs[camera] = self.blob_directions(camera, blobs)
         self.final_lamps[camera] = self.blob_directions(camera, handed)
+        lamp_intrinsics = [self.intrinsics_at(camera, z) for _uv, _head, z in handed]
+        self.final_lamp_radii[camera] = np.array([SEPARATION_PX / max(i.fx, i.fy) for i in lamp_intrinsics])
         self.blobs[camera] = None if failed else distinct_directions(self.final_blobs[camera], 0.25 * fov)
         self.here[camera] = here
         if zoom != zoom0:

@@ -48,7 +48,7 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Collection, Mapping, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from typing import TYPE_CHECKING, Any
 
@@ -98,15 +98,19 @@ def blobs_after_round(intr: CameraIntrinsics, before: np.ndarray, heads: Sequenc
 
 
 def round_pays(coded: CodedSurvey, views: Mapping[str, list[tuple[float, float]]],
-               looks: Mapping[str, Mapping[str, list[tuple[float, float]]]], pause_packets: int) -> bool:
+               looks: Mapping[str, Mapping[str, list[tuple[float, float]]]], pause_packets: int,
+               readings: Mapping[str, Mapping[str, np.ndarray]] | None = None,
+               lit: Collection[str] = ()) -> bool:
     """Whether the round (one pause update of ``pause_packets`` bitmap packets, then each
     camera's ``views`` from where its head is) is priced below the sequential searches it may
     save: those of ``looks`` (camera -> node -> look directions) less those still left after it,
     the looks at blobs the zoom ladder took for static lamps (``CodedSurvey.final_lamps``: lit
-    in the round too). Searches are priced as the fallback runs them (its sweep order, each
-    camera from its look nearest the head, every look visited) by their LED commands (on and
-    off), LED waits, slews and settles only; frames and centring are left out, so a round
-    that runs costs less than the searches it saves."""
+    in the round too) that the round does not darken (:func:`darkened_lamps`, from the
+    camera's ``readings``, camera -> node -> unit bearing, and the ``lit`` nodes). Searches are
+    priced as the fallback runs them (its sweep order, each camera from its look nearest the
+    head, every look visited) by their LED commands (on and off), LED waits, slews and settles
+    only; frames and centring are left out, so a round that runs costs less than the searches
+    it saves."""
     from fgloc.survey.coded_separation import PAUSE_REPEATS
 
     first = coded.timing[coded.rig.camera_ids[0]]
@@ -121,8 +125,12 @@ def round_pays(coded: CodedSurvey, views: Mapping[str, list[tuple[float, float]]
         lanes.append(price(ops, coded.lane_timing[c]))
     round_s = price([Radio(broadcast=PAUSE_REPEATS * pause_packets)], first).total + parallel(lanes).total
     searches_s = _searches_s(coded, looks)
-    lamps = {c: [pan_tilt_bearing(float(p), float(t)) for p, t in coded.final_lamps.get(c, np.zeros((0, 2)))]
-             for c in looks}
+    lamps: dict[str, list[np.ndarray]] = {}
+    for c in looks:
+        directions = coded.final_lamps.get(c, np.zeros((0, 2)))
+        dark = darkened_lamps(directions, coded.final_lamp_radii.get(c, np.zeros(len(directions))),
+                              (readings or {}).get(c, {}), lit)
+        lamps[c] = [pan_tilt_bearing(float(p), float(t)) for (p, t), gone in zip(directions, dark) if not gone]
     # a static lamp is lit in the round too: the searches' looks at lamps stay
     staying = {c: {n: kept for n, v in by_node.items() if (kept := [d for d in v if _at_any(d, lamps[c])])}
                for c, by_node in looks.items()}
@@ -130,6 +138,25 @@ def round_pays(coded: CodedSurvey, views: Mapping[str, list[tuple[float, float]]
     logger.info(f"fallback round: priced {round_s:.1f} s against the {searches_s:.1f} s of sequential searches "
                 f"it may save (LED, slews and settles alone)")
     return round_s < searches_s
+
+
+def darkened_lamps(lamps: np.ndarray, radii: np.ndarray, readings: Mapping[str, np.ndarray],
+                   lit: Collection[str]) -> list[bool]:
+    """Which of the ``lamps`` ((K, 2) pan, tilt) the round darkens: a never-dark blob with at
+    least two of the camera's ``readings`` (node -> unit bearing) within its radius (``radii``,
+    (K,) radians: the decoder's separation at the zoom that handed it) is motes merged so that
+    one is always on, not a lamp, and with at most one of them ``lit`` in the round it goes dark
+    there (the rest are paused). A blob with fewer readings in it is taken for a static lamp,
+    lit in the round too. At 1000 motes no blob the ladder took for a lamp was one: every one
+    of them lay at two or more read motes (docs/blink-codes.md, "The round in frames")."""
+    nodes = list(readings)
+    bearings = np.array([readings[n] for n in nodes], float).reshape(-1, 3)
+    out = []
+    for (pan, tilt), radius in zip(np.asarray(lamps, float).reshape(-1, 2), np.asarray(radii, float).reshape(-1)):
+        inside = bearings @ pan_tilt_bearing(float(pan), float(tilt)) >= math.cos(float(radius))
+        members = [n for n, yes in zip(nodes, inside) if yes]
+        out.append(len(members) >= 2 and sum(n in lit for n in members) <= 1)
+    return out
 
 
 def _at_any(direction: tuple[float, float], bearings: Sequence[np.ndarray]) -> bool:
@@ -180,7 +207,11 @@ def run_fallback_round(coded: CodedSurvey, runner: SurveyRunner, pool: ThreadPoo
     if predicted is None:
         return
     silent = set().union(*(set(r.get("silent", [])) for r in st.codes if r.get("action") == "start"))
-    read = {c: {str(rd["node"]) for r in records if r["camera"] == c for rd in r["readings"]} for c in cams}
+    readings: dict[str, dict[str, np.ndarray]] = {c: {} for c in cams}  # camera -> node -> bearing of its reading
+    for r in records:
+        for rd in r["readings"]:
+            readings[r["camera"]].setdefault(str(rd["node"]), pan_tilt_bearing(float(rd["pan"]), float(rd["tilt"])))
+    read = {c: set(readings[c]) for c in cams}
     lit = sorted(n for n in rig.node_ids if n not in silent and any(n not in read[c] for c in cams))
     looks: dict[str, dict[str, list[tuple[float, float]]]] = {}  # camera -> node -> the fallback's looks
     views = {}
@@ -204,7 +235,7 @@ def run_fallback_round(coded: CodedSurvey, runner: SurveyRunner, pool: ThreadPoo
         return
     paused = {coded.addresses[n] for n in rig.node_ids} - {coded.addresses[n] for n in lit}
     packets = pause_packets(paused, range(coded.first, max(coded.addresses.values()) + 1))
-    if not round_pays(coded, views, looks, len(packets)):
+    if not round_pays(coded, views, looks, len(packets), readings, set(lit)):
         return
     recorded = all((c, f"{ROUND_PREFIX}{k:03d}", 0) in st.views for c, vs in views.items() for k in range(len(vs)))
     if not codes_running and not recorded:
