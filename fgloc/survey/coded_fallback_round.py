@@ -22,8 +22,8 @@ The round asks all of them at once, by code:
    left no blob unexplained, takes no part.
 2. **Whether.** The round runs only when its price on the survey clock (one pause update,
    then each camera's views on its lane; the longest lane) is below that of the sequential
-   searches it may save, priced by their LED commands, slews and settles alone
-   (:func:`round_pays`).
+   searches it may save, priced by their LED commands, slews and settles alone, less the
+   looks at lamps the round leaves lit (:func:`round_pays`, :func:`darkened_lamps`).
 3. **Pause.** One pause-by-bitmap update pauses every mote but the *lit* ones: every mote
    (silent ones excepted) that some camera has not read.
 4. **Views.** Each camera records, at the survey zoom, views covering the predicted
@@ -147,8 +147,9 @@ def darkened_lamps(lamps: np.ndarray, radii: np.ndarray, readings: Mapping[str, 
     (K,) radians: the decoder's separation at the zoom that handed it) is motes merged so that
     one is always on, not a lamp, and with at most one of them ``lit`` in the round it goes dark
     there (the rest are paused). A blob with fewer readings in it is taken for a static lamp,
-    lit in the round too. At 1000 motes no blob the ladder took for a lamp was one: every one
-    of them lay at two or more read motes (docs/blink-codes.md, "The round in frames")."""
+    lit in the round too. At 1000 motes (a scene without static lights) every blob the ladder
+    took for a lamp lay within 0.16 deg of two or more visible motes (docs/blink-codes.md,
+    "Crowds the ladder took for lamps")."""
     nodes = list(readings)
     bearings = np.array([readings[n] for n in nodes], float).reshape(-1, 3)
     out = []
