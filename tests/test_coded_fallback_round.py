@@ -58,12 +58,17 @@ def _coded(tmp_path: Path) -> CodedSurvey:
     return coded
 
 
-def test_the_round_pays_by_the_searches_it_saves_and_lamps_are_not_saved(tmp_path: Path) -> None:
+def _searches_at_spots(tmp_path: Path) -> tuple[CodedSurvey, list[tuple[float, float]], dict, dict]:
+    """A survey's pricing state, 20 spots across cam0's box with one search look each, and one round view."""
     coded = _coded(tmp_path)
     rng = np.random.default_rng(5)
     spots = [(float(p), float(t)) for p, t in zip(rng.uniform(-1.0, 1.0, 20), rng.uniform(-0.5, -0.1, 20))]
     looks = {"cam0": {f"n{k:03d}": [spots[k]] for k in range(20)}, "cam1": {}}
-    one_view = {"cam0": [(0.0, -0.3)]}
+    return coded, spots, looks, {"cam0": [(0.0, -0.3)]}
+
+
+def test_the_round_pays_by_the_searches_it_saves_and_lamps_are_not_saved(tmp_path: Path) -> None:
+    coded, spots, looks, one_view = _searches_at_spots(tmp_path)
     assert round_pays(coded, one_view, looks, 1)  # 20 searches across the box against one view
     assert not round_pays(coded, {"cam0": [(0.0, -0.3)] * 6}, looks, 1)  # six recordings cost more
     few = {"cam0": {"n000": [spots[0]], "n001": [spots[1]]}, "cam1": {}}
@@ -92,11 +97,7 @@ def test_a_lamp_at_two_read_motes_the_round_pauses_is_darkened() -> None:
 
 
 def test_the_round_pays_where_the_ladders_lamps_are_crowds_it_darkens(tmp_path: Path) -> None:
-    coded = _coded(tmp_path)
-    rng = np.random.default_rng(5)
-    spots = [(float(p), float(t)) for p, t in zip(rng.uniform(-1.0, 1.0, 20), rng.uniform(-0.5, -0.1, 20))]
-    looks = {"cam0": {f"n{k:03d}": [spots[k]] for k in range(20)}, "cam1": {}}
-    one_view = {"cam0": [(0.0, -0.3)]}
+    coded, spots, looks, one_view = _searches_at_spots(tmp_path)
     coded.final_lamps = {"cam0": np.array(spots), "cam1": np.zeros((0, 2))}
     coded.final_lamp_radii = {"cam0": np.full(20, 0.004), "cam1": np.zeros(0)}
     pairs = {f"{side}{k:03d}": pan_tilt_bearing(p + d, t) for k, (p, t) in enumerate(spots)
