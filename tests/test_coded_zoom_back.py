@@ -125,3 +125,28 @@ def test_a_zoomed_camera_zooms_back_before_its_first_fallback_search_priced_ther
     owed = max(price([Zoom(cam.zoom - last_zoom[cam.id])], timing[cam.id]).total
                for cam in rig.cameras if cam.id in zoomed)
     assert node_time[0]["phases"].get("zoom", 0.0) == pytest.approx(owed) and owed > 0
+
+
+def test_a_survey_resumed_after_the_ladder_still_prices_the_owed_zoom_back(tmp_path) -> None:
+    """A resumed survey opens its heads anew; the zoom back the ladder left owed is still priced
+    before the head's next operation (a reopened head used to drop it): the zoom its fallback
+    searches price equals the uncut survey's. Scene: 60 motes, 40 % of the pairs occluded
+    (tests/test_coded_fallback_order.py), whose fallback searches with a camera that ended zoomed in."""
+    data = coded_rig(60, 320, occlusion=0.4, seed=2)
+    data["coded"] = {"fallback": "predicted", "decode": "levels", "length": "fixed", "ladder": "climb"}
+    rig = parsed(data)
+    full, cut = tmp_path / "full", tmp_path / "cut"
+    run_survey(rig, full, opened=opened(rig)[0])
+    lines = (full / "journal.jsonl").read_text().splitlines()
+    stop = next(k for k, line in enumerate(lines) if '"type":"codes"' in line and '"stop"' in line)
+    cut.mkdir()
+    (cut / "journal.jsonl").write_text("\n".join(lines[:stop]) + "\n")  # killed after the ladder's last view
+    run_survey(rig, cut, opened=opened(rig)[0], resume=True)
+
+    def fallback_zoom(path) -> float:
+        return sum(float(r["phases"].get("zoom", 0.0)) for r in read_journal(path / "journal.jsonl").field_times
+                   if r.get("scope") == "fallback_node")
+
+    owed = fallback_zoom(full)
+    assert owed > 0, "the scene should leave a zoom back owed to a fallback search"
+    assert fallback_zoom(cut) == pytest.approx(owed)

@@ -128,7 +128,8 @@ class CameraWorker:
             except Exception:  # noqa: BLE001 - a broken link may fail to close; we are replacing it
                 pass
         head = self.open_head()
-        self.before_next = None  # a reopened head is set to the survey zoom below
+        # an owed operation (the coded survey's zoom back) stays owed: it still runs, and is
+        # priced, before the next operation (a resumed survey opens its heads anew)
         try:
             head.set_zoom(self.zoom)  # the zoom the intrinsics were calibrated at
         except BaseException:
