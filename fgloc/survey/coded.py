@@ -441,8 +441,8 @@ class CodedSurvey:
         zoom0 = self.survey_zoom[camera]
 
         def back(head: PanTiltHead) -> None:
+            head.set_zoom(zoom0)  # first: a zoom that fails is retried (on a reopened head), priced once
             self.clock.sink.add(camera, Zoom(zoom0 - zoom))  # recorded only inside a priced node
-            head.set_zoom(zoom0)
 
         runner.workers[camera].before_next = back
         self.owed_zoom[camera] = zoom
