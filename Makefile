@@ -16,9 +16,8 @@ $(STAMP): pyproject.toml
 demo: $(STAMP)
 	$(VENV)/bin/fgloc demo -o out
 
-# two workers (pytest-xdist): the suite in about 4 min on a 2-core machine instead of about 8 (measured side by side)
 test: lint
-	$(PY) -m pytest -n 2
+	$(PY) -m pytest
 
 # Static checks on the installed layout (a plain, non-editable install into build/pkg):
 # the wheel's only top-level package is fgloc, the old names do not import, the
