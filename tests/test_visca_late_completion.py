@@ -142,3 +142,52 @@ def test_power_drive_and_version_through_the_driver() -> None:
         head.stop()
         pan, tilt = head.position_counts()
         assert 52 * 14.4 * 0.15 < pan < 52 * 14.4 * 0.5 and tilt == 0
+
+
+class _StallOnce:
+    """The head's real serial link, but the host stalls once: the first ``receive`` after
+    :meth:`arm` sleeps ``seconds`` and reads nothing, so the driver's ACK wait runs out while the
+    camera goes on working (what a descheduled process or a slow USB-serial adapter does)."""
+
+    def __init__(self, link) -> None:
+        self.link, self.armed = link, 0.0
+
+    def arm(self, seconds: float) -> None:
+        self.armed = seconds
+
+    def receive(self, timeout: float):
+        if self.armed:
+            time.sleep(self.armed)
+            self.armed = 0.0
+            return None
+        return self.link.receive(timeout)
+
+    def __getattr__(self, name: str):
+        return getattr(self.link, name)
+
+
+@pytest.mark.parametrize("stall", [0.15, 0.6], ids=["resend-interrupts-the-move", "camera-runs-the-move-twice"])
+def test_a_resend_after_a_late_ack_never_leaves_the_driver_one_reply_behind(stall: float) -> None:
+    """The host stalls past the ACK timeout, so the driver resends a move the camera already got:
+    the camera runs it twice, and two ACKs and two Completions come back. Either the resend
+    interrupts the first run (its Completion comes at once, the head half-way: stall 0.15 s of a
+    0.47 s move), or the first run is over before the resend arrives (stall 0.6 s) and the
+    resend's ACK and Completion are still on the wire after the move returns. Neither may be
+    taken for a later command's: every move returns with the head at its target, and
+    no sooner than the head can get there."""
+    with ViscaSerialTwin(time_scale=1.0) as twin, _head(twin) as head:
+        head.position_counts()
+        link = _StallOnce(head.session.link)
+        head.session.link = link
+        head.settings.pan_speed = 0x0C  # 22 deg/s: 150 counts take 0.47 s
+        start = head.read_counts_once()
+        link.arm(stall)
+        for target in [(150, 0), (0, 0), (150, 0), (300, 0)]:  # no inquiry between: moves only
+            t0 = time.monotonic()
+            head.move_to_counts(*target)
+            took = time.monotonic() - t0
+            pose = twin.emulator.pose()  # the camera's own state, read without the driver
+            assert (pose.pan_counts, pose.tilt_counts) == target
+            assert took >= abs(target[0] - start[0]) / 14.4 / 22.0 - 0.02
+            start = target
+        assert head.session.stats.retries >= 1

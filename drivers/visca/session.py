@@ -13,7 +13,16 @@ cancelled (Sony: no Completion follows a cancel, but a firmware that sends it an
 not fool us). For such a socket the session opens a *stray window* (until the abandoned
 command's deadline plus its budget, :attr:`ViscaSession.stray`); a Completion on it inside
 the window is taken only if the command's ``confirm()`` check (the head is at the target)
-holds, otherwise it is counted in ``stats.stray`` and the wait goes on. A link whose replies
+holds, otherwise it is counted in ``stats.stray`` and the wait goes on.
+
+A resend after an ACK timeout is the other source of strays: the first send may have reached the
+camera (the host stalled, or only the ACK was late), which then runs the command twice and
+answers twice. The ACK the driver reads may then be the first send's, and its Completion may come
+early (the resend interrupted the move) or the resend's ACK and Completion may still be on the wire
+after the command returned, where the next command would take them for its own and return before
+the head moved: one reply behind for every later command. So after such a resend a Completion on
+either socket counts only if ``confirm()`` holds, and once the command is done a power inquiry
+drains the wire: its answer comes after every reply the camera sent before it. A link whose replies
 carry their request's tag (VISCA over IP: the sequence number) already drops every reply to an
 earlier request, so over such a link no stray window is opened.
 """
@@ -28,7 +37,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Protocol, TypeVar
 
 from fgloc.core.retry import RetryPolicy
-from fgloc.drivers.visca.codec import ReplyKind, cmd_address_set, cmd_if_clear, parse_reply
+from fgloc.drivers.visca.codec import ReplyKind, cmd_address_set, cmd_if_clear, cmd_power_inquiry, parse_reply
 from fgloc.drivers.visca.errors import (
     CommandBufferFull,
     ViscaDisconnected,
@@ -229,16 +238,19 @@ class ViscaSession:
         """Send, wait for ACK (``ack`` s), then for the Completion on that socket; timeouts resend."""
         t = self.timeouts
         acked = True  # a resend after an ACKed attempt is a new message, not a retransmission
+        echoed = False  # a send whose ACK we never read may still be run by the camera (module doc)
 
         def attempt(n: int) -> None:
-            nonlocal acked
-            self._send(packet, retransmit=n > 0 and not acked)
+            nonlocal acked, echoed
+            retransmit = n > 0 and not acked
+            echoed = echoed or (retransmit and not getattr(self.link, "tags_replies", False))
+            self._send(packet, retransmit=retransmit)
             acked = False
             socket = self._await_ack(name)
             acked = True
             acked_at = time.monotonic()
             try:
-                self._await_completion(socket, completion_timeout, name, confirm)
+                self._await_completion(socket, completion_timeout, name, confirm, echoed)
             except ViscaTimeout:  # the camera may still send this command's Completion later
                 if not getattr(self.link, "tags_replies", False):
                     until = acked_at + 2 * completion_timeout
@@ -252,6 +264,16 @@ class ViscaSession:
             return t.buffer_full_wait if isinstance(error, CommandBufferFull) else 0.0
 
         RetryPolicy(t.retries + 1, retryable, wait).call(attempt, self._count_retry)
+        if echoed:
+            self._drain(name)
+
+    def _drain(self, name: str) -> None:
+        """After a resend: a power inquiry, whose answer comes after every reply the camera sent
+        before it, so the ACK and Completion of a send we never had an answer to are read here
+        (counted stale) and not taken by the next command."""
+        log.info("camera %d: %s was resent after a late ACK; draining the replies to the first send",
+                 self.address, name)
+        self._inquiry(cmd_power_inquiry(self.address), 1, "power inquiry (drain)", nibbles=False)
 
     def _await_ack(self, name: str) -> int:
         """The socket of the ACK; ViscaTimeout after ``timeouts.ack`` s, the error class for an error reply."""
@@ -268,28 +290,35 @@ class ViscaSession:
             self.stats.stale += 1
 
     def _await_completion(self, socket: int, timeout: float, name: str,
-                          confirm: Callable[[], bool] | None = None) -> None:
+                          confirm: Callable[[], bool] | None = None, echoed: bool = False) -> None:
         """The Completion (or error) on ``socket`` within ``timeout`` s; other sockets' packets are stale,
-        and a Completion in the socket's stray window counts only if ``confirm()`` holds."""
+        and a Completion in the socket's stray window counts only if ``confirm()`` holds. When
+        ``echoed`` (the command was resent after a send we had no ACK to) the ACKed socket may be the
+        first send's, so with a ``confirm`` a Completion on any socket counts if ``confirm()`` holds."""
         deadline = time.monotonic() + timeout
         while True:
             reply = self._next(deadline)
             if reply is None:
                 self.stats.timeouts += 1
                 raise ViscaTimeout(f"no completion from camera {self.address} for {name} within {timeout:.1f} s")
-            if reply.socket != socket or reply.kind not in (ReplyKind.COMPLETION, ReplyKind.ERROR):
+            ours = reply.socket == socket or (echoed and confirm is not None)
+            if not ours or reply.kind not in (ReplyKind.COMPLETION, ReplyKind.ERROR):
                 self.stats.stale += 1
                 continue
             if reply.kind is ReplyKind.COMPLETION:
-                if self._believe(socket, confirm, name):
+                if self._believe(reply.socket, confirm, name, echoed):
                     return
+                continue
+            if reply.socket != socket:  # an error of the first send's socket: the resend's answer may follow
+                self.stats.stale += 1
                 continue
             raise error_for(reply.error_code, reply.socket, name)
 
-    def _believe(self, socket: int, confirm: Callable[[], bool] | None, name: str) -> bool:
-        """Is a Completion on ``socket`` ours? Yes outside a stray window; inside, if ``confirm()`` holds."""
+    def _believe(self, socket: int, confirm: Callable[[], bool] | None, name: str, echoed: bool = False) -> bool:
+        """Is a Completion on ``socket`` ours? Yes outside a stray window; inside (or after a resend,
+        ``echoed``) if ``confirm()`` holds."""
         until = self.stray.get(socket)
-        if until is None or time.monotonic() >= until:
+        if not echoed and (until is None or time.monotonic() >= until):
             self.stray.pop(socket, None)
             return True
         if confirm is None:
@@ -302,7 +331,7 @@ class ViscaSession:
         if not ok:
             self.stats.stray += 1
             log.warning("camera %d: ignoring a Completion on socket %d that is not %s's (a stray one of an "
-                        "abandoned or cancelled command)", self.address, socket, name)
+                        "abandoned, cancelled or resent command)", self.address, socket, name)
         return ok
 
     def _inquiry(self, packet: bytes, expect_len: int, name: str, nibbles: bool = True) -> bytes:
