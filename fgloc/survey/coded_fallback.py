@@ -81,21 +81,14 @@ def run_fallback(coded: CodedSurvey, runner: SurveyRunner, pool: ThreadPoolExecu
             st.done.add(node)
             continue
         searches.append((node, looks))
+    searches = search_unplaced_together(coded, runner, pool, searches, silent)
     for node, looks in sorted(searches, key=sweep_key):
         coded.stats.fallback_nodes += 1
         logger.info(f"{node}: not decoded by every camera; measured the sequential way")
         coded.clock.begin()
         grids = {c: w.locator.cells for c, w in runner.workers.items()}
-        start_at: dict[str, tuple[float, float]] = {}
         try:
-            for cam, worker in runner.workers.items():
-                blobs = looks.get(cam, coded.blobs.get(cam))
-                if node not in silent and blobs is not None:
-                    # a mote that blinks its code and was not decoded is in a blob no reading
-                    # explains (or not in view): look there only, not over the whole grid
-                    worker.locator.cells = [worker.locator.clamp(p, t) for p, t in blobs]
-                if node not in silent and blobs:  # from its look nearest the head, not the last reading
-                    start_at[cam] = nearest_look(worker.locator.cells, worker.locator.last_look)
+            start_at = aim_at_looks(coded, runner, looks, node in silent)
             runner.run_node(node, pool, check_misses=False, start_at=start_at)
         finally:
             node_time = coded.clock.end()
@@ -105,3 +98,63 @@ def run_fallback(coded: CodedSurvey, runner: SurveyRunner, pool: ThreadPoolExecu
         coded.fallback = coded.fallback + node_time
         if runner.on_progress is not None:
             runner.on_progress(coded.progress(runner, total, total, t0))
+
+
+def aim_at_looks(coded: CodedSurvey, runner: SurveyRunner, looks: Mapping[str, list[tuple[float, float]]],
+                 silent: bool) -> dict[str, tuple[float, float]]:
+    """Point each camera's search at ``looks[camera]`` (else at every blob it left unexplained):
+    a mote that blinks its code and was not decoded is in such a blob, or not in view. A
+    ``silent`` mote (never confirmed its code) keeps the whole grid. Returns where each
+    camera's search starts (its look nearest the head). The caller restores the grids."""
+    start_at: dict[str, tuple[float, float]] = {}
+    for cam, worker in runner.workers.items():
+        blobs = looks.get(cam, coded.blobs.get(cam))
+        if not silent and blobs is not None:
+            worker.locator.cells = [worker.locator.clamp(p, t) for p, t in blobs]
+        if not silent and blobs:  # from its look nearest the head, not the last reading
+            start_at[cam] = nearest_look(worker.locator.cells, worker.locator.last_look)
+    return start_at
+
+
+def search_unplaced_together(coded: CodedSurvey, runner: SurveyRunner, pool: ThreadPoolExecutor,
+                           searches: list[tuple[str, dict[str, list[tuple[float, float]]]]],
+                           silent: set[str]) -> list[tuple[str, dict[str, list[tuple[float, float]]]]]:
+    """Motes no camera placed (no looks: each camera would search every blob it left
+    unexplained, the same looks for each) are searched together first: all of a group lit at
+    once, each camera looks once. A camera that sees no light records every lit mote of the
+    group not found; the others search them one by one as before. Groups are the motes that
+    confirmed their code and need the same cameras, two or more. Returns the searches left."""
+    st = runner.state
+    groups: dict[tuple[str, ...], list[str]] = {}
+    for node, looks in searches:
+        if not looks and node not in silent:
+            need = tuple(c for c in coded.rig.camera_ids if not st.camera_finished(node, c, coded.rig.repeats))
+            groups.setdefault(need, []).append(node)
+    for cameras, nodes in groups.items():
+        if len(nodes) < 2 or not cameras:
+            continue
+        coded.clock.begin()
+        grids = {c: w.locator.cells for c, w in runner.workers.items()}
+        try:
+            start_at = aim_at_looks(coded, runner, {}, False)
+            lit, seen = runner.look_with_all_lit(nodes, pool, {c: start_at.get(c) for c in cameras})
+        finally:
+            group_time = coded.clock.end()
+            for cam, worker in runner.workers.items():
+                worker.locator.cells = grids[cam]
+        absent = [c for c in cameras if c not in seen]
+        logger.info(f"{len(lit)} motes no camera placed, lit at once: no light seen by "
+                    f"{', '.join(absent) or 'no camera'}{'; searched one by one' if seen else ''}")
+        for node in lit:
+            for cam in absent:
+                reason = (f"not in view anywhere in the search pattern (searched with the {len(lit)} motes "
+                          "no camera placed lit at once)")
+                runner.journal.not_found(node, cam, reason)
+                st.not_found[(node, cam)] = reason
+                runner.stats.not_found += 1
+            if all(st.camera_finished(node, c, coded.rig.repeats) for c in coded.rig.camera_ids):
+                runner.journal.node_done(node)
+                st.done.add(node)
+        runner.journal.field_time("fallback_group", dict(group_time.phases))
+        coded.fallback = coded.fallback + group_time
+    return [(node, looks) for node, looks in searches if node not in st.done]

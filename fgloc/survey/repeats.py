@@ -113,7 +113,7 @@ def _measure_node(runner: SurveyRunner, pool: ThreadPoolExecutor, node: str, cam
         return
     if rig.search.led_wait_s > 0:
         time.sleep(rig.search.led_wait_s)
-    blink = (lambda grab: runner._blink(node, grab)) if rig.search.detection == "on-off" else None
+    blink = (lambda grab: runner._blink([node], grab)) if rig.search.detection == "on-off" else None
 
     def recorder(cam: str) -> Callable[[int, float, float], None]:
         return lambda index, pan, tilt: runner._record_observation(JournalObservation(node, cam, index, pan, tilt))

@@ -37,7 +37,7 @@ import functools
 import logging
 import threading
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
@@ -260,15 +260,49 @@ class SurveyRunner:
         except _LedNotConfirmed:
             return False
 
-    def _blink(self, node: str, grab: Callable[[], object]) -> tuple[object, object]:
-        """(LED-on, LED-off) frames of one camera; cameras take turns so no frame sees a blink."""
+    def _blink(self, nodes: Sequence[str], grab: Callable[[], object]) -> tuple[object, object]:
+        """(LED-on, LED-off) frames of one camera with ``nodes`` lit; cameras take turns so no frame sees a blink."""
         with self._led_lock:
             try:
-                self._set_led(node, False)
+                for node in nodes:
+                    self._set_led(node, False)
                 off = grab()
             finally:
-                self._set_led(node, True)
+                for node in nodes:
+                    self._set_led(node, True)
             return grab(), off
+
+    def look_with_all_lit(self, nodes: Sequence[str], pool: ThreadPoolExecutor,
+                          start_at: Mapping[str, tuple[float, float] | None]) -> tuple[list[str], set[str]]:
+        """Light every node of ``nodes`` at once and let each camera of ``start_at`` search its
+        pattern once (from ``start_at[camera]``, None: its previous reading's place), recording nothing; then switch them off.
+        Returns the nodes whose LED confirmed and the cameras that saw light: a camera that saw
+        none has none of the lit nodes in view anywhere in its pattern. Journals nothing."""
+        lit: list[str] = []
+        seen: set[str] = set()
+        try:
+            lit = [node for node in nodes if self._set_led(node, True)]
+            if lit:
+                if self.rig.search.led_wait_s > 0:
+                    time.sleep(self.rig.search.led_wait_s)
+                blink = (lambda grab: self._blink(lit, grab)) if self.rig.search.detection == "on-off" else None
+
+                def saw(cam: str) -> Callable[[int, float, float], None]:
+                    return lambda _index, _pan, _tilt: seen.add(cam)
+
+                pending = {cam: pool.submit(self.workers[cam].measure, lit[0], [0], start or self._start_for(cam),
+                                              saw(cam), blink)
+                           for cam, start in start_at.items()}
+                for cam, future in pending.items():
+                    reason = future.result()
+                    if reason is not None and reason.startswith("camera error"):
+                        seen.add(cam)  # no answer is not an absence: the nodes are searched one by one
+        finally:
+            for node in lit:
+                if not self._set_led(node, False):
+                    self.journal.append({"type": "led_off_failed", "node": node})
+                    logger.warning(f"{node}: LED did not acknowledge switching off")
+        return lit, seen
 
     def _start_for(self, camera: str) -> tuple[float, float] | None:
         last = self.state.last_observation(camera)
@@ -300,7 +334,7 @@ class SurveyRunner:
                     have = {o.index for o in st.observations_of(node, cam)}
                     indices = [k for k in range(self.rig.repeats) if k not in have]
                     jobs.append((cam, indices, (start_at or {}).get(cam) or self._start_for(cam)))
-                blink = (lambda grab: self._blink(node, grab)) if self.rig.search.detection == "on-off" else None
+                blink = (lambda grab: self._blink([node], grab)) if self.rig.search.detection == "on-off" else None
                 def recorder(cam: str) -> Callable[[int, float, float], None]:
                     return lambda index, pan, tilt: self._record_observation(
                         JournalObservation(node, cam, index, pan, tilt))
