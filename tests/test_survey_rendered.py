@@ -112,12 +112,13 @@ def test_rendered_survey_resumed_mid_node_repeats_the_same_readings(tmp_path):
     assert cut.duplicates_ignored == 0 and cut.done == set(rig.node_ids)
 
 
-def test_single_frame_detection_reads_the_textured_background(tmp_path):
+def test_single_frame_detection_reads_the_textured_background(tmp_path, capsys):
     """The brightest-spot detector of ``"detection": "single"`` suits dark scenes only: on the
     rendered frames the texture alone exceeds its threshold, so it "finds" an LED in a frame with
     no LED lit, and the same survey as above returns readings that are far off and readings of
     occluded pairs (measured at these settings for seeds 1-3: every reading 0.50 rad or more
-    from its LED; readings of occluded pairs with seeds 1 and 3)."""
+    from its LED; readings of occluded pairs with seeds 1 and 3). So ``fgloc survey --simulate``
+    refuses that rig in one line (exit 2); the survey below is run through the library."""
     rig_path = rendered_rig(tmp_path / "rig.json", "inprocess", "single")
     rig = load_rig(rig_path)
     scene = build_scene(rig)
@@ -125,7 +126,14 @@ def test_single_frame_detection_reads_the_textured_background(tmp_path):
     assert brightest_spot(rig.search.threshold)(frame) is not None
 
     out = tmp_path / "out"
-    assert main(["survey", "--rig", str(rig_path), "-o", str(out), "--simulate", "--quiet", "--no-live"]) == 0
+    assert main(["survey", "--rig", str(rig_path), "-o", str(out), "--simulate", "--quiet", "--no-live"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "search.detection: 'single' with simulation.frames 'rendered'" in err
+    assert not out.exists() or not (out / "journal.jsonl").exists()
+
+    from fgloc.survey.session import open_simulated, run_survey
+
+    run_survey(rig, out, opened=open_simulated(rig))
     state = read_journal(out / "journal.jsonl")
     errors = [_angle(o.pan, o.tilt, *scene.apparent[rig.camera_ids.index(c), rig.node_ids.index(n)])
               for (n, c, _), o in state.observations.items()]

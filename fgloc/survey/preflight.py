@@ -103,7 +103,12 @@ def _range_problem(rig: RigConfig, index: int) -> PreflightError | None:
 
 
 def check_rig(rig: RigConfig, simulate: bool = False) -> None:
-    """Refuse implausible intrinsics, unknown models and search ranges outside a head's range."""
+    """Refuse implausible intrinsics, unknown models and search ranges outside a head's range;
+    when simulating, the single-frame detector on rendered frames (it reads their textured
+    background and static lights as LEDs: every reading wrong, docs/survey.md)."""
+    if simulate and rig.simulation.frames == "rendered" and rig.search.detection == "single":
+        raise PreflightError(f"{rig.path}: search.detection: 'single' with simulation.frames 'rendered' reads the "
+                             "rendered background and static lights as LEDs (every reading wrong); use 'on-off'")
     for i, cam in enumerate(rig.cameras):
         problem = intrinsics_problem(cam.intrinsics)
         if problem is not None:
