@@ -1,5 +1,7 @@
-"""Motes no camera placed are searched together: all lit at once, one look per camera
-(``fgloc.survey.coded_fallback.search_unplaced_together`` on ``SurveyRunner.look_with_all_lit``)."""
+"""The coded fallback's LEDs: motes no camera placed are searched together, all lit at once,
+one look per camera (``fgloc.survey.coded_fallback.search_unplaced_together`` on
+``SurveyRunner.look_with_all_lit``); a search killed with its LED lit leaves none lit after
+the resume."""
 
 from __future__ import annotations
 
@@ -107,3 +109,36 @@ def test_look_with_all_lit_reports_the_cameras_that_saw_light(tmp_path, which: s
     assert seen == ({cam0} if which == "visible" else set())
     assert not sim.scene.lit
     assert not read_journal(tmp_path / "journal.jsonl").not_found  # it journals nothing
+
+
+def test_a_fallback_search_killed_after_its_last_reading_leaves_no_led_lit(tmp_path, monkeypatch) -> None:
+    """Killed after a fallback search's last reading, before the LED went off: the resume finds
+    the node read by every camera and switches its LED off before closing it (a field mote
+    would otherwise stay lit through every later search). The rig's LED state survives the kill
+    here, as a real mote's does."""
+    from fgloc.survey.coded import CodedSurvey
+
+    rig = parsed(coded_rig(12, width=160))
+    hidden = "n005"  # its code forgotten: the fallback reads it the sequential way
+    init = CodedSurvey.__init__
+
+    def forgetting(self, *args, **kw):  # noqa: ANN001, ANN202
+        init(self, *args, **kw)
+        self.node_of_code = {k: n for k, n in self.node_of_code.items() if n != hidden}
+
+    monkeypatch.setattr(CodedSurvey, "__init__", forgetting)
+    run_survey(rig, tmp_path / "full", opened=opened(rig)[0])
+    lines = (tmp_path / "full" / "journal.jsonl").read_text().splitlines()
+    start = next(k for k, line in enumerate(lines) if '"node_started"' in line and f'"{hidden}"' in line)
+    last = max(k for k, line in enumerate(lines) if '"observation"' in line and f'"{hidden}"' in line)
+    assert last > start and '"node_done"' in lines[last + 1]
+    (tmp_path / "cut").mkdir()
+    (tmp_path / "cut" / "journal.jsonl").write_text("\n".join(lines[:last + 1]) + "\n")
+
+    rig_opened, sim = opened(rig)
+    sim.leds.set_led(hidden, True)  # what the killed process left on
+    assert hidden in sim.scene.lit
+    run_survey(rig, tmp_path / "cut", opened=rig_opened, resume=True)
+    assert not sim.scene.lit
+    resumed, full = (read_journal(tmp_path / d / "journal.jsonl") for d in ("cut", "full"))
+    assert resumed.observations == full.observations and hidden in resumed.done

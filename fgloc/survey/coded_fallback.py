@@ -77,6 +77,8 @@ def run_fallback(coded: CodedSurvey, runner: SurveyRunner, pool: ThreadPoolExecu
                     runner.stats.not_found += 1
                     logger.info(f"{node}: not found by {cam}: {reason}")
         if all(st.camera_finished(node, c, coded.rig.repeats) for c in coded.rig.camera_ids):
+            if node in st.started and node not in st.led_failed:
+                runner.switch_off(node)  # its search was killed after its last reading, the LED still on
             runner.journal.node_done(node)
             st.done.add(node)
             continue

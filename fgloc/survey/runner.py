@@ -299,10 +299,14 @@ class SurveyRunner:
                         seen.add(cam)  # no answer is not an absence: the nodes are searched one by one
         finally:
             for node in lit:
-                if not self._set_led(node, False):
-                    self.journal.append({"type": "led_off_failed", "node": node})
-                    logger.warning(f"{node}: LED did not acknowledge switching off")
+                self.switch_off(node)
         return lit, seen
+
+    def switch_off(self, node: str) -> None:
+        """Switch the node's LED off; a node that does not acknowledge is journaled ``led_off_failed``."""
+        if not self._set_led(node, False):
+            self.journal.append({"type": "led_off_failed", "node": node})
+            logger.warning(f"{node}: LED did not acknowledge switching off")
 
     def _start_for(self, camera: str) -> tuple[float, float] | None:
         last = self.state.last_observation(camera)
@@ -354,9 +358,7 @@ class SurveyRunner:
                         # An occluded pair is an ordinary outcome; a camera that kept failing is not.
                         level = logging.WARNING if reason.startswith("camera error") else logging.INFO
                         logger.log(level, f"{node}: not found by {cam}: {reason}")
-                if not self._set_led(node, False):
-                    self.journal.append({"type": "led_off_failed", "node": node})
-                    logger.warning(f"{node}: LED did not acknowledge switching off")
+                self.switch_off(node)
         self.journal.node_done(node)
         st.done.add(node)
         if check_misses:
