@@ -109,3 +109,22 @@ def test_repeat_budget_is_checked():
     with pytest.raises(FglocError, match=r"repeat_budget"):
         repeat_rig(budget=-1)
     assert repeat_rig(budget=0).repeat_budget == 0
+
+
+def test_a_repeat_phase_killed_after_a_nodes_last_repeat_leaves_no_led_lit(full_run, tmp_path):
+    """Killed after the last repeat reading of a node, before its LED went off: the resume has
+    nothing left to take of that node, and switches its LED off before the next one (the rig's
+    LED state survives the kill here, as a real mote's does)."""
+    rig, full = full_run
+    lines = (full / "journal.jsonl").read_text().splitlines()
+    repeats = [(k, json.loads(line)["node"]) for k, line in enumerate(lines)
+               if '"observation"' in line and json.loads(line)["index"] >= rig.repeats]
+    # the first repeat node that another repeat node follows: cut after its last reading
+    k, node = next((k, n) for (k, n), (_k2, n2) in zip(repeats, repeats[1:], strict=False) if n2 != n)
+    (tmp_path / "cut").mkdir()
+    (tmp_path / "cut" / "journal.jsonl").write_text("\n".join(lines[:k + 1]) + "\n")
+    rig_opened, sim = opened(rig)
+    sim.leds.set_led(node, True)  # what the killed process left on
+    run_survey(rig, tmp_path / "cut", opened=rig_opened, resume=True)
+    assert not sim.scene.lit
+    assert obs_by_key(tmp_path / "cut" / "journal.jsonl") == obs_by_key(full / "journal.jsonl")

@@ -98,6 +98,11 @@ def run_repeats(runner: SurveyRunner, pool: ThreadPoolExecutor) -> int:
     by_node: dict[str, dict[str, list[int]]] = {}
     for p in todo:
         by_node.setdefault(p.node, {}).setdefault(p.camera, []).append(p.index)
+    planned = {(p.node, p.camera, p.index) for p in plan}
+    taken = [key for key in st.observations if key in planned]  # in journal order
+    if taken and taken[-1][0] not in by_node:
+        # killed after that node's last repeat, before its LED went off: a real mote is still lit
+        runner.switch_off(taken[-1][0])
     before = runner.stats.observations
     for node, cams in by_node.items():
         _measure_node(runner, pool, node, cams)
@@ -126,9 +131,7 @@ def _measure_node(runner: SurveyRunner, pool: ThreadPoolExecutor, node: str, cam
         if reason is not None:
             taken = {o.index for o in runner.state.observations_of(node, cam)}
             _failed(runner, node, cam, [k for k in cams[cam] if k not in taken], reason)
-    if not runner._set_led(node, False):
-        runner.journal.append({"type": "led_off_failed", "node": node})
-        logger.warning(f"{node}: LED did not acknowledge switching off")
+    runner.switch_off(node)
 
 
 def _failed(runner: SurveyRunner, node: str, cam: str, indices: list[int], reason: str) -> None:
