@@ -504,8 +504,10 @@ class JournalWriter:
         self.append({"type": "view"} | record)
 
     def field_time(self, scope: str, phases: dict[str, float], node: str | None = None) -> None:
-        """Predicted field time per phase (seconds) of one node (``node``: a sequential survey's; ``fallback_node``:
-        a coded survey's; ``fallback_group``: its motes no camera placed, searched lit at once), of the repeat phase (``repeats``) or of the whole survey (``survey``)."""
+        """Predicted field time per phase (seconds) of one node (``node``: a sequential survey's;
+        ``fallback_node``: a coded survey's), of a coded survey's motes no camera placed, searched
+        lit at once (``fallback_group``), of the repeat phase (``repeats``) or of the whole survey
+        (``survey``)."""
         rec: dict[str, Any] = {"type": "field_time", "scope": scope, "phases": dict(phases),
                                "total_s": float(sum(phases.values()))}
         if node is not None:

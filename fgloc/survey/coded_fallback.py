@@ -119,8 +119,8 @@ def aim_at_looks(coded: CodedSurvey, runner: SurveyRunner, looks: Mapping[str, l
 
 
 def search_unplaced_together(coded: CodedSurvey, runner: SurveyRunner, pool: ThreadPoolExecutor,
-                           searches: list[tuple[str, dict[str, list[tuple[float, float]]]]],
-                           silent: set[str]) -> list[tuple[str, dict[str, list[tuple[float, float]]]]]:
+                             searches: list[tuple[str, dict[str, list[tuple[float, float]]]]],
+                             silent: set[str]) -> list[tuple[str, dict[str, list[tuple[float, float]]]]]:
     """Motes no camera placed (no looks: each camera would search every blob it left
     unexplained, the same looks for each) are searched together first: all of a group lit at
     once, each camera looks once. A camera that sees no light records every lit mote of the

@@ -274,10 +274,11 @@ class SurveyRunner:
 
     def look_with_all_lit(self, nodes: Sequence[str], pool: ThreadPoolExecutor,
                           start_at: Mapping[str, tuple[float, float] | None]) -> tuple[list[str], set[str]]:
-        """Light every node of ``nodes`` at once and let each camera of ``start_at`` search its
-        pattern once (from ``start_at[camera]``, None: its previous reading's place), recording nothing; then switch them off.
-        Returns the nodes whose LED confirmed and the cameras that saw light: a camera that saw
-        none has none of the lit nodes in view anywhere in its pattern. Journals nothing."""
+        """Light every node of ``nodes`` at once, let each camera of ``start_at`` search its pattern
+        once (from ``start_at[camera]``; None: its previous reading's place) recording nothing,
+        then switch them off. Returns the nodes whose LED confirmed and the cameras that saw
+        light: a camera that saw none has none of the lit nodes in view anywhere in its pattern.
+        Journals nothing (but an LED that does not go off)."""
         lit: list[str] = []
         seen: set[str] = set()
         try:
