@@ -21,8 +21,10 @@ answers twice. The ACK the driver reads may then be the first send's, and its Co
 early (the resend interrupted the move) or the resend's ACK and Completion may still be on the wire
 after the command returned, where the next command would take them for its own and return before
 the head moved: one reply behind for every later command. So after such a resend a Completion on
-either socket counts only if ``confirm()`` holds, and once the command is done a power inquiry
-drains the wire: its answer comes after every reply the camera sent before it. A link whose replies
+either socket counts only if ``confirm()`` holds, and once the command is done the wire is
+drained by an inquiry, whose answer comes after every reply the camera sent before it: the
+``confirm()`` read-back that accepted the Completion (what it met is dropped as stale), or a
+power inquiry for a command without a check. A link whose replies
 carry their request's tag (VISCA over IP: the sequence number) already drops every reply to an
 earlier request, so over such a link no stray window is opened.
 """
@@ -264,7 +266,7 @@ class ViscaSession:
             return t.buffer_full_wait if isinstance(error, CommandBufferFull) else 0.0
 
         RetryPolicy(t.retries + 1, retryable, wait).call(attempt, self._count_retry)
-        if echoed:
+        if echoed and confirm is None:  # with a confirm, its inquiry has drained the wire (_believe)
             self._drain(name)
 
     def _drain(self, name: str) -> None:
@@ -328,7 +330,10 @@ class ViscaSession:
             ok = confirm()
         finally:
             self._holding = False
-        if not ok:
+        if ok:  # the command is done: what confirm's inquiry met came before its answer, and is stale
+            self.stats.stale += len(self._held)
+            self._held.clear()
+        else:
             self.stats.stray += 1
             log.warning("camera %d: ignoring a Completion on socket %d that is not %s's (a stray one of an "
                         "abandoned, cancelled or resent command)", self.address, socket, name)
