@@ -340,10 +340,15 @@ class ViscaSession:
         return ok
 
     def _inquiry(self, packet: bytes, expect_len: int, name: str, nibbles: bool = True) -> bytes:
-        """Send an inquiry, wait ``timeouts.inquiry`` s for its data; timeouts and garbled replies ask again."""
+        """Send an inquiry, wait ``timeouts.inquiry`` s for its data; timeouts and garbled replies ask again
+        (after a garbled reply as a new message: the camera got the inquiry, so over IP a resend under
+        the same sequence number could only be refused as a repeat)."""
+        answered = False
 
         def attempt(n: int) -> bytes:
-            self._send(packet, n > 0)
+            nonlocal answered
+            self._send(packet, n > 0 and not answered)
+            answered = False
             deadline = time.monotonic() + self.timeouts.inquiry
             while True:
                 reply = self._next(deadline)
@@ -351,6 +356,7 @@ class ViscaSession:
                     self.stats.timeouts += 1
                     raise ViscaTimeout(f"no reply from camera {self.address} to {name}")
                 if reply.kind is ReplyKind.INQUIRY:
+                    answered = True
                     if len(reply.data) != expect_len:
                         self.stats.garbled += 1
                         raise ViscaGarbledReply(f"reply to {name} has {len(reply.data)} data bytes, "
