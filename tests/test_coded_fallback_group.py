@@ -39,7 +39,7 @@ def field_times(path, scope: str) -> list[dict]:
             if r["type"] == "field_time" and r.get("scope") == scope]
 
 
-def test_motes_hidden_from_every_camera_are_searched_once_all_lit(tmp_path) -> None:
+def test_motes_hidden_from_every_camera_are_searched_once_all_lit(tmp_path, monkeypatch) -> None:
     rig = lamp_rig()
     rig_opened, sim = opened(rig)
     hidden = hidden_from_both(rig, sim)
@@ -55,13 +55,8 @@ def test_motes_hidden_from_every_camera_are_searched_once_all_lit(tmp_path) -> N
 
     # the same survey with each of them searched on its own: the same readings, the same misses,
     # and the three searches cost more than the one look of the group
-    alone_opened, _ = opened(rig)
-    original = coded_fallback.search_unplaced_together
-    try:
-        coded_fallback.search_unplaced_together = lambda coded, runner, pool, searches, silent: searches
-        run_survey(rig, tmp_path / "alone", opened=alone_opened)
-    finally:
-        coded_fallback.search_unplaced_together = original
+    monkeypatch.setattr(coded_fallback, "search_unplaced_together", lambda coded, runner, pool, searches, silent: searches)
+    run_survey(rig, tmp_path / "alone", opened=opened(rig)[0])
     alone = read_journal(tmp_path / "alone" / "journal.jsonl")
     assert alone.observations == state.observations
     assert set(alone.not_found) == set(state.not_found)
