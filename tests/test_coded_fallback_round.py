@@ -77,6 +77,22 @@ def test_the_round_pays_by_the_searches_it_saves_and_lamps_are_not_saved(tmp_pat
     assert not round_pays(coded, one_view, looks, 1)  # every look is at a lamp: the searches stay
 
 
+def test_the_searches_are_priced_with_the_frames_each_look_grabs(tmp_path: Path) -> None:
+    """Every look of a search grabs a frame (two with on-off detection): a cost the round saves
+    for sure, so it is in the searches' price (leaving it out declined a round that saved 20 s
+    at 1000 motes in frames, docs/blink-codes.md "Blobs another view resolved")."""
+    from dataclasses import replace
+
+    from fgloc.survey.clock import Frames, price
+
+    coded, _spots, looks, _one_view = _searches_at_spots(tmp_path)
+    single = fallback_round._searches_s(coded, looks)
+    one, two = (price([Frames(n)], coded.timing["cam0"]).total for n in (1, 2))
+    assert single > 20 * one
+    coded.rig = replace(coded.rig, search=replace(coded.rig.search, detection="on-off"))
+    assert fallback_round._searches_s(coded, looks) == pytest.approx(single + 20 * (two - one))  # 20 looks
+
+
 def test_a_lamp_at_two_read_motes_the_round_pauses_is_darkened() -> None:
     lamps = np.array([(0.10, -0.20), (0.30, -0.20), (0.50, -0.20), (0.70, -0.20), (0.90, -0.20)])
     radii = np.full(5, 0.004)  # rad

@@ -111,6 +111,7 @@ from fgloc.survey.coded_ladder import (
     light_before,
     never_dark,
     read_before,
+    resolved_elsewhere,
     retry_helps,
     unread,
     unseen,
@@ -335,11 +336,19 @@ class CodedSurvey:
 
     def _unread(self, runner: SurveyRunner, camera: str, blobs: list[Blob], rung: int) -> list[Blob]:
         """``blobs`` but those at a reading of the camera's views up to refinement ``rung``
-        (:func:`fgloc.survey.coded_ladder.unread`)."""
+        (:func:`fgloc.survey.coded_ladder.unread`) and, with ``explain "views"``, between two
+        refinement rungs, those another of those recordings resolved
+        (:func:`fgloc.survey.coded_ladder.resolved_elsewhere`). Not from the wide pass: at
+        1000 motes that lost motes the first tiles read (docs/blink-codes.md, "Blobs another
+        view resolved"); not for the fallback: no gain measured there."""
+        at = functools.partial(self.intrinsics_at, camera)
         with runner._state_lock:
             read = read_before(runner.state.views, camera, rung)
-        return [blobs[k] for k in unread(blobs, read, lambda z: self.intrinsics_at(camera, z),
-                                         [(camera, b) in self._merged for b in blobs])]
+            kept = [blobs[k] for k in unread(blobs, read, at, [(camera, b) in self._merged for b in blobs])]
+            if self.settings.explain == "views" and 1 <= rung < len(self.levels):
+                done = resolved_elsewhere(kept, runner.state.views, camera, rung, at, self.survey_zoom[camera])
+                kept = [b for b, d in zip(kept, done) if not d]
+        return kept
 
     def blob_directions(self, camera: str, blobs: list[Blob], spread_px: float = 0.0) -> np.ndarray:
         """(M, 2) (pan, tilt) of ``blobs``; with ``spread_px`` each blob also gives the 8

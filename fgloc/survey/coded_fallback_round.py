@@ -108,9 +108,9 @@ def round_pays(coded: CodedSurvey, views: Mapping[str, list[tuple[float, float]]
     in the round too) that the round does not darken (:func:`darkened_lamps`, from the
     camera's ``readings``, camera -> node -> unit bearing, and the ``lit`` nodes). Searches are
     priced as the fallback runs them (its sweep order, each camera from its look nearest the
-    head, every look visited) by their LED commands (on and off), LED waits, slews and settles
-    only; frames and centring are left out, so a round that runs costs less than the searches
-    it saves."""
+    head, every look visited) by their LED commands (on and off), LED waits, slews, settles and
+    the frames each look grabs (one; two with on-off detection) only; centring, position reads
+    and zooms are left out, so a round that runs costs less than the searches it saves."""
     from fgloc.survey.coded_separation import PAUSE_REPEATS
 
     first = coded.timing[coded.rig.camera_ids[0]]
@@ -136,7 +136,7 @@ def round_pays(coded: CodedSurvey, views: Mapping[str, list[tuple[float, float]]
                for c, by_node in looks.items()}
     searches_s -= _searches_s(coded, staying)
     logger.info(f"fallback round: priced {round_s:.1f} s against the {searches_s:.1f} s of sequential searches "
-                f"it may save (LED, slews and settles alone)")
+                f"it may save (LED, slews, settles and the looks' frames alone)")
     return round_s < searches_s
 
 
@@ -171,6 +171,7 @@ def _searches_s(coded: CodedSurvey, looks: Mapping[str, Mapping[str, list[tuple[
     from fgloc.survey.coded_fallback import nearest_look, sweep_key
 
     first = coded.timing[coded.rig.camera_ids[0]]
+    grabs = 2 if coded.rig.search.detection == "on-off" else 1  # what each look grabs to see the LED
     head: dict[str, tuple[float, float] | None] = {c: None for c in looks}
     nodes = {n for by_node in looks.values() for n in by_node}
     searches = sorted(((n, {c: looks[c][n] for c in looks if n in looks[c]}) for n in nodes), key=sweep_key)
@@ -181,7 +182,7 @@ def _searches_s(coded: CodedSurvey, looks: Mapping[str, Mapping[str, list[tuple[
             ops: list[Any] = []
             at = head[c] or nearest_look(cells, None)
             for target in nearest_first(cells, nearest_look(cells, head[c])):
-                ops += [Slew.between(at, target), Settle()]
+                ops += [Slew.between(at, target), Settle(), Frames(grabs)]
                 at = head[c] = target
             node_lanes.append(price(ops, coded.timing[c]))
         total += price([Radio(unicast=2), Wait(coded.rig.search.led_wait_s)], first).total + parallel(node_lanes).total

@@ -40,11 +40,12 @@ from typing import Any
 import numpy as np
 
 from fgloc.camera.intrinsics import CameraIntrinsics
-from fgloc.camera.pixel_angles import pixel_to_pan_tilt
+from fgloc.camera.pixel_angles import pan_tilt_to_pixel, pixel_to_pan_tilt
 from fgloc.core.geometry import pan_tilt_bearing
 
 Blob = tuple[tuple[float, float], tuple[float, float], float]  #: (u, v) px, head (pan, tilt), zoom of a refused blob
 LADDER_MODES = ("climb", "focus")
+EXPLAIN_MODES = ("readings", "views")
 #: a blob of a rung's tile is the chased blob's (a member of its cluster) within this many pixels
 #: of the chased blob's own recording: twice the 6 px the tiles reach around it
 FOCUS_PX = 12.0
@@ -141,6 +142,45 @@ def unread(found: Sequence[Blob], read: np.ndarray, intrinsics_at: Callable[[flo
             continue
         keep.append(k)
     return keep
+
+
+def resolved_elsewhere(found: Sequence[Blob], views: Mapping[tuple[str, str, int], Mapping[str, Any]], camera: str,
+                       rung: int, intrinsics_at: Callable[[float], CameraIntrinsics], survey_zoom: float) -> list[bool]:
+    """Which blobs of ``found`` another recording resolved (lever ``explain "views"``): a
+    journaled recording of ``camera`` in the views before refinement rung ``rung + 1`` (as
+    :func:`read_before`), from another head or zoom, at the blob's zoom or closer, that has
+    the whole neighbourhood of the blob (:data:`SEPARATION_PX` of the blob's own recording)
+    inside its image, a reading in it, and no refused blob of any kind in it (a border cut
+    counts). Every LED that could have merged into the blob lies in that neighbourhood, and the
+    same camera sees the same motes from another view: there each was read, or it would have
+    left a refused blob there. Measured at 1000 motes: two LEDs merged in one tile, read apart
+    in the tile beside it (docs/blink-codes.md, "Blobs another view resolved")."""
+    bound = (2, rung + 1, 0)
+    others = [rec for (cam, vid, _att), rec in views.items() if cam == camera and view_order(vid) < bound]
+    out = []
+    for (uv, head, zoom) in found:
+        own = intrinsics_at(zoom)
+        pan, tilt = pixel_to_pan_tilt(own, np.array(uv, dtype=float), *head)
+        resolved = False
+        for rec in others:
+            z = float(rec.get("zoom", survey_zoom))
+            at = (float(rec["head"][0]), float(rec["head"][1]))
+            intr = intrinsics_at(z)
+            if (at, z) == (head, zoom) or max(intr.fx, intr.fy) < max(own.fx, own.fy) * (1 - 1e-9):
+                continue
+            radius = SEPARATION_PX * max(intr.fx, intr.fy) / max(own.fx, own.fy)
+            px, front = pan_tilt_to_pixel(intr, float(pan), float(tilt), *at)
+            if not front or not (radius <= px[0] <= intr.width - radius and radius <= px[1] <= intr.height - radius):
+                continue
+
+            def near(items: Sequence[Mapping[str, Any]]) -> bool:
+                return any(math.hypot(float(i["u"]) - px[0], float(i["v"]) - px[1]) <= radius for i in items if "u" in i)
+
+            if near(rec.get("readings", [])) and not near(rec.get("refused", [])):
+                resolved = True
+                break
+        out.append(resolved)
+    return out
 
 
 def light_before(views: Mapping[tuple[str, str, int], Mapping[str, Any]], camera: str, rung: int,

@@ -4,7 +4,7 @@ remembered by the journal, and the predicted fallback.
 rig.json ``"coded"`` (optional) and ``fgloc survey --coded KEY=VALUE`` choose them
 (:func:`coded_settings`; a new survey's defaults are :class:`~fgloc.survey.coded_settings.CodedSettings`'s,
 the measured fastest free of mislabels and misses: continue, round (fallback), probe on, pairs groups, short
-view-major rounds, ladder focus, decode fit, length adaptive, zoom ladder 3x then 10x):
+view-major rounds, ladder focus, decode fit, length adaptive, explain views, zoom ladder 3x then 10x):
 
 * ``retry``: ``"burst"`` | ``"continue"`` (a retry goes on recording L frames, sliding windows);
 * ``separate``: ``"zoom"`` | ``"radio"`` (crowded motes paused by colour class first,
@@ -25,6 +25,8 @@ view-major rounds, ladder focus, decode fit, length adaptive, zoom ladder 3x the
   fit, :mod:`fgloc.camera.blink_word_fit`);
 * ``length``: ``"fixed"`` | ``"adaptive"`` (a first recording stops at 2L + 2 samples when it leaves
   no blob unexplained, :func:`fgloc.survey.coded_recording.record_adaptive`);
+* ``explain``: ``"readings"`` | ``"views"`` (ladder focus: a blob whose neighbourhood another
+  recording of the camera read cleanly is explained too, :func:`~fgloc.survey.coded_ladder.resolved_elsewhere`);
 * ``levels``: the refinement zoom ladder, ascending fractions of the optical range (default
   ``[2/9, 1]``: 3x, then 10x).
 
@@ -34,7 +36,7 @@ value or ``--coded`` flag that names a lever with another value is refused in on
 flag or file, the lever, both values), never mixed in. A journal without recorded levers
 (written before they were recorded, or started as a sequential survey) resumes with
 :data:`LEGACY` (the defaults before this rule) overridden by rig.json and the flags, exactly as
-it resumed before. A lever added after a journal was written (``rounds``, ``round_order``, ``ladder``, ``decode``, ``length``) and
+it resumed before. A lever added after a journal was written (``rounds``, ``round_order``, ``ladder``, ``decode``, ``length``, ``explain``) and
 so missing from its recorded levers resumes with its :data:`LEGACY` value, the only one the
 survey that wrote it knew; a journal without a recorded ladder climbs :data:`LEGACY_LEVELS`.
 
@@ -55,7 +57,7 @@ from fgloc.core.errors import FglocError
 from fgloc.core.geometry import pan_tilt_bearing
 from fgloc.files.journal import JournalState
 from fgloc.files.rig_config import RigConfig
-from fgloc.survey.coded_ladder import LADDER_MODES
+from fgloc.survey.coded_ladder import EXPLAIN_MODES, LADDER_MODES
 from fgloc.survey.coded_settings import CodedSettings
 from fgloc.survey.coded_views import distinct_directions
 
@@ -75,12 +77,12 @@ DECODE_MODES = ("levels", "fit")
 LENGTH_MODES = ("fixed", "adaptive")
 CHOICES = {"retry": RETRY_MODES, "separate": SEPARATE_MODES, "fallback": FALLBACK_MODES, "video": VIDEO_MODES,
            "probe": PROBE_MODES, "pairs": PAIRS_MODES, "rounds": ROUNDS_MODES, "round_order": ROUND_ORDERS,
-           "ladder": LADDER_MODES, "decode": DECODE_MODES, "length": LENGTH_MODES}
+           "ladder": LADDER_MODES, "decode": DECODE_MODES, "length": LENGTH_MODES, "explain": EXPLAIN_MODES}
 #: the defaults before the journal recorded the levers: a journal without recorded levers resumes with these,
 #: and a lever a journal's header does not record (added after it was written) resumes with its value here
 LEGACY: dict[str, Any] = {"retry": "burst", "separate": "zoom", "fallback": "blobs", "video": "frames", "probe": "off",
                           "pairs": "off", "rounds": "full", "round_order": "class", "ladder": "climb",
-                          "decode": "levels", "length": "fixed"}
+                          "decode": "levels", "length": "fixed", "explain": "readings"}
 #: the zoom ladder of journals that recorded none (the default before ``(2/9, 1)``)
 LEGACY_LEVELS: tuple[float, ...] = (1 / 9, 3 / 9, 1.0)
 PREDICTED_RADIUS = math.radians(3.0)  #: a blob this close to a mote's predicted direction may hide it

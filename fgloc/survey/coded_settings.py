@@ -83,6 +83,12 @@ class CodedSettings:
     #: (:func:`fgloc.survey.coded_recording.record_adaptive`; the default, with ``decode "fit"``);
     #: ``"fixed"``: always ``3L + 2`` (the default of journals written before this lever)
     length: str = "adaptive"
+    #: ladder ``"focus"``: which blobs are explained before a rung: ``"readings"`` those within 1.5 px
+    #: of a reading of the camera (merged blobs never); ``"views"``: between two refinement rungs,
+    #: also a blob whose neighbourhood another recording of the camera read cleanly
+    #: (:func:`~fgloc.survey.coded_ladder.resolved_elsewhere`; the default); ``"readings"`` is the
+    #: default of journals written before this lever
+    explain: str = "views"
 
     def view_decoder(self) -> DecoderConfig:
         """The decoder configuration of the views, as ``decode`` chooses."""

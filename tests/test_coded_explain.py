@@ -1,0 +1,135 @@
+"""The ``explain`` lever (fgloc/survey/coded_ladder.py ``resolved_elsewhere``; docs/blink-codes.md
+"Blobs another view resolved").
+
+* A blob is resolved by another recording of the same camera, from another head or zoom, at
+  its zoom or closer, with the blob's whole neighbourhood (6 px of the blob's own recording)
+  inside its image, a reading in it and no refused blob of any kind in it; by nothing else.
+* On a seeded 640 x 480 scene ``"views"`` records fewer refinement frames than
+  ``"readings"`` and still reads every visible pair once, none mislabelled.
+* A journal whose header predates the lever resumes with ``"readings"``; the lever is
+  schema-checked.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from fgloc.camera.pixel_angles import pan_tilt_to_pixel, pixel_to_pan_tilt
+from fgloc.core.model import Gauge, NodeMode
+from fgloc.files.journal import JournalHeader, JournalState
+from fgloc.survey.coded_ladder import SEPARATION_PX, resolved_elsewhere
+from fgloc.survey.coded_levers import LEGACY, coded_settings
+from tests.test_coded_ladder import intrinsics_at
+from tests.test_survey_coded import coded_rig, cut_and_resume, parsed, view_records
+from tests.test_survey_coded_levers import survey_reads_every_visible_pair
+
+HEAD = (0.3, -0.2)
+TILE = 2 / 9
+
+
+def blob_and_direction(k, zoom: float = TILE):
+    """A blob at the image centre of a recording at ``HEAD`` and ``zoom``, and its (pan, tilt)."""
+    intr = k(zoom)
+    uv = (intr.cx, intr.cy)
+    p, t = pixel_to_pan_tilt(intr, np.array(uv), *HEAD)
+    return (uv, HEAD, zoom), (float(p), float(t))
+
+
+def recording(k, direction, head, zoom, reading_px=None, refused_px=None, refused_kind="ambiguous"):
+    """A journaled view record at ``head`` and ``zoom`` with a reading ``reading_px`` pixels
+    right of where ``direction`` falls, and a refused blob ``refused_px`` pixels left of it."""
+    intr = k(zoom)
+    (u, v), _front = pan_tilt_to_pixel(intr, *direction, *head)
+    rec = {"head": list(head), "zoom": zoom, "readings": [], "refused": []}
+    if reading_px is not None:
+        rec["readings"].append({"node": "n1", "u": float(u) + reading_px, "v": float(v)})
+    if refused_px is not None:
+        rec["refused"].append({"kind": refused_kind, "u": float(u) - refused_px, "v": float(v), "reason": "x"})
+    return rec
+
+
+def resolved(k, blob, views, rung: int = 1) -> bool:
+    (out,) = resolved_elsewhere([blob], views, "cam0", rung, k, 0.0)
+    return out
+
+
+def test_a_blob_is_resolved_only_by_a_clean_neighbourhood_in_another_recording():
+    k = intrinsics_at()
+    blob, d = blob_and_direction(k)
+    beside = (HEAD[0] + 0.03, HEAD[1] + 0.01)  # the tile beside: the blob lies well inside it
+    near = SEPARATION_PX - 1.5
+    assert resolved(k, blob, {("cam0", "r1-001", 0): recording(k, d, beside, TILE, near)})
+    # no reading there: the light is not explained
+    assert not resolved(k, blob, {("cam0", "r1-001", 0): recording(k, d, beside, TILE)})
+    assert not resolved(k, blob, {("cam0", "r1-001", 0): recording(k, d, beside, TILE, SEPARATION_PX + 1.0)})
+    # a refused blob in the neighbourhood, of any kind (a border cut too): a mote may hide there
+    for kind in ("ambiguous", "rejected", "duplicate"):
+        assert not resolved(k, blob, {("cam0", "r1-001", 0): recording(k, d, beside, TILE, near, near, kind)})
+    assert resolved(k, blob, {("cam0", "r1-001", 0): recording(k, d, beside, TILE, near, SEPARATION_PX + 1.0)})
+    # the blob's own view (the same head and zoom: its second recording too) resolves nothing
+    assert not resolved(k, blob, {("cam0", "r1-000", 1): recording(k, d, HEAD, TILE, near)})
+    # a coarser recording cannot separate what the blob's could not
+    assert not resolved(k, blob, {("cam0", "w001", 0): recording(k, d, beside, 0.0, 0.5)})
+    # a closer one can, its neighbourhood scaled to the same angle
+    scale = k(1.0).fx / k(TILE).fx
+    close = (HEAD[0] + 0.002, HEAD[1])
+    assert resolved(k, blob, {("cam0", "r2-000", 0): recording(k, d, close, 1.0, near * scale)}, rung=2)
+    assert not resolved(k, blob, {("cam0", "r2-000", 0): recording(k, d, close, 1.0, near * scale,
+                                                                      (SEPARATION_PX - 0.5) * scale)}, rung=2)
+    # views after the rung is planned, and the other camera's, are not looked at
+    assert not resolved(k, blob, {("cam0", "r2-000", 0): recording(k, d, close, 1.0, near * scale)}, rung=1)
+    assert not resolved(k, blob, {("cam1", "r1-001", 0): recording(k, d, beside, TILE, near)})
+
+
+def test_a_neighbourhood_cut_by_the_image_border_resolves_nothing():
+    k = intrinsics_at()
+    blob, d = blob_and_direction(k)
+    intr = k(TILE)
+    # a head that puts the blob 3 px inside the right-hand border: half its neighbourhood is outside
+    for inside_px, expected in ((3.0, False), (SEPARATION_PX + 3.0, True)):
+        u = intr.width - inside_px
+        p, t = pixel_to_pan_tilt(intr, np.array([u, intr.cy]), *HEAD)
+        head = (HEAD[0] - (float(p) - HEAD[0]), HEAD[1] - (float(t) - HEAD[1]))
+        (bu, _bv), _ = pan_tilt_to_pixel(intr, *d, *head)
+        assert abs(bu - u) < 1.0
+        assert resolved(k, blob, {("cam0", "r1-001", 0): recording(k, d, head, TILE, -1.0)}) is expected
+
+
+@pytest.mark.parametrize(("n", "seed"), [(60, 3), (100, 1)])
+def test_views_records_fewer_refinement_frames_and_reads_every_visible_pair(tmp_path, n, seed):
+    """The 320 x 240 rig on the default ladder (3x, 10x): tiles at 10x are not planned over
+    blobs the tile beside resolved at 3x; every visible pair is still read once, none mislabelled."""
+    frames = {}
+    for explain in ("readings", "views"):
+        data = coded_rig(n, 320, seed=seed)
+        data["coded"] = {"explain": explain}
+        out = tmp_path / explain
+        survey_reads_every_visible_pair(parsed(data), out)
+        frames[explain] = sum(r["frames"] for r in view_records(out / "journal.jsonl") if r["view"].startswith("r2"))
+    assert 0 < frames["views"] < frames["readings"], frames
+
+
+def test_a_survey_explaining_by_views_resumes_to_the_uncut_readings(tmp_path):
+    """Killed at the first refinement tile, in the middle of them (clean and torn) and after the last:
+    the rule decides from journaled views only, so each resume records every view once."""
+    cut_and_resume(parsed(coded_rig(100, 320, seed=1)), tmp_path, "r")
+
+
+def test_a_header_without_the_explain_lever_resumes_with_readings():
+    recorded = {k: v for k, v in LEGACY.items() if k != "explain"} | {"ladder": "focus", "levels": [2 / 9, 1.0]}
+    state = JournalState(JournalHeader(NodeMode.PLANAR, Gauge("cam0", "cam1"), 0.001, ["cam0", "cam1"], ["n0"],
+                                       coded=recorded))
+    rig = parsed(coded_rig(4, width=160))
+    assert coded_settings(rig, None, state).explain == "readings"
+    assert coded_settings(rig).explain == "views"  # a new survey
+
+
+def test_the_explain_lever_is_schema_checked():
+    from fgloc.files.json_io import check
+    from fgloc.files.rig_config import RigConfigError
+
+    data = coded_rig(6, width=160) | {"coded": {"explain": "readings"}}
+    check(data, "rig", "rig.json", RigConfigError)
+    with pytest.raises(RigConfigError, match="coded.explain"):
+        check(data | {"coded": {"explain": "guess"}}, "rig", "rig.json", RigConfigError)
