@@ -4,7 +4,7 @@
 * A blob is resolved by another recording of the same camera, from another head or zoom, at
   its zoom or closer, with the blob's whole neighbourhood (6 px of the blob's own recording)
   inside its image, a reading in it and no refused blob of any kind in it; by nothing else.
-* On a seeded 640 x 480 scene ``"views"`` records fewer refinement frames than
+* On a seeded 320 x 240 scene ``"views"`` records fewer refinement frames than
   ``"readings"`` and still reads every visible pair once, none mislabelled.
 * A journal whose header predates the lever resumes with ``"readings"``; the lever is
   schema-checked.
@@ -96,13 +96,12 @@ def test_a_neighbourhood_cut_by_the_image_border_resolves_nothing():
         assert resolved(k, blob, {("cam0", "r1-001", 0): recording(k, d, head, TILE, -1.0)}) is expected
 
 
-@pytest.mark.parametrize(("n", "seed"), [(60, 3), (100, 1)])
-def test_views_records_fewer_refinement_frames_and_reads_every_visible_pair(tmp_path, n, seed):
+def test_views_records_fewer_refinement_frames_and_reads_every_visible_pair(tmp_path):
     """The 320 x 240 rig on the default ladder (3x, 10x): tiles at 10x are not planned over
     blobs the tile beside resolved at 3x; every visible pair is still read once, none mislabelled."""
     frames = {}
     for explain in ("readings", "views"):
-        data = coded_rig(n, 320, seed=seed)
+        data = coded_rig(60, 320, seed=3)
         data["coded"] = {"explain": explain}
         out = tmp_path / explain
         survey_reads_every_visible_pair(parsed(data), out)

@@ -34,7 +34,8 @@ from fgloc.survey.session import run_survey
 from tests.test_survey_coded import EXAMPLE, clean_cuts, coded_rig, levels_rig, opened, parsed, view_records
 
 NEW_DEFAULTS = {"retry": "continue", "separate": "zoom", "fallback": "round", "video": "frames", "probe": "on",
-                "pairs": "groups", "rounds": "short", "round_order": "view", "ladder": "focus", "decode": "fit", "length": "adaptive"}
+                "pairs": "groups", "rounds": "short", "round_order": "view", "ladder": "focus", "decode": "fit", "length": "adaptive",
+                "explain": "views"}
 
 
 def lines_of(path: Path) -> list[bytes]:
