@@ -156,31 +156,39 @@ def resolved_elsewhere(found: Sequence[Blob], views: Mapping[tuple[str, str, int
     left a refused blob there. Measured at 1000 motes: two LEDs merged in one tile, read apart
     in the tile beside it (docs/blink-codes.md, "Blobs another view resolved")."""
     bound = (2, rung + 1, 0)
-    others = [rec for (cam, vid, _att), rec in views.items() if cam == camera and view_order(vid) < bound]
+    others = []  # (head, zoom, intrinsics, readings' pixels, refused blobs' pixels) of each candidate recording
+    for (cam, vid, _att), rec in views.items():
+        if cam == camera and view_order(vid) < bound:
+            zoom = float(rec.get("zoom", survey_zoom))
+            others.append(((float(rec["head"][0]), float(rec["head"][1])), zoom, intrinsics_at(zoom),
+                           _pixels(rec.get("readings", [])), _pixels(rec.get("refused", []))))
     out = []
     for (uv, head, zoom) in found:
         own = intrinsics_at(zoom)
+        own_f = max(own.fx, own.fy)
         pan, tilt = pixel_to_pan_tilt(own, np.array(uv, dtype=float), *head)
         resolved = False
-        for rec in others:
-            z = float(rec.get("zoom", survey_zoom))
-            at = (float(rec["head"][0]), float(rec["head"][1]))
-            intr = intrinsics_at(z)
-            if (at, z) == (head, zoom) or max(intr.fx, intr.fy) < max(own.fx, own.fy) * (1 - 1e-9):
+        for at, z, intr, read_px, refused_px in others:
+            if (at, z) == (head, zoom) or max(intr.fx, intr.fy) < own_f * (1 - 1e-9):
                 continue
-            radius = SEPARATION_PX * max(intr.fx, intr.fy) / max(own.fx, own.fy)
+            radius = SEPARATION_PX * max(intr.fx, intr.fy) / own_f
             px, front = pan_tilt_to_pixel(intr, float(pan), float(tilt), *at)
             if not front or not (radius <= px[0] <= intr.width - radius and radius <= px[1] <= intr.height - radius):
                 continue
-
-            def near(items: Sequence[Mapping[str, Any]]) -> bool:
-                return any(math.hypot(float(i["u"]) - px[0], float(i["v"]) - px[1]) <= radius for i in items if "u" in i)
-
-            if near(rec.get("readings", [])) and not near(rec.get("refused", [])):
+            if _any_within(read_px, px, radius) and not _any_within(refused_px, px, radius):
                 resolved = True
                 break
         out.append(resolved)
     return out
+
+
+def _pixels(items: Sequence[Mapping[str, Any]]) -> np.ndarray:
+    """(M, 2) pixels of the journaled readings or refused blobs that have one."""
+    return np.array([(float(i["u"]), float(i["v"])) for i in items if "u" in i], dtype=float).reshape(-1, 2)
+
+
+def _any_within(pixels: np.ndarray, centre: np.ndarray, radius: float) -> bool:
+    return bool(len(pixels)) and bool(np.any(np.hypot(*(pixels - np.asarray(centre, float)).T) <= radius))
 
 
 def light_before(views: Mapping[tuple[str, str, int], Mapping[str, Any]], camera: str, rung: int,
