@@ -16,8 +16,10 @@ $(STAMP): pyproject.toml
 demo: $(STAMP)
 	$(VENV)/bin/fgloc demo -o out
 
+# Two workers (pytest-xdist, work stealing): 5:48 against 9:02 serial on this 2-core machine.
+# Module fixtures run once per worker that takes a test of the module.
 test: lint
-	$(PY) -m pytest
+	$(PY) -m pytest -n 2 --dist worksteal
 
 # Static checks on the installed layout (a plain, non-editable install into build/pkg):
 # the wheel's only top-level package is fgloc, the old names do not import, the
