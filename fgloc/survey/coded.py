@@ -104,6 +104,7 @@ from fgloc.survey.clock import (
     sum_times,
 )
 from fgloc.survey.coded_clock import SequentialClock
+from fgloc.survey.coded_epipolar import EpipolarBand
 from fgloc.survey.coded_ladder import (
     SEPARATION_PX,
     Blob,
@@ -192,6 +193,10 @@ class CodedSurvey:
         #: camera -> (K,) the angle (radians) two LEDs merge within around each lamp: the decoder's
         #: separation (coded_ladder.SEPARATION_PX) at the zoom of the recording that handed it
         self.final_lamp_radii: dict[str, np.ndarray] = {}
+        #: camera -> node one other camera read -> where it can lie (fallback looks, lever ``looks``),
+        #: and the bands' measured scale (radians; None: unmeasured): set with the fallback's prediction
+        self.bands: dict[str, dict[str, EpipolarBand]] = {}
+        self.across_scale: float | None = None
         self.here: dict[str, tuple[float, float]] = {}  # camera -> head (pan, tilt) after its last view
         self.wide_records: dict[str, list[dict[str, Any] | None]] = {}
         self._done_views = 0

@@ -13,7 +13,7 @@ from concurrent.futures import ThreadPoolExecutor
 from typing import TYPE_CHECKING
 
 from fgloc.camera.led_search import nearest_first
-from fgloc.survey.coded_levers import PREDICTED_RADIUS, blobs_near, predicted_directions
+from fgloc.survey.coded_levers import PREDICTED_RADIUS, blobs_near, take_bands, wide_prediction
 
 if TYPE_CHECKING:
     from fgloc.survey.coded import CodedSurvey
@@ -44,7 +44,8 @@ def run_fallback(coded: CodedSurvey, runner: SurveyRunner, pool: ThreadPoolExecu
     sequential way, priced per node, in one sweep across the boxes (:func:`sweep_key`)."""
     st = runner.state
     clean = {c for c in coded.rig.camera_ids if coded.remaining.get(c, 1) == 0}
-    predicted = predicted_directions(runner) if coded.settings.fallback in ("predicted", "round") else None
+    prediction = wide_prediction(runner) if coded.settings.fallback in ("predicted", "round") else None
+    predicted = None if prediction is None else take_bands(coded, prediction)
     starts = [set(r.get("silent", [])) for r in st.codes if r.get("action") == "start"]
     silent = set.intersection(*starts) if starts else set(coded.rig.node_ids)  # never confirmed a start
     searches: list[tuple[str, dict[str, list[tuple[float, float]]]]] = []  # (node, camera -> its looks)
@@ -58,7 +59,7 @@ def run_fallback(coded: CodedSurvey, runner: SurveyRunner, pool: ThreadPoolExecu
                 if cam in clean or at is None or coded.blobs.get(cam) is None or st.camera_finished(
                         node, cam, coded.rig.repeats):
                     continue
-                near = blobs_near(coded, cam, at)
+                near = blobs_near(coded, cam, at, node)
                 if near:
                     looks[cam] = near
                 else:

@@ -12,7 +12,7 @@ that searched them, and the searches took 92 s of a 147 s survey
 The round asks all of them at once, by code:
 
 1. **Who.** Per camera, the motes it did not read (silent ones excepted). A mote placed from
-   the journaled views (:func:`~fgloc.survey.coded_separation.predict_directions`; round
+   the journaled views (:func:`~fgloc.survey.coded_separation.predict`; round
    views excluded, so a resume re-plans the same round) would be searched at the camera's
    unexplained blobs within the radius of its predicted direction
    (:func:`~fgloc.survey.coded_levers.blobs_near`), and journaled not found without a search
@@ -58,7 +58,7 @@ from fgloc.camera.intrinsics import CameraIntrinsics
 from fgloc.camera.led_search import nearest_first
 from fgloc.core.geometry import pan_tilt_bearing
 from fgloc.survey.clock import Frames, PositionRead, Radio, Settle, Slew, Wait, parallel, price
-from fgloc.survey.coded_levers import PREDICTED_RADIUS, blobs_near
+from fgloc.survey.coded_levers import PREDICTED_RADIUS, blobs_near, take_bands
 from fgloc.survey.coded_views import distinct_directions
 from fgloc.survey.view_planner import coverage, plan_views
 
@@ -196,7 +196,7 @@ def run_fallback_round(coded: CodedSurvey, runner: SurveyRunner, pool: ThreadPoo
     from the journal, nothing is paused or recorded)."""
     from fgloc.drivers.tinyos.blink import pause_packets
     from fgloc.files.journal import journal_to_survey
-    from fgloc.survey.coded_separation import predict_directions, wide_survey
+    from fgloc.survey.coded_separation import predict, wide_survey
     from fgloc.survey.coded_views import into_search_box
 
     st, cams, rig = runner.state, coded.rig.camera_ids, coded.rig
@@ -205,9 +205,10 @@ def run_fallback_round(coded: CodedSurvey, runner: SurveyRunner, pool: ThreadPoo
     with runner._state_lock:
         base = journal_to_survey(st)
         records = [r for (_c, v, _a), r in sorted(st.views.items()) if not str(v).startswith(ROUND_PREFIX)]
-    predicted = predict_directions(wide_survey(base, records))
-    if predicted is None:
+    prediction = predict(wide_survey(base, records))
+    if prediction is None:
         return
+    predicted = take_bands(coded, prediction)
     silent = set().union(*(set(r.get("silent", [])) for r in st.codes if r.get("action") == "start"))
     readings: dict[str, dict[str, np.ndarray]] = {c: {} for c in cams}  # camera -> node -> bearing of its reading
     for r in records:
@@ -223,7 +224,7 @@ def run_fallback_round(coded: CodedSurvey, runner: SurveyRunner, pool: ThreadPoo
         mine = [n for n in lit if n not in read[c]]
         placed = [n for n in mine if n in predicted.get(c, {})]
         # as the fallback looks: near a placed mote's predicted direction, else at every blob left
-        looks[c] = {n: blobs_near(coded, c, predicted[c][n]) if n in predicted.get(c, {}) else list(coded.blobs[c] or [])
+        looks[c] = {n: blobs_near(coded, c, predicted[c][n], n) if n in predicted.get(c, {}) else list(coded.blobs[c] or [])
                     for n in mine}
         looks[c] = {n: v for n, v in looks[c].items() if v}
         pts = [predicted[c][n] for n in placed] + ([tuple(b) for b in coded.final_blobs[c]] if len(placed) < len(mine)

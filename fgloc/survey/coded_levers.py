@@ -4,7 +4,7 @@ remembered by the journal, and the predicted fallback.
 rig.json ``"coded"`` (optional) and ``fgloc survey --coded KEY=VALUE`` choose them
 (:func:`coded_settings`; a new survey's defaults are :class:`~fgloc.survey.coded_settings.CodedSettings`'s,
 the measured fastest free of mislabels and misses: continue, round (fallback), probe on, pairs groups, short
-view-major rounds, ladder focus, decode fit, length adaptive, explain views, zoom ladder 3x then 10x):
+view-major rounds, ladder focus, decode fit, length adaptive, explain views, looks epipolar, zoom ladder 3x then 10x):
 
 * ``retry``: ``"burst"`` | ``"continue"`` (a retry goes on recording L frames, sliding windows);
 * ``separate``: ``"zoom"`` | ``"radio"`` (crowded motes paused by colour class first,
@@ -27,6 +27,8 @@ view-major rounds, ladder focus, decode fit, length adaptive, explain views, zoo
   no blob unexplained, :func:`fgloc.survey.coded_recording.record_adaptive`);
 * ``explain``: ``"readings"`` | ``"views"`` (ladder focus: a blob whose neighbourhood another
   recording of the camera read cleanly is explained too, :func:`~fgloc.survey.coded_ladder.resolved_elsewhere`);
+* ``looks``: ``"disk"`` | ``"epipolar"`` (the fallback searches a mote another camera read only at
+  blobs near the epipolar plane of that reading, :mod:`fgloc.survey.coded_epipolar`);
 * ``levels``: the refinement zoom ladder, ascending fractions of the optical range (default
   ``[2/9, 1]``: 3x, then 10x).
 
@@ -36,7 +38,7 @@ value or ``--coded`` flag that names a lever with another value is refused in on
 flag or file, the lever, both values), never mixed in. A journal without recorded levers
 (written before they were recorded, or started as a sequential survey) resumes with
 :data:`LEGACY` (the defaults before this rule) overridden by rig.json and the flags, exactly as
-it resumed before. A lever added after a journal was written (``rounds``, ``round_order``, ``ladder``, ``decode``, ``length``, ``explain``) and
+it resumed before. A lever added after a journal was written (``rounds``, ``round_order``, ``ladder``, ``decode``, ``length``, ``explain``, ``looks``) and
 so missing from its recorded levers resumes with its :data:`LEGACY` value, the only one the
 survey that wrote it knew; a journal without a recorded ladder climbs :data:`LEGACY_LEVELS`.
 
@@ -45,6 +47,7 @@ Angles radians.
 
 from __future__ import annotations
 
+import logging
 import math
 import os
 from collections.abc import Mapping
@@ -57,13 +60,17 @@ from fgloc.core.errors import FglocError
 from fgloc.core.geometry import pan_tilt_bearing
 from fgloc.files.journal import JournalState
 from fgloc.files.rig_config import RigConfig
-from fgloc.survey.coded_ladder import EXPLAIN_MODES, LADDER_MODES
+from fgloc.survey.coded_epipolar import LOOKS_MODES, half_separation, within_band
+from fgloc.survey.coded_ladder import EXPLAIN_MODES, LADDER_MODES, SEPARATION_PX
 from fgloc.survey.coded_settings import CodedSettings
 from fgloc.survey.coded_views import distinct_directions
 
 if TYPE_CHECKING:
     from fgloc.survey.coded import CodedSurvey
+    from fgloc.survey.coded_separation import Prediction
     from fgloc.survey.runner import SurveyRunner
+
+logger = logging.getLogger(__name__)
 
 RETRY_MODES = ("burst", "continue")
 SEPARATE_MODES = ("zoom", "radio")
@@ -77,12 +84,14 @@ DECODE_MODES = ("levels", "fit")
 LENGTH_MODES = ("fixed", "adaptive")
 CHOICES = {"retry": RETRY_MODES, "separate": SEPARATE_MODES, "fallback": FALLBACK_MODES, "video": VIDEO_MODES,
            "probe": PROBE_MODES, "pairs": PAIRS_MODES, "rounds": ROUNDS_MODES, "round_order": ROUND_ORDERS,
-           "ladder": LADDER_MODES, "decode": DECODE_MODES, "length": LENGTH_MODES, "explain": EXPLAIN_MODES}
+           "ladder": LADDER_MODES, "decode": DECODE_MODES, "length": LENGTH_MODES, "explain": EXPLAIN_MODES,
+           "looks": LOOKS_MODES}
 #: the defaults before the journal recorded the levers: a journal without recorded levers resumes with these,
 #: and a lever a journal's header does not record (added after it was written) resumes with its value here
 LEGACY: dict[str, Any] = {"retry": "burst", "separate": "zoom", "fallback": "blobs", "video": "frames", "probe": "off",
                           "pairs": "off", "rounds": "full", "round_order": "class", "ladder": "climb",
-                          "decode": "levels", "length": "fixed", "explain": "readings"}
+                          "decode": "levels", "length": "fixed", "explain": "readings",
+                          "looks": "disk"}
 #: the zoom ladder of journals that recorded none (the default before ``(2/9, 1)``)
 LEGACY_LEVELS: tuple[float, ...] = (1 / 9, 3 / 9, 1.0)
 PREDICTED_RADIUS = math.radians(3.0)  #: a blob this close to a mote's predicted direction may hide it
@@ -149,26 +158,44 @@ def coded_settings(rig: RigConfig, overrides: Mapping[str, str] | None = None,
     return replace(base, **{key: value for key, (_, value) in explicit.items()})
 
 
-def predicted_directions(runner: SurveyRunner) -> dict[str, dict[str, tuple[float, float]]] | None:
-    """Every mote's predicted direction per camera from the journaled views' readings alone
-    (the same on a resume; :func:`~fgloc.survey.coded_separation.predict_directions`), None
-    when they do not solve."""
+def wide_prediction(runner: SurveyRunner) -> Prediction | None:
+    """Every mote's predicted direction per camera, and the epipolar bands of the motes one
+    camera read, from the journaled views' readings alone (the same on a resume;
+    :func:`~fgloc.survey.coded_separation.predict`), None when they do not solve."""
     from fgloc.files.journal import journal_to_survey
-    from fgloc.survey.coded_separation import predict_directions, wide_survey
+    from fgloc.survey.coded_separation import predict, wide_survey
 
     st = runner.state
     with runner._state_lock:
         base = journal_to_survey(st)
-    return predict_directions(wide_survey(base, [r for _, r in sorted(st.views.items())]))
+    return predict(wide_survey(base, [r for _, r in sorted(st.views.items())]))
 
 
-def blobs_near(coded: CodedSurvey, camera: str, at: tuple[float, float]) -> list[tuple[float, float]]:
+def take_bands(coded: CodedSurvey, prediction: Prediction) -> dict[str, dict[str, tuple[float, float]]]:
+    """Keep ``prediction``'s epipolar bands and scale on ``coded`` for :func:`blobs_near`;
+    returns its directions."""
+    coded.bands, coded.across_scale = prediction.bands, prediction.across_scale
+    if coded.settings.looks == "epipolar":
+        scale = "unmeasured (too few motes read by two cameras): the disk alone" if prediction.across_scale is None \
+            else f"{math.degrees(prediction.across_scale):.2f} deg x max(gain, 1), measured on the motes two cameras read"
+        logger.info(f"fallback looks: near the epipolar plane of each mote one camera read; band {scale}")
+    return prediction.directions
+
+
+def blobs_near(coded: CodedSurvey, camera: str, at: tuple[float, float], node: str | None = None
+               ) -> list[tuple[float, float]]:
     """The camera's unexplained blob directions within :data:`PREDICTED_RADIUS` of ``at``
-    (thinned to looks a quarter field of view apart, as the fallback's looks)."""
+    (thinned to looks a quarter field of view apart, as the fallback's looks); with ``looks
+    "epipolar"``, of a ``node`` one other camera read, only those within its epipolar band
+    (:func:`~fgloc.survey.coded_epipolar.within_band`, ``CodedSurvey.bands``)."""
     pts = coded.final_blobs.get(camera, np.zeros((0, 2)))
     if not len(pts):
         return []
     cos = pan_tilt_bearing(pts[:, 0], pts[:, 1]) @ pan_tilt_bearing(*at)
     k = coded.intrinsics_at(camera, coded.survey_zoom[camera])
     fov = 2 * math.atan(min(k.width / (2 * k.fx), k.height / (2 * k.fy)))
-    return distinct_directions(pts[cos >= math.cos(PREDICTED_RADIUS)], 0.25 * fov)
+    keep = cos >= math.cos(PREDICTED_RADIUS)
+    band = coded.bands.get(camera, {}).get(node) if node is not None else None
+    if coded.settings.looks == "epipolar" and band is not None and coded.across_scale is not None:
+        keep &= within_band(pts, band, coded.across_scale, half_separation(SEPARATION_PX, max(k.fx, k.fy)))
+    return distinct_directions(pts[keep], 0.25 * fov)

@@ -48,6 +48,7 @@ from fgloc.camera.intrinsics import CameraIntrinsics
 from fgloc.camera.pixel_angles import pan_tilt_to_pixel
 from fgloc.core.geometry import bearing_pan_tilt, pan_tilt_bearing, world_to_base
 from fgloc.core.model import NodeMode, Observation, Survey
+from fgloc.survey.coded_epipolar import EpipolarBand, Pose, across_scale, band
 from fgloc.survey.coded_rounds import RoundCandidates, round_candidates
 from fgloc.survey.view_planner import colour_conflicts
 
@@ -82,10 +83,29 @@ def wide_survey(base: Survey, records: Sequence[Mapping[str, Any]]) -> Survey:
     return Survey(base.mode, base.gauge, base.sigma, list(base.camera_ids), list(base.node_ids), obs)
 
 
+@dataclass(frozen=True)
+class Prediction:
+    """The wide-pass geometry of :func:`predict`."""
+
+    #: camera -> node -> predicted (pan, tilt) of every node some camera read
+    directions: dict[str, dict[str, tuple[float, float]]]
+    #: camera -> node read by one other camera only -> where it can lie (:mod:`fgloc.survey.coded_epipolar`)
+    bands: dict[str, dict[str, EpipolarBand]]
+    #: the bands' measured across scale (radians; :func:`~fgloc.survey.coded_epipolar.across_scale`), None: unmeasured
+    across_scale: float | None
+
+
 def predict_directions(survey: Survey) -> dict[str, dict[str, tuple[float, float]]] | None:
     """Per camera, the predicted (pan, tilt) of every node some camera read (see the module
     docstring); None when the readings do not solve (too few shared nodes) or the survey is not
     planar (a single bearing then places no node)."""
+    got = predict(survey)
+    return None if got is None else got.directions
+
+
+def predict(survey: Survey) -> Prediction | None:
+    """:func:`predict_directions`, with the epipolar band of every node one camera read, seen
+    from each other camera, and the bands' scale measured on the nodes two cameras read."""
     from fgloc.solve.joint import solve_survey
 
     if survey.mode is not NodeMode.PLANAR:
@@ -111,7 +131,23 @@ def predict_directions(survey: Survey) -> dict[str, dict[str, tuple[float, float
     for cam, pose in result.cameras.items():
         pan, tilt = bearing_pan_tilt(world_to_base(pose.rotation, pose.position, pts))
         out[cam] = {n: (float(p), float(t)) for n, p, t in zip(names, np.atleast_1d(pan), np.atleast_1d(tilt))}
-    return out
+    poses = {c: Pose(np.asarray(p.position, float), np.asarray(p.rotation, float)) for c, p in result.cameras.items()}
+    readings: dict[tuple[str, str], list[tuple[float, float]]] = {}
+    for o in survey.observations:
+        if o.camera in poses:
+            readings.setdefault((o.node, o.camera), []).append((o.pan, o.tilt))
+    read_by: dict[str, list[str]] = {}
+    for node, cam in readings:
+        read_by.setdefault(node, []).append(cam)
+    bands: dict[str, dict[str, EpipolarBand]] = {c: {} for c in poses}
+    for node, cams in sorted(read_by.items()):
+        if len(cams) != 1 or node not in where:
+            continue
+        for cam, seen_from in poses.items():
+            if cam != cams[0] and (b := band(poses[cams[0]].position, seen_from.position, seen_from.rotation,
+                                             where[node])):
+                bands[cam][node] = b
+    return Prediction(out, bands, across_scale(poses, readings, where))
 
 
 def crowded_motes(intr: CameraIntrinsics, blob_views: Sequence[tuple[tuple[float, float], tuple[float, float]]],

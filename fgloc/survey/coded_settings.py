@@ -89,6 +89,12 @@ class CodedSettings:
     #: (:func:`~fgloc.survey.coded_ladder.resolved_elsewhere`; the default); ``"readings"`` is the
     #: default of journals written before this lever
     explain: str = "views"
+    #: fallback ``"predicted"``/``"round"``: the blobs a camera searches for a mote another camera
+    #: read: ``"disk"``: every unexplained blob within 3° of its predicted direction; ``"epipolar"``:
+    #: of those, only the ones near the plane through both cameras and the reading's ray
+    #: (:mod:`fgloc.survey.coded_epipolar`; the default); ``"disk"`` is the default of journals
+    #: written before this lever
+    looks: str = "epipolar"
 
     def view_decoder(self) -> DecoderConfig:
         """The decoder configuration of the views, as ``decode`` chooses."""
