@@ -21,8 +21,7 @@ import numpy as np
 import pytest
 
 from fgloc.core.geometry import bearing_pan_tilt, pan_tilt_bearing
-from fgloc.core.model import Gauge, NodeMode
-from fgloc.files.journal import JournalHeader, JournalState, read_journal
+from fgloc.files.journal import read_journal
 from fgloc.survey.coded import CodedSurvey
 from fgloc.survey.coded_epipolar import (
     MIN_PAIRS,
@@ -34,9 +33,9 @@ from fgloc.survey.coded_epipolar import (
     band,
     within_band,
 )
-from fgloc.survey.coded_levers import LEGACY, blobs_near, coded_settings
+from fgloc.survey.coded_levers import LEGACY, blobs_near
 from fgloc.survey.session import run_survey
-from tests.test_survey_coded import coded_rig, opened, parsed
+from tests.test_survey_coded import coded_rig, opened, parsed, resumed_and_new
 
 
 def rotation_z(angle: float) -> np.ndarray:
@@ -171,12 +170,7 @@ def test_an_old_header_resumes_with_the_disk_and_the_lever_is_schema_checked() -
     from fgloc.files.rig_config import RigConfigError
 
     assert LEGACY["looks"] == "disk"
-    recorded = {k: v for k, v in LEGACY.items() if k != "looks"} | {"fallback": "round", "levels": [2 / 9, 1.0]}
-    state = JournalState(JournalHeader(NodeMode.PLANAR, Gauge("cam0", "cam1"), 0.001, ["cam0", "cam1"], ["n0"],
-                                       coded=recorded))
-    rig = parsed(coded_rig(4, width=160))
-    assert coded_settings(rig, None, state).looks == "disk"
-    assert coded_settings(rig).looks == "epipolar"  # a new survey
+    assert resumed_and_new("looks", fallback="round", levels=[2 / 9, 1.0]) == ("disk", "epipolar")
     data = coded_rig(6, width=160) | {"coded": {"looks": "disk"}}
     check(data, "rig", "rig.json", RigConfigError)
     with pytest.raises(RigConfigError, match="coded.looks"):

@@ -16,12 +16,9 @@ import numpy as np
 import pytest
 
 from fgloc.camera.pixel_angles import pan_tilt_to_pixel, pixel_to_pan_tilt
-from fgloc.core.model import Gauge, NodeMode
-from fgloc.files.journal import JournalHeader, JournalState
 from fgloc.survey.coded_ladder import SEPARATION_PX, resolved_elsewhere
-from fgloc.survey.coded_levers import LEGACY, coded_settings
 from tests.test_coded_ladder import intrinsics_at
-from tests.test_survey_coded import coded_rig, cut_and_resume, parsed, view_records
+from tests.test_survey_coded import coded_rig, cut_and_resume, parsed, resumed_and_new, view_records
 from tests.test_survey_coded_levers import survey_reads_every_visible_pair
 
 HEAD = (0.3, -0.2)
@@ -116,12 +113,7 @@ def test_a_survey_explaining_by_views_resumes_to_the_uncut_readings(tmp_path):
 
 
 def test_a_header_without_the_explain_lever_resumes_with_readings():
-    recorded = {k: v for k, v in LEGACY.items() if k != "explain"} | {"ladder": "focus", "levels": [2 / 9, 1.0]}
-    state = JournalState(JournalHeader(NodeMode.PLANAR, Gauge("cam0", "cam1"), 0.001, ["cam0", "cam1"], ["n0"],
-                                       coded=recorded))
-    rig = parsed(coded_rig(4, width=160))
-    assert coded_settings(rig, None, state).explain == "readings"
-    assert coded_settings(rig).explain == "views"  # a new survey
+    assert resumed_and_new("explain", ladder="focus", levels=[2 / 9, 1.0]) == ("readings", "views")  # old, new
 
 
 def test_the_explain_lever_is_schema_checked():

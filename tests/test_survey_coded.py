@@ -98,6 +98,19 @@ def cut_and_resume(rig, tmp_path, prefix: str) -> tuple[list[dict], list]:
     return records, states
 
 
+def resumed_and_new(lever: str, **recorded: object) -> tuple[object, object]:
+    """A lever's value in a survey resumed from a journal whose header recorded every lever
+    of ``LEGACY`` but ``lever`` (``recorded`` overriding), and in a new survey."""
+    from fgloc.core.model import Gauge, NodeMode
+    from fgloc.files.journal import JournalHeader, JournalState
+    from fgloc.survey.coded_levers import LEGACY, coded_settings
+
+    header = JournalHeader(NodeMode.PLANAR, Gauge("cam0", "cam1"), 0.001, ["cam0", "cam1"], ["n0"],
+                           coded={k: v for k, v in LEGACY.items() if k != lever} | recorded)
+    rig = parsed(coded_rig(4, width=160))
+    return getattr(coded_settings(rig, None, JournalState(header)), lever), getattr(coded_settings(rig), lever)
+
+
 def check_lever_refused_on_resume(data: dict, tmp_path, capsys, flag: str, named: str, own: str) -> None:
     """Survey with rig.json ``data``, cut the journal in half, resume with ``--coded flag``:
     refused in one line naming the lever ``named`` and the journal, exit 2, the journal
