@@ -137,11 +137,12 @@ def test_the_fallback_looks_only_at_blobs_inside_a_motes_band(tmp_path: Path) ->
     assert blobs_near(coded, "cam1", at, "n1") == [off]
 
 
-def _occluded_scene(looks: str, tmp_path: Path) -> tuple[int, float, set, set]:
+def _occluded_scene(looks: str, tmp_path: Path) -> tuple[int, float, set, set, int]:
     """100 motes with half the pairs occluded (seed 2), the predicted fallback after the level
     decoder at the fixed length with every unexplained blob climbing the ladder: the fallback
     searches 7 nodes with ``looks: disk``. Returns (nodes the fallback searched, their priced
-    seconds, the (camera, node) pairs read, those journaled not found)."""
+    seconds, the (camera, node) pairs read, those journaled not found, how many of those say the
+    band held no blob)."""
     data = coded_rig(100, 320, occlusion=0.5, seed=2)
     data["coded"] = {"fallback": "predicted", "decode": "levels", "length": "fixed", "ladder": "climb",
                      "looks": looks}
@@ -153,7 +154,8 @@ def _occluded_scene(looks: str, tmp_path: Path) -> tuple[int, float, set, set]:
     nodes = [r for r in st.field_times if r.get("scope") == "fallback_node"]
     read = {(c, n) for (n, c, _) in st.observations}
     assert not sim.scene.visible_pairs() - read, "every visible pair is read"
-    return len(nodes), sum(float(r["total_s"]) for r in nodes), read, set(st.not_found)
+    in_band = sum("epipolar plane" in reason for reason in st.not_found.values())
+    return len(nodes), sum(float(r["total_s"]) for r in nodes), read, set(st.not_found), in_band
 
 
 def test_the_fallback_searches_fewer_nodes_inside_the_bands_and_reads_the_same_pairs(tmp_path: Path) -> None:
@@ -163,6 +165,7 @@ def test_the_fallback_searches_fewer_nodes_inside_the_bands_and_reads_the_same_p
     assert epipolar[3] == disk[3]
     assert epipolar[0] < disk[0]
     assert epipolar[1] < disk[1]
+    assert epipolar[4] >= disk[0] - epipolar[0] and disk[4] == 0  # the nodes no longer searched say why
 
 
 def test_an_old_header_resumes_with_the_disk_and_the_lever_is_schema_checked() -> None:

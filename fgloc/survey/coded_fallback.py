@@ -13,7 +13,7 @@ from concurrent.futures import ThreadPoolExecutor
 from typing import TYPE_CHECKING
 
 from fgloc.camera.led_search import nearest_first
-from fgloc.survey.coded_levers import PREDICTED_RADIUS, blobs_near, take_bands, wide_prediction
+from fgloc.survey.coded_levers import PREDICTED_RADIUS, banded, blobs_near, take_bands, wide_prediction
 
 if TYPE_CHECKING:
     from fgloc.survey.coded import CodedSurvey
@@ -65,7 +65,8 @@ def run_fallback(coded: CodedSurvey, runner: SurveyRunner, pool: ThreadPoolExecu
                 else:
                     reason = (f"not decoded by the camera, and no blob it left unexplained lies within "
                               f"{math.degrees(PREDICTED_RADIUS):g} deg of where the other cameras' readings "
-                              f"place the mote (pan {math.degrees(at[0]):.2f}, tilt {math.degrees(at[1]):.2f} deg)")
+                              f"place the mote (pan {math.degrees(at[0]):.2f}, tilt {math.degrees(at[1]):.2f} deg)"
+                              + (" and near the epipolar plane of its reading" if banded(coded, cam, node) else ""))
                     runner.journal.not_found(node, cam, reason)
                     st.not_found[(node, cam)] = reason
                     runner.stats.not_found += 1

@@ -182,6 +182,13 @@ def take_bands(coded: CodedSurvey, prediction: Prediction) -> dict[str, dict[str
     return prediction.directions
 
 
+def banded(coded: CodedSurvey, camera: str, node: str) -> bool:
+    """Whether ``camera`` looks for ``node`` only inside its epipolar band (:func:`blobs_near`):
+    ``looks "epipolar"``, one other camera read it, and the band's scale was measured."""
+    return (coded.settings.looks == "epipolar" and coded.across_scale is not None
+            and node in coded.bands.get(camera, {}))
+
+
 def blobs_near(coded: CodedSurvey, camera: str, at: tuple[float, float], node: str | None = None
                ) -> list[tuple[float, float]]:
     """The camera's unexplained blob directions within :data:`PREDICTED_RADIUS` of ``at``
@@ -195,7 +202,7 @@ def blobs_near(coded: CodedSurvey, camera: str, at: tuple[float, float], node: s
     k = coded.intrinsics_at(camera, coded.survey_zoom[camera])
     fov = 2 * math.atan(min(k.width / (2 * k.fx), k.height / (2 * k.fy)))
     keep = cos >= math.cos(PREDICTED_RADIUS)
-    band = coded.bands.get(camera, {}).get(node) if node is not None else None
-    if coded.settings.looks == "epipolar" and band is not None and coded.across_scale is not None:
-        keep &= within_band(pts, band, coded.across_scale, half_separation(SEPARATION_PX, max(k.fx, k.fy)))
+    if node is not None and banded(coded, camera, node) and coded.across_scale is not None:
+        keep &= within_band(pts, coded.bands[camera][node], coded.across_scale,
+                            half_separation(SEPARATION_PX, max(k.fx, k.fy)))
     return distinct_directions(pts[keep], 0.25 * fov)
