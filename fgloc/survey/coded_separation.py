@@ -99,13 +99,14 @@ def predict_directions(survey: Survey) -> dict[str, dict[str, tuple[float, float
     """Per camera, the predicted (pan, tilt) of every node some camera read (see the module
     docstring); None when the readings do not solve (too few shared nodes) or the survey is not
     planar (a single bearing then places no node)."""
-    got = predict(survey)
+    got = predict(survey, bands=False)
     return None if got is None else got.directions
 
 
-def predict(survey: Survey) -> Prediction | None:
-    """:func:`predict_directions`, with the epipolar band of every node one camera read, seen
-    from each other camera, and the bands' scale measured on the nodes two cameras read."""
+def predict(survey: Survey, bands: bool = True) -> Prediction | None:
+    """:func:`predict_directions`, with (``bands``) the epipolar band of every node one camera
+    read, seen from each other camera, and the bands' scale measured on the nodes two cameras
+    read (without: no bands, no scale)."""
     from fgloc.solve.joint import solve_survey
 
     if survey.mode is not NodeMode.PLANAR:
@@ -131,6 +132,8 @@ def predict(survey: Survey) -> Prediction | None:
     for cam, pose in result.cameras.items():
         pan, tilt = bearing_pan_tilt(world_to_base(pose.rotation, pose.position, pts))
         out[cam] = {n: (float(p), float(t)) for n, p, t in zip(names, np.atleast_1d(pan), np.atleast_1d(tilt))}
+    if not bands:
+        return Prediction(out, {}, None)
     poses = {c: Pose(np.asarray(p.position, float), np.asarray(p.rotation, float)) for c, p in result.cameras.items()}
     readings: dict[tuple[str, str], list[tuple[float, float]]] = {}
     for o in survey.observations:
@@ -139,15 +142,15 @@ def predict(survey: Survey) -> Prediction | None:
     read_by: dict[str, list[str]] = {}
     for node, cam in readings:
         read_by.setdefault(node, []).append(cam)
-    bands: dict[str, dict[str, EpipolarBand]] = {c: {} for c in poses}
+    by_camera: dict[str, dict[str, EpipolarBand]] = {c: {} for c in poses}
     for node, cams in sorted(read_by.items()):
         if len(cams) != 1 or node not in where:
             continue
         for cam, seen_from in poses.items():
             if cam != cams[0] and (b := band(poses[cams[0]].position, seen_from.position, seen_from.rotation,
                                              where[node])):
-                bands[cam][node] = b
-    return Prediction(out, bands, across_scale(poses, readings, where))
+                by_camera[cam][node] = b
+    return Prediction(out, by_camera, across_scale(poses, readings, where))
 
 
 def crowded_motes(intr: CameraIntrinsics, blob_views: Sequence[tuple[tuple[float, float], tuple[float, float]]],
