@@ -37,7 +37,8 @@ def head_rig_data(n_nodes: int = 60, twin: str = "inprocess", sigma_deg: float =
                           "method": "pixel-offset"}
     data["node_ids"] = [f"n{j:03d}" for j in range(n_nodes)]
     if head_errors is None:
-        head_errors = {"cam0": CAM0_ERRORS} | {f"cam{i}": "typical" for i in range(1, cameras)}
+        # a copy: callers edit the returned data, and CAM0_ERRORS is shared with other test modules
+        head_errors = {"cam0": dict(CAM0_ERRORS)} | {f"cam{i}": "typical" for i in range(1, cameras)}
     data["simulation"] = {"seed": seed, "heights": [0.1, 0.12, 0.15, 0.1][:cameras], "twin": twin,
                           "head_errors": head_errors}
     data["retry"] = {"backoff_s": 0.0}
