@@ -16,8 +16,8 @@ $(STAMP): pyproject.toml
 demo: $(STAMP)
 	$(VENV)/bin/fgloc demo -o out
 
-# Two workers (pytest-xdist, work stealing): 5:48 against 9:02 serial on this 2-core machine.
-# Module fixtures run once per worker that takes a test of the module.
+# Two workers (pytest-xdist, work stealing) keep the suite within CI's ten minutes on two cores.
+# Module fixtures run once per worker that takes a test of the module; tests must not share mutable state.
 test: lint
 	$(PY) -m pytest -n 2 --dist worksteal
 
