@@ -21,13 +21,13 @@ import numpy as np
 import pytest
 
 from fgloc.core.geometry import bearing_pan_tilt, pan_tilt_bearing
+from fgloc.core.model import CameraPose
 from fgloc.files.journal import read_journal
 from fgloc.survey.coded import CodedSurvey
 from fgloc.survey.coded_epipolar import (
     MIN_PAIRS,
     SAFETY,
     EpipolarBand,
-    Pose,
     across_angles,
     across_scale,
     band,
@@ -43,11 +43,11 @@ def rotation_z(angle: float) -> np.ndarray:
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
-A = Pose(np.array([0.0, 0.0, 0.1]), rotation_z(0.3))
-B = Pose(np.array([1.0, 0.0, 0.12]), rotation_z(2.0))
+A = CameraPose(np.array([0.0, 0.0, 0.1]), rotation_z(0.3))
+B = CameraPose(np.array([1.0, 0.0, 0.12]), rotation_z(2.0))
 
 
-def seen_from(pose: Pose, point: np.ndarray) -> tuple[float, float]:
+def seen_from(pose: CameraPose, point: np.ndarray) -> tuple[float, float]:
     """(pan, tilt) of a world point in a camera's base frame."""
     pan, tilt = bearing_pan_tilt(pose.rotation.T @ (np.asarray(point, float) - pose.position))
     return float(pan), float(tilt)

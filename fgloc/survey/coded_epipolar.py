@@ -1,11 +1,11 @@
 """Where a mote one camera read can lie in another camera: near an epipolar plane (lever ``looks``).
 
 The fallback places a mote that camera A read and camera B did not where A's bearing meets
-the ground plane (:func:`~fgloc.survey.coded_separation.predict_directions`), and with
+the ground plane (:func:`~fgloc.survey.coded_separation.predict`), and with
 ``looks "disk"`` B looks at every blob it left unexplained within
 :data:`~fgloc.survey.coded_levers.PREDICTED_RADIUS` (3°) of that direction. The placement is
-poor along A's ray (the range of a far mote hangs on A's tilt: at 1000 motes up to 5° off
-seen from B, 99th percentile) but good across it: the mote lies on A's ray, so seen from B
+poor along A's ray (the range of a far mote hangs on A's tilt: at 1000 motes 5.1–5.3° off
+seen from B at the 99th percentile) but good across it: the mote lies on A's ray, so seen from B
 it lies near the plane through both cameras' centres and that ray (the *epipolar plane*). A
 blob far from that plane cannot hide the mote.
 
@@ -39,6 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from fgloc.core.geometry import pan_tilt_bearing
+from fgloc.core.model import CameraPose
 
 LOOKS_MODES = ("disk", "epipolar")
 #: fewer motes read by two cameras than this measure no scale: the disk alone holds
@@ -85,15 +86,7 @@ def within_band(directions: np.ndarray, band_: EpipolarBand, scale: float, offse
     return across_angles(directions, band_) <= scale * max(band_.gain, 1.0) + offset
 
 
-@dataclass(frozen=True)
-class Pose:
-    """A camera's base pose in the survey frame: ``position`` (3,), base-to-world ``rotation`` (3, 3)."""
-
-    position: np.ndarray
-    rotation: np.ndarray
-
-
-def across_scale(poses: Mapping[str, Pose], readings: Mapping[tuple[str, str], Sequence[tuple[float, float]]],
+def across_scale(poses: Mapping[str, CameraPose], readings: Mapping[tuple[str, str], Sequence[tuple[float, float]]],
                  points: Mapping[str, np.ndarray]) -> float | None:
     """:data:`SAFETY` times the largest ``across / max(gain, 1)`` over the motes two cameras
     read: for each such mote (``points``: its solved position) and ordered camera pair (A, B),
@@ -118,6 +111,25 @@ def across_scale(poses: Mapping[str, Pose], readings: Mapping[tuple[str, str], S
                 if got is not None:
                     worst = max(worst, float(across_angles(seen_b, got)[0]) / max(gain, 1.0))
     return SAFETY * worst if len(motes) >= MIN_PAIRS else None
+
+
+def one_camera_bands(poses: Mapping[str, CameraPose],
+                     readings: Mapping[tuple[str, str], Sequence[tuple[float, float]]],
+                     points: Mapping[str, np.ndarray]) -> dict[str, dict[str, EpipolarBand]]:
+    """Camera -> node -> band, for every node (``points``: its placed position) that exactly one
+    camera read (``readings``: (node, camera) -> (pan, tilt) list), seen from each other camera."""
+    read_by: dict[str, list[str]] = {}
+    for node, cam in readings:
+        read_by.setdefault(node, []).append(cam)
+    out: dict[str, dict[str, EpipolarBand]] = {c: {} for c in poses}
+    for node, cams in sorted(read_by.items()):
+        if len(cams) != 1 or node not in points or cams[0] not in poses:
+            continue
+        for cam, seen_from in poses.items():
+            if cam != cams[0] and (b := band(poses[cams[0]].position, seen_from.position, seen_from.rotation,
+                                             points[node])):
+                out[cam][node] = b
+    return out
 
 
 def half_separation(separation_px: float, focal_px: float) -> float:

@@ -48,7 +48,7 @@ from fgloc.camera.intrinsics import CameraIntrinsics
 from fgloc.camera.pixel_angles import pan_tilt_to_pixel
 from fgloc.core.geometry import bearing_pan_tilt, pan_tilt_bearing, world_to_base
 from fgloc.core.model import NodeMode, Observation, Survey
-from fgloc.survey.coded_epipolar import EpipolarBand, Pose, across_scale, band
+from fgloc.survey.coded_epipolar import EpipolarBand, across_scale, one_camera_bands
 from fgloc.survey.coded_rounds import RoundCandidates, round_candidates
 from fgloc.survey.view_planner import colour_conflicts
 
@@ -134,23 +134,12 @@ def predict(survey: Survey, bands: bool = True) -> Prediction | None:
         out[cam] = {n: (float(p), float(t)) for n, p, t in zip(names, np.atleast_1d(pan), np.atleast_1d(tilt))}
     if not bands:
         return Prediction(out, {}, None)
-    poses = {c: Pose(np.asarray(p.position, float), np.asarray(p.rotation, float)) for c, p in result.cameras.items()}
     readings: dict[tuple[str, str], list[tuple[float, float]]] = {}
     for o in survey.observations:
-        if o.camera in poses:
+        if o.camera in result.cameras:
             readings.setdefault((o.node, o.camera), []).append((o.pan, o.tilt))
-    read_by: dict[str, list[str]] = {}
-    for node, cam in readings:
-        read_by.setdefault(node, []).append(cam)
-    by_camera: dict[str, dict[str, EpipolarBand]] = {c: {} for c in poses}
-    for node, cams in sorted(read_by.items()):
-        if len(cams) != 1 or node not in where:
-            continue
-        for cam, seen_from in poses.items():
-            if cam != cams[0] and (b := band(poses[cams[0]].position, seen_from.position, seen_from.rotation,
-                                             where[node])):
-                by_camera[cam][node] = b
-    return Prediction(out, by_camera, across_scale(poses, readings, where))
+    return Prediction(out, one_camera_bands(result.cameras, readings, where),
+                      across_scale(result.cameras, readings, where))
 
 
 def crowded_motes(intr: CameraIntrinsics, blob_views: Sequence[tuple[tuple[float, float], tuple[float, float]]],
