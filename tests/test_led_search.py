@@ -122,3 +122,64 @@ def test_moves_are_clamped_to_the_search_range():
     assert loc.clamp(math.radians(175), 0.0) == pytest.approx((math.radians(170), 0.0))
     assert loc.clamp(math.radians(-176), -1.5) == pytest.approx((math.radians(-170), math.radians(-80)))
     assert loc.clamp(0.3, 0.1) == pytest.approx((0.3, 0.1))
+
+
+class _CountingHead:
+    """A head that records the operations it is asked for, then performs them."""
+
+    def __init__(self, head):
+        self.head, self.ops = head, []
+
+    def move_to(self, pan, tilt):
+        self.ops.append("move")
+        self.head.move_to(pan, tilt)
+
+    def grab_frame(self):
+        self.ops.append("grab")
+        return self.head.grab_frame()
+
+    def position(self):
+        self.ops.append("position")
+        return self.head.position()
+
+    def __getattr__(self, name):
+        return getattr(self.head, name)
+
+
+def _visible_node(sim):
+    """A node cam0 sees."""
+    return next(n for j, n in enumerate(sim.scene.node_ids) if sim.scene.visible[0, j])
+
+
+def test_a_look_where_the_head_rests_only_grabs():
+    """A search that starts where the head came to rest (its last reading) grabs at once: no
+    move, no settle, the same reading. Forgetting the rest (another driver of the head) moves again."""
+    rig = load_rig(EXAMPLE)
+    sim = InProcessRig(rig)
+    head = _CountingHead(sim.open_head("cam0"))
+    locator = LedLocator(rig.search, PinholePixelModel(rig.cameras[0].intrinsics))
+    near = _visible_node(sim)
+    sim.scene.lit = {near}
+    j = sim.scene.node_ids.index(near)
+    first = locator.locate(lambda op: op(head), tuple(sim.scene.apparent[0, j]))
+    assert first is not None and head.ops.count("move") >= 1 and locator.resting_at is not None
+    head.ops.clear()
+    again = locator.locate(lambda op: op(head), first)
+    assert head.ops[0] == "grab" and "move" not in head.ops
+    assert again == pytest.approx(first, abs=1e-9)
+    assert locator.rests_at(*first)
+    locator.resting_at = None
+    head.ops.clear()
+    assert locator.locate(lambda op: op(head), first) == pytest.approx(first, abs=1e-6)
+    assert head.ops[0] == "move"
+
+
+def test_the_rest_is_within_the_centring_tolerance():
+    """``rests_at`` is true within ``centre_tolerance_px`` of the rest and false beyond it."""
+    k = CameraIntrinsics(fx=500.0, fy=500.0, cx=320.0, cy=240.0, width=640, height=480)
+    locator = LedLocator(SearchConfig(centre_tolerance_px=2.0), PinholePixelModel(k))
+    assert not locator.rests_at(0.1, 0.0)  # unknown: never
+    locator.resting_at = (0.1, 0.0)
+    assert locator.rests_at(0.1 + 1.9 / 500.0, 0.0)
+    assert not locator.rests_at(0.1 + 2.1 / 500.0, 0.0)
+    assert locator.rests_at(0.1, 1.9 / 500.0) and not locator.rests_at(0.1, -2.1 / 500.0)

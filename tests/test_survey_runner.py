@@ -421,3 +421,45 @@ def test_any_exception_in_a_live_estimate_is_logged_and_the_survey_goes_on(tmp_p
     assert len(runner.stats.estimate_errors) == 1 and "RANSAC" in runner.stats.estimate_errors[0]
     assert len(FakeLocalizer.instances) == 2  # a fresh localizer after the failure
     assert runner.latest is not None and set(runner.latest.result.nodes) == set(rig.node_ids)
+
+
+def test_worker_forgets_the_rest_on_any_other_operation_and_repeats_move():
+    """Through the worker: a node searched from where the head rests grabs at once; any other
+    operation of the head (a coded view, a zoom, a reconnect) makes the next search move; and a
+    repeat reading points the head anew (its own settle), never re-reads the same frame."""
+    from fgloc.drivers.inprocess_rig import InProcessRig
+    from fgloc.files.rig_config import load_rig
+    from fgloc.survey.runner import CameraWorker, RunnerStats
+    from tests.test_led_search import _CountingHead, _visible_node
+    from tests.test_rig_config import EXAMPLE
+
+    rig = load_rig(EXAMPLE)
+    sim = InProcessRig(rig)
+    heads = []
+
+    def open_head():
+        heads.append(_CountingHead(sim.open_head("cam0")))
+        return heads[-1]
+
+    worker = CameraWorker("cam0", open_head, rig, RunnerStats())
+    near = _visible_node(sim)
+    readings: list[tuple[float, float]] = []
+
+    def record(_index, pan, tilt):
+        readings.append((pan, tilt))
+
+    sim.scene.lit = {near}
+    assert worker.measure(near, [0], None, record) is None
+    head = heads[-1]
+    head.ops.clear()
+    assert worker.measure(near, [0], readings[-1], record) is None
+    assert head.ops[0] == "grab" and "move" not in head.ops
+    worker.call(lambda h: h.position())  # another operation: the rest is forgotten
+    head.ops.clear()
+    assert worker.measure(near, [0], readings[-1], record) is None
+    assert head.ops[0] == "move"
+    head.ops.clear()
+    assert worker.measure(near, [0, 1], readings[-1], record) is None
+    # the first reading grabs where the head rests; the repeat moves before its own grab
+    assert head.ops[0] == "grab" and head.ops.count("move") == 1
+    assert head.ops.index("move") > head.ops.index("position") and len(readings) == 5

@@ -196,7 +196,12 @@ class LedLocator:
         self.find_spot = spot_finder or brightest_spot(search.threshold)
         self.cells = search_cells(search, pixel_model.field_of_view())
         self.stats = MeasureStats()
-        self.last_look: tuple[float, float] | None = None  #: (pan, tilt) radians of the last move, None before
+        self.last_look: tuple[float, float] | None = None  #: (pan, tilt) radians of the last look, None before
+        #: (pan, tilt) radians where the head rests after this locator's last operation, None when
+        #: unknown. A look within ``centre_tolerance_px`` of it grabs at once, with no move and no
+        #: settle. Whoever else drives the head, or may have moved it (another operation, a failure,
+        #: a reconnect), sets it to None first (:meth:`fgloc.survey.runner.CameraWorker.call`).
+        self.resting_at: tuple[float, float] | None = None
         # For on-off detection: blink(grab) -> (LED-on frame, LED-off frame); set per node by the runner.
         self.blink: Callable[[Callable[[], np.ndarray]], tuple[np.ndarray, np.ndarray]] | None = None
 
@@ -227,15 +232,28 @@ class LedLocator:
                 pan = s.pan_max if over <= under else s.pan_min
         return pan, min(max(tilt, s.tilt_min), s.tilt_max)
 
+    def rests_at(self, pan: float, tilt: float) -> bool:
+        """Whether the head rests within ``centre_tolerance_px`` of (pan, tilt) radians (:attr:`resting_at`)."""
+        if self.resting_at is None:
+            return False
+        k = self.pixels.intrinsics
+        cos = float(_direction(*self.resting_at) @ _direction(pan, tilt))
+        return math.acos(max(-1.0, min(1.0, cos))) * max(k.fx, k.fy) <= self.search.centre_tolerance_px
+
     def _look(self, call: Callable[[Callable[[PanTiltHead], object]], object], pan: float, tilt: float) -> Spot | None:
         pan, tilt = self.clamp(pan, tilt)
-        call(lambda h: h.move_to(pan, tilt))
+        here = self.resting_at
+        if here is None or not self.rests_at(pan, tilt):  # a head already there only grabs
+            call(lambda h: h.move_to(pan, tilt))
+            here = (pan, tilt)
+            self.stats.moves += 1
+            if self.search.settle_s > 0:
+                time.sleep(self.search.settle_s)
         self.last_look = (pan, tilt)
-        self.stats.moves += 1
-        if self.search.settle_s > 0:
-            time.sleep(self.search.settle_s)
         self.stats.frames += 1
-        return self.detect(call)
+        spot = self.detect(call)
+        self.resting_at = here
+        return spot
 
     def locate(
         self, call: Callable[[Callable[[PanTiltHead], object]], object], start: tuple[float, float]
@@ -274,6 +292,7 @@ class LedLocator:
             if at_edge:  # the LED lies beyond the range: measure it off-centre from the edge
                 break
         pan, tilt = call(lambda h: h.position())
+        self.resting_at = (float(pan), float(tilt))
         if self.search.method == "centre":
             return float(pan), float(tilt)
         return self.pixels.pixel_to_pan_tilt(pan, tilt, spot.x, spot.y)

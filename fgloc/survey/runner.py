@@ -142,6 +142,7 @@ class CameraWorker:
     def call(self, op: Callable[[PanTiltHead], object]) -> object:
         """Run one head operation with retries (``retry.head_attempts``, linear back-off), then reconnects."""
         retry = self.retry
+        self.locator.resting_at = None  # the locator sets it again after its own operations
 
         def try_op(_attempt: int) -> object:
             try:
@@ -179,7 +180,9 @@ class CameraWorker:
         an (LED-on, LED-off) frame pair for on-off detection."""
         self.locator.blink = blink  # type: ignore[assignment]
         try:
-            for index in indices:
+            for k, index in enumerate(indices):
+                if k:
+                    self.locator.resting_at = None  # a repeat points the head anew: its own settle
                 found = self.locator.locate(self.call, start or self.home)
                 if found is None:
                     return "not in view anywhere in the search pattern"
