@@ -54,6 +54,7 @@ sys.path.insert(0, str(ROOT))
 
 from fgloc.core.model import Survey  # noqa: E402
 from fgloc.drivers.inprocess_rig import InProcessRig  # noqa: E402
+from fgloc.evaluate.joint_nees import joint_nees  # noqa: E402
 from fgloc.evaluate.score import nees  # noqa: E402
 from fgloc.files.journal import read_journal  # noqa: E402
 from fgloc.files.rig_config import parse_rig  # noqa: E402
@@ -287,13 +288,14 @@ def without_views(survey: Survey) -> Survey:
                                          for o in survey.observations])
 
 
-def errors(survey: Survey, truth) -> tuple[list[float], list[float]]:  # noqa: ANN001
-    """(position errors, NEES) of the joint solve's nodes (planar, 2 dof)."""
+def errors(survey: Survey, truth) -> tuple[list[float], list[float], tuple[float, int]]:  # noqa: ANN001
+    """(position errors, NEES) of the joint solve's nodes (planar, 2 dof), and the scene's
+    joint NEES with its dof (:func:`fgloc.evaluate.joint_nees.joint_nees`)."""
     result = solve_survey(survey)
     ids = list(result.nodes)
     e = np.array([result.nodes[n].position[:2] - truth.nodes[n][:2] for n in ids])
     cov = np.array([result.nodes[n].covariance for n in ids])
-    return list(np.linalg.norm(e, axis=1)), list(nees(e, cov))
+    return list(np.linalg.norm(e, axis=1)), list(nees(e, cov)), joint_nees(survey, result, truth.nodes)
 
 
 def run(seed: int, motes: int, width: int, mode: str, out: Path, fx: float | None = None,
@@ -328,8 +330,8 @@ def run(seed: int, motes: int, width: int, mode: str, out: Path, fx: float | Non
     state = read_journal(out / "journal.jsonl")
     decoded, wrong, far = labels(rig, sim.scene, state)
     truth = sim.scene.truth
-    err, nv = errors(survey, truth)
-    err_iv, nv_iv = errors(without_views(survey), truth)
+    err, nv, joint = errors(survey, truth)
+    err_iv, nv_iv, joint_iv = errors(without_views(survey), truth)
     seen = {(c, n) for (n, c, _) in state.observations}
     extra: dict = {}
     if mode != "sequential":
@@ -344,6 +346,7 @@ def run(seed: int, motes: int, width: int, mode: str, out: Path, fx: float | Non
     return extra | {"field": ft, "wall": wall, "readings": len(state.observations), "decoded": decoded, "wrong": wrong,
             "far": far, "missing": len(sim.scene.visible_pairs() - seen), "rms": float(np.sqrt(np.mean(np.square(err)))),
             "views": len(state.views), "err": err, "nees": nv, "err_iv": err_iv, "nees_iv": nv_iv,
+            "joint": joint, "joint_iv": joint_iv,
             "named_views": len({o.view for o in survey.observations if o.view is not None})}
 
 
@@ -398,6 +401,17 @@ def main() -> None:
         _report(name, rows, args)
 
 
+def joint_line(scenes: list[tuple[float, int]]) -> str:
+    """The scenes' joint NEES (each chi-square with its dof when the covariance is honest,
+    whatever the nodes share), per scene over its dof, and summed with two-sided 95 % bounds."""
+    total, dof = sum(v for v, _ in scenes), sum(n for _, n in scenes)
+    lo, hi = chi2.ppf([0.025, 0.975], dof) / dof
+    outside = sum(not chi2.ppf(0.025, n) <= v <= chi2.ppf(0.975, n) for v, n in scenes)
+    return (f"    joint NEES / dof per scene {' '.join(f'{v / n:.2f}' for v, n in scenes)} ({outside} of {len(scenes)} "
+            f"outside its own 95 % bounds); all scenes {total / dof:.2f} over {dof} dof (95 % bounds {lo:.2f}-{hi:.2f}: "
+            f"{'inside' if lo <= total / dof <= hi else 'OUTSIDE'})")
+
+
 def _report(name: str, rows: dict[str, list[dict]], args: argparse.Namespace) -> None:
     """Per-seed breakdown, speed-up, RMS ratio and accuracy of the coded survey ``name``."""
     print(f"{name}:")
@@ -435,6 +449,7 @@ def _report(name: str, rows: dict[str, list[dict]], args: argparse.Namespace) ->
         half = 1.96 * statistics.stdev(per_seed) / math.sqrt(len(per_seed)) if len(per_seed) > 1 else float("nan")
         print(f"    per-seed ANEES {' '.join(f'{a:.2f}' for a in per_seed)}; mean {statistics.mean(per_seed):.2f} "
               f"+- {half:.2f} (95 %, seeds as independent samples: a scene's nodes share its pose errors)")
+        print(joint_line([r["joint" + key] for r in rs]))
     print(f"  pooled RMS ratio coded / sequential: views solved {_ratio(rows, 'err', name):.3f}, "
           f"views ignored {_ratio(rows, 'err_iv', name):.3f}")
 
