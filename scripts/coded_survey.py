@@ -206,9 +206,10 @@ def breakdown(rig, sim, state) -> dict:  # noqa: ANN001
             kinds[kind][0 if int(r["attempt"]) == 0 else 1] += 1
             kinds[kind][2] += int(r.get("frames", 0))
         out["cameras"][cam] = kinds
-    fb = [r for r in state.field_times if r.get("scope") in ("fallback_node", "fallback_group")]
-    out["fallback_nodes"] = sum(1 for r in fb if r.get("scope") == "fallback_node")
-    out["fallback_groups"] = len(fb) - out["fallback_nodes"]
+    fb = [r for r in state.field_times if r.get("scope") in ("fallback_node", "fallback_group", "fallback_pair")]
+    out["fallback_nodes"] = sum(1 if r.get("scope") == "fallback_node" else len(r.get("nodes", []))
+                                for r in fb if r.get("scope") != "fallback_group")
+    out["fallback_groups"] = sum(1 for r in fb if r.get("scope") == "fallback_group")
     out["fallback_s"] = sum(sum(float(x) for x in r["phases"].values()) for r in fb)
     return out
 

@@ -145,7 +145,7 @@ def test_a_survey_resumed_after_the_ladder_still_prices_the_owed_zoom_back(tmp_p
 
     def fallback_zoom(path) -> float:
         return sum(float(r["phases"].get("zoom", 0.0)) for r in read_journal(path / "journal.jsonl").field_times
-                   if r.get("scope") in ("fallback_node", "fallback_group"))  # the first search pays it
+                   if r.get("scope") in ("fallback_node", "fallback_group", "fallback_pair"))  # the first search pays it
 
     owed = fallback_zoom(full)
     assert owed > 0, "the scene should leave a zoom back owed to a fallback search"

@@ -54,6 +54,9 @@ class SearchConfig:
 
 
 
+IGNORE_RADIUS_PX = 12.0  #: :attr:`LedLocator.ignore`: a masked LED's disk (its blob and the centroid window's reach)
+
+
 @dataclass(frozen=True)
 class Spot:
     """An LED image: sub-pixel centroid (x right, y down) and peak brightness (0..255)."""
@@ -73,7 +76,10 @@ class PixelModel(Protocol):
         """Bearing (pan, tilt) of pixel (x, y) when the head reads (pan, tilt)."""
 
 
-def brightest_spot(threshold: int = 64, radius: int = 10) -> Callable[[np.ndarray], Spot | None]:
+SPOT_RADIUS_PX = 10  #: :func:`brightest_spot`'s centroid window reaches this far from the brightest pixel
+
+
+def brightest_spot(threshold: int = 64, radius: int = SPOT_RADIUS_PX) -> Callable[[np.ndarray], Spot | None]:
     """A detector: the brightest pixel (>= ``threshold``), refined by an intensity centroid.
 
     The centroid runs over a (2 radius + 1)^2 window with the window's minimum
@@ -202,11 +208,18 @@ class LedLocator:
         #: settle. Whoever else drives the head, or may have moved it (another operation, a failure,
         #: a reconnect), sets it to None first (:meth:`fgloc.survey.runner.CameraWorker.call`).
         self.resting_at: tuple[float, float] | None = None
+        #: base-frame unit bearings of other lit LEDs whose light is not the one sought (another
+        #: camera's node lit at the same time, read by this camera there): with ``single`` detection
+        #: each frame is dark within :data:`IGNORE_RADIUS_PX` of them (on-off frames blink only the
+        #: sought LED, so the others cancel). The caller keeps the sought LED well away from them.
+        self.ignore: list[FloatArray] = []
         # For on-off detection: blink(grab) -> (LED-on frame, LED-off frame); set per node by the runner.
         self.blink: Callable[[Callable[[], np.ndarray]], tuple[np.ndarray, np.ndarray]] | None = None
 
-    def detect(self, call: Callable[[Callable[[PanTiltHead], object]], object]) -> Spot | None:
-        """The lit LED in the current view (one frame, or an on/off pair), or None."""
+    def detect(self, call: Callable[[Callable[[PanTiltHead], object]], object],
+               at: tuple[float, float] | None = None) -> Spot | None:
+        """The lit LED in the current view (one frame, or an on/off pair), or None. ``at``: the
+        head's (pan, tilt), radians, where :attr:`ignore` is masked (single detection)."""
         grab = lambda: call(lambda h: h.grab_frame())  # noqa: E731
         if self.search.detection == "on-off":
             from fgloc.camera.led_detection import detect_led
@@ -219,7 +232,20 @@ class LedLocator:
                 return None
             d = result.detection
             return Spot(d.u, d.v, d.peak)
-        return self.find_spot(grab())  # type: ignore[arg-type]
+        frame = grab()
+        if self.ignore and at is not None:
+            frame = self._masked(np.asarray(frame), at)
+        return self.find_spot(frame)  # type: ignore[arg-type]
+
+    def _masked(self, frame: np.ndarray, at: tuple[float, float]) -> np.ndarray:
+        """``frame`` (head at ``at``) dark within :data:`IGNORE_RADIUS_PX` of each :attr:`ignore` bearing."""
+        out = frame.copy()
+        ys, xs = np.ogrid[:frame.shape[0], :frame.shape[1]]
+        for bearing in self.ignore:
+            px = self.pixels.bearing_to_pixel(at[0], at[1], bearing)
+            if px is not None:
+                out[(xs - px[0]) ** 2 + (ys - px[1]) ** 2 <= IGNORE_RADIUS_PX ** 2] = 0
+        return out
 
     def clamp(self, pan: float, tilt: float) -> tuple[float, float]:
         """The nearest head position inside the search range (pan wrapped first)."""
@@ -251,7 +277,7 @@ class LedLocator:
                 time.sleep(self.search.settle_s)
         self.last_look = (pan, tilt)
         self.stats.frames += 1
-        spot = self.detect(call)
+        spot = self.detect(call, here)
         self.resting_at = here
         return spot
 

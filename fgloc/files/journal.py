@@ -503,15 +503,19 @@ class JournalWriter:
         """One recording of a coded view with all its readings, in one durable line (the view's commit)."""
         self.append({"type": "view"} | record)
 
-    def field_time(self, scope: str, phases: dict[str, float], node: str | None = None) -> None:
+    def field_time(self, scope: str, phases: dict[str, float], node: str | None = None,
+                   nodes: list[str] | None = None) -> None:
         """Predicted field time per phase (seconds) of one node (``node``: a sequential survey's;
         ``fallback_node``: a coded survey's), of a coded survey's motes no camera placed, searched
-        lit at once (``fallback_group``), of the repeat phase (``repeats``) or of the whole survey
+        lit at once (``fallback_group``), of its fallback ``nodes`` searched one per camera lit
+        at once (``fallback_pair``), of the repeat phase (``repeats``) or of the whole survey
         (``survey``)."""
         rec: dict[str, Any] = {"type": "field_time", "scope": scope, "phases": dict(phases),
                                "total_s": float(sum(phases.values()))}
         if node is not None:
             rec["node"] = node
+        if nodes is not None:
+            rec["nodes"] = list(nodes)
         self.append(rec)
 
     def rig_changed(self, rig_hash_value: str, changed: list[str], operational: dict[str, Any]) -> None:

@@ -543,7 +543,7 @@ class CodedSurvey:
         plans = {c: self.plan(c) for c in self.rig.camera_ids}
         total = sum(len(v) for v in plans.values())
         self.fallback = sum_times(FieldTime({k: float(v) for k, v in r["phases"].items()})
-                                  for r in runner.state.field_times if r.get("scope") in ("fallback_node", "fallback_group"))
+                                  for r in runner.state.field_times if r.get("scope") in ("fallback_node", "fallback_group", "fallback_pair"))
         # the motes blink until the stop, which follows the last view: without a journaled stop
         # (first run, or killed during the views) they are started (again; the codes need no sync)
         todo = not any(r.get("action") == "stop" for r in runner.state.codes)

@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING
 
 from fgloc.camera.led_search import nearest_first
 from fgloc.survey.coded_levers import PREDICTED_RADIUS, banded, blobs_near, take_bands, wide_prediction
+from fgloc.survey.coded_paired import batches
 
 if TYPE_CHECKING:
     from fgloc.survey.coded import CodedSurvey
@@ -86,19 +87,29 @@ def run_fallback(coded: CodedSurvey, runner: SurveyRunner, pool: ThreadPoolExecu
             continue
         searches.append((node, looks))
     searches = search_unplaced_together(coded, runner, pool, searches, silent)
-    for node, looks in sorted(searches, key=sweep_key):
-        coded.stats.fallback_nodes += 1
-        logger.info(f"{node}: not decoded by every camera; measured the sequential way")
+    for batch in batches(coded, runner, sorted(searches, key=sweep_key), silent, predicted):
+        nodes = [node for node, _ in batch]
+        coded.stats.fallback_nodes += len(batch)
+        logger.info(f"{', '.join(nodes)}: not decoded by every camera; measured the sequential way"
+                    + (", one per camera lit at once" if len(batch) > 1 else ""))
         coded.clock.begin()
         grids = {c: w.locator.cells for c, w in runner.workers.items()}
         try:
-            start_at = aim_at_looks(coded, runner, looks, node in silent)
-            runner.run_node(node, pool, check_misses=False, start_at=start_at)
+            if len(batch) == 1:
+                node, looks = batch[0]
+                runner.run_node(node, pool, check_misses=False,
+                                start_at=aim_at_looks(coded, runner, looks, node in silent))
+            else:  # coded_paired: each camera searches its own node at its own looks
+                start_at = aim_at_looks(coded, runner, {c: v for _, looks in batch for c, v in looks.items()}, False)
+                runner.run_together({c: node for node, looks in batch for c in looks}, pool, start_at)
         finally:
             node_time = coded.clock.end()
             for cam, worker in runner.workers.items():
                 worker.locator.cells = grids[cam]
-        runner.journal.field_time("fallback_node", dict(node_time.phases), node=node)
+        if len(batch) == 1:
+            runner.journal.field_time("fallback_node", dict(node_time.phases), node=nodes[0])
+        else:
+            runner.journal.field_time("fallback_pair", dict(node_time.phases), nodes=nodes)
         coded.fallback = coded.fallback + node_time
         if runner.on_progress is not None:
             runner.on_progress(coded.progress(runner, total, total, t0))

@@ -95,6 +95,10 @@ class CodedSettings:
     #: (:mod:`fgloc.survey.coded_epipolar`; the default); ``"disk"`` is the default of journals
     #: written before this lever
     looks: str = "epipolar"
+    #: the fallback's searches: ``"paired"``: the one-camera searches of different cameras zipped
+    #: into batches of one node per camera, lit together (:mod:`fgloc.survey.coded_paired`; the
+    #: default); ``"one"``: one node at a time (the default of journals written before this lever)
+    searches: str = "paired"
 
     def view_decoder(self) -> DecoderConfig:
         """The decoder configuration of the views, as ``decode`` chooses."""

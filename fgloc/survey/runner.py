@@ -44,6 +44,7 @@ from typing import TYPE_CHECKING
 
 from fgloc.camera.led_search import LedLocator, PinholePixelModel
 from fgloc.core.errors import FglocError
+from fgloc.core.geometry import pan_tilt_bearing
 from fgloc.core.hardware import LedController, PanTiltHead
 from fgloc.core.model import Survey
 from fgloc.core.retry import RetryPolicy, linear
@@ -52,6 +53,8 @@ from fgloc.files.rig_config import RigConfig
 from fgloc.survey.live import MIN_SHARED_NODES, Estimator, LiveEstimate
 
 if TYPE_CHECKING:
+    import numpy as np
+
     from fgloc.survey.clock import FieldTime
     from fgloc.survey.coded_clock import SequentialClock
 
@@ -174,11 +177,14 @@ class CameraWorker:
 
     def measure(self, node: str, indices: list[int], start: tuple[float, float] | None,
                 record: Callable[[int, float, float], None],
-                blink: Callable[[Callable[[], object]], tuple] | None = None) -> str | None:
+                blink: Callable[[Callable[[], object]], tuple] | None = None,
+                ignore: Sequence[np.ndarray] = ()) -> str | None:
         """Take the readings ``indices`` of the lit node, handing each to ``record(index, pan, tilt)``
         the moment it is taken; returns None, or the reason the camera gave up. ``blink`` grabs
-        an (LED-on, LED-off) frame pair for on-off detection."""
+        an (LED-on, LED-off) frame pair for on-off detection; ``ignore``: bearings of other lit
+        LEDs (:attr:`~fgloc.camera.led_search.LedLocator.ignore`)."""
         self.locator.blink = blink  # type: ignore[assignment]
+        self.locator.ignore = list(ignore)
         try:
             for k, index in enumerate(indices):
                 if k:
@@ -190,6 +196,8 @@ class CameraWorker:
                 start = found
         except CameraFailed as exc:
             return f"camera error: {exc}"
+        finally:
+            self.locator.ignore = []
         return None
 
     def close(self) -> None:
@@ -321,52 +329,76 @@ class SurveyRunner:
         """Measure one node with every camera that still needs it (``check_misses``: apply
         ``retry.max_consecutive_misses``; off for a coded survey's fallback nodes). A camera's
         search starts at its previous reading, or at ``start_at[camera]`` (pan, tilt) when given."""
-        st = self.state
-        if node not in st.started:
-            self.journal.node_started(node)
-            st.started.append(node)
-        if node not in st.led_failed:
-            if not self._set_led(node, True):
-                led_reason = f"no acknowledgement after {self.rig.retry.led_attempts} attempts"
-                self.journal.led_failed(node, led_reason)
-                st.led_failed[node] = led_reason
-                self.stats.led_failed += 1
-                logger.warning(f"{node}: LED failed: {led_reason}")
-            else:
-                if self.rig.search.led_wait_s > 0:
-                    time.sleep(self.rig.search.led_wait_s)
-                jobs = []  # decided before any camera starts recording into the state
-                for cam in self.rig.camera_ids:
-                    if st.camera_finished(node, cam, self.rig.repeats):
-                        continue
-                    have = {o.index for o in st.observations_of(node, cam)}
-                    indices = [k for k in range(self.rig.repeats) if k not in have]
-                    jobs.append((cam, indices, (start_at or {}).get(cam) or self._start_for(cam)))
-                blink = (lambda grab: self._blink([node], grab)) if self.rig.search.detection == "on-off" else None
-                def recorder(cam: str) -> Callable[[int, float, float], None]:
-                    return lambda index, pan, tilt: self._record_observation(
-                        JournalObservation(node, cam, index, pan, tilt))
-
-                pending = {
-                    cam: pool.submit(self.workers[cam].measure, node, indices, start, recorder(cam), blink)
-                    for cam, indices, start in jobs
-                }
-                for cam, future in pending.items():
-                    reason = future.result()
-                    self.misses[cam] = 0 if reason is None else self.misses[cam] + 1
-                    if reason is not None:
-                        self._last_miss[cam] = reason
-                        self.journal.not_found(node, cam, reason)
-                        st.not_found[(node, cam)] = reason
-                        self.stats.not_found += 1
-                        # An occluded pair is an ordinary outcome; a camera that kept failing is not.
-                        level = logging.WARNING if reason.startswith("camera error") else logging.INFO
-                        logger.log(level, f"{node}: not found by {cam}: {reason}")
-                self.switch_off(node)
-        self.journal.node_done(node)
-        st.done.add(node)
+        self.run_together({cam: node for cam in self.rig.camera_ids}, pool, start_at)
         if check_misses:
             self._check_misses(node)
+
+    def run_together(self, searches: Mapping[str, str], pool: ThreadPoolExecutor,
+                     start_at: Mapping[str, tuple[float, float]] | None = None) -> None:
+        """Measure each camera's node of ``searches`` (camera -> the node it searches; the same
+        node for every camera is :meth:`run_node`) with all of them lit at once, the cameras in
+        parallel. A camera searching its node while another node is lit masks that node's light
+        where it read it (:attr:`~fgloc.camera.led_search.LedLocator.ignore`), and on-off
+        detection blinks only the camera's own node: the caller lights together only nodes the
+        camera read, far from where it looks for its own (:mod:`fgloc.survey.coded_fallback`).
+        Each node is journaled started, its readings or ``not_found``, then ``node_done``."""
+        st = self.state
+        nodes = list(dict.fromkeys(searches.values()))
+        lit: list[str] = []
+        for node in nodes:
+            if node not in st.started:
+                self.journal.node_started(node)
+                st.started.append(node)
+            if node in st.led_failed:
+                continue
+            if self._set_led(node, True):
+                lit.append(node)
+                continue
+            led_reason = f"no acknowledgement after {self.rig.retry.led_attempts} attempts"
+            self.journal.led_failed(node, led_reason)
+            st.led_failed[node] = led_reason
+            self.stats.led_failed += 1
+            logger.warning(f"{node}: LED failed: {led_reason}")
+        if lit:
+            if self.rig.search.led_wait_s > 0:
+                time.sleep(self.rig.search.led_wait_s)
+            jobs = []  # decided before any camera starts recording into the state
+            for cam, node in searches.items():
+                if node not in lit or st.camera_finished(node, cam, self.rig.repeats):
+                    continue
+                have = {o.index for o in st.observations_of(node, cam)}
+                indices = [k for k in range(self.rig.repeats) if k not in have]
+                ignore = [pan_tilt_bearing(o.pan, o.tilt) for other in lit if other != node
+                          for o in st.observations_of(other, cam)]
+                jobs.append((cam, node, indices, (start_at or {}).get(cam) or self._start_for(cam), ignore))
+
+            def recorder(cam: str, node: str) -> Callable[[int, float, float], None]:
+                return lambda index, pan, tilt: self._record_observation(JournalObservation(node, cam, index, pan, tilt))
+
+            def blinker(node: str) -> Callable[[Callable[[], object]], tuple] | None:
+                return (lambda grab: self._blink([node], grab)) if self.rig.search.detection == "on-off" else None
+
+            pending = {
+                (cam, node): pool.submit(self.workers[cam].measure, node, indices, start, recorder(cam, node),
+                                         blinker(node), ignore)
+                for cam, node, indices, start, ignore in jobs
+            }
+            for (cam, node), future in pending.items():
+                reason = future.result()
+                self.misses[cam] = 0 if reason is None else self.misses[cam] + 1
+                if reason is not None:
+                    self._last_miss[cam] = reason
+                    self.journal.not_found(node, cam, reason)
+                    st.not_found[(node, cam)] = reason
+                    self.stats.not_found += 1
+                    # An occluded pair is an ordinary outcome; a camera that kept failing is not.
+                    level = logging.WARNING if reason.startswith("camera error") else logging.INFO
+                    logger.log(level, f"{node}: not found by {cam}: {reason}")
+            for node in lit:
+                self.switch_off(node)
+        for node in nodes:
+            self.journal.node_done(node)
+            st.done.add(node)
 
     def _check_misses(self, node: str) -> None:
         """Stop the survey when a camera reached ``retry.max_consecutive_misses`` misses in a row."""
