@@ -36,7 +36,6 @@ from dataclasses import replace
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-import gtsam  # noqa: E402
 import numpy as np  # noqa: E402
 from scipy.stats import chi2, t  # noqa: E402
 
@@ -44,6 +43,7 @@ from fgloc.core.errors import FglocError  # noqa: E402
 from fgloc.core.head_model import HEAD_DIM, HEAD_PARAMETERS  # noqa: E402
 from fgloc.core.model import NodeMode, Result, Survey  # noqa: E402
 from fgloc.evaluate.crlb import cramer_rao_bound  # noqa: E402
+from fgloc.evaluate.joint_nees import inverse_hessian_block  # noqa: E402
 from fgloc.init.start import InitialEstimate  # noqa: E402
 from fgloc.sim.head_errors import inject_head_errors, limit_pan_range, sample_head_errors  # noqa: E402
 from fgloc.sim.scenes import PaperScenario, RandomScene, observe, paper_scenario, random_scene  # noqa: E402
@@ -122,18 +122,9 @@ def joint_covariance(result: Result, report: HeadCalibrationReport, survey: Surv
     exclude = frozenset(f.index for f in result.flagged)
     problem = build_self_calibration_problem(survey, start, active, heads, exclude=exclude)
     problem.prepare(problem.initial)
-    linear = problem.graph.linearize(problem.initial)
-    keys = sorted(problem.initial.keys())
-    ordering = gtsam.Ordering()
-    for k in keys:
-        ordering.push_back(k)
-    info, _ = linear.hessian(ordering)
-    dims = problem.initial.dims()
-    offsets = np.cumsum([0] + [int(dims[k]) for k in keys])
-    where = {k: offsets[i] for i, k in enumerate(keys)}
-    d_ = _dim(survey)
-    cols = np.concatenate([np.arange(where[k], where[k] + d_) for k in problem.node_keys.values()])
-    return np.linalg.inv(info)[np.ix_(cols, cols)], list(problem.node_keys)
+    order = list(problem.node_keys)
+    keys = [problem.node_keys[n] for n in order]
+    return inverse_hessian_block(problem.graph, problem.initial, keys, _dim(survey)), order
 
 
 def joint_nees(result: Result, report: HeadCalibrationReport, survey: Survey,

@@ -35,20 +35,27 @@ def joint_node_covariance(survey: Survey, result: Result,
                             nodes={n: np.asarray(e.position, float) for n, e in result.nodes.items()})
     problem = build_problem(survey, start, options, exclude=frozenset(f.index for f in result.flagged))
     problem.prepare(problem.initial)
-    linear = problem.graph.linearize(problem.initial)
-    keys = sorted(problem.initial.keys())
-    ordering = gtsam.Ordering()
-    for k in keys:
-        ordering.push_back(k)
-    information, _ = linear.hessian(ordering)
-    dims = problem.initial.dims()
-    offsets = np.cumsum([0] + [int(dims[k]) for k in keys])
-    where = {k: int(offsets[i]) for i, k in enumerate(keys)}
     order = list(problem.node_keys)
     d = 2 if survey.mode is NodeMode.PLANAR else 3
-    columns = np.concatenate([np.arange(where[problem.node_keys[n]], where[problem.node_keys[n]] + d) for n in order])
+    return inverse_hessian_block(problem.graph, problem.initial, [problem.node_keys[n] for n in order], d), order
+
+
+def inverse_hessian_block(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, keys: list[int],
+                          dim: int) -> np.ndarray:
+    """The (dim * len(keys))-square block of ``keys`` (each a ``dim``-vector variable, in that
+    order) of the inverse Hessian of ``graph`` linearized at ``values``: their joint covariance."""
+    linear = graph.linearize(values)
+    ordered = sorted(values.keys())
+    ordering = gtsam.Ordering()
+    for k in ordered:
+        ordering.push_back(k)
+    information, _ = linear.hessian(ordering)
+    dims = values.dims()
+    offsets = np.cumsum([0] + [int(dims[k]) for k in ordered])
+    where = {k: int(offsets[i]) for i, k in enumerate(ordered)}
+    columns = np.concatenate([np.arange(where[k], where[k] + dim) for k in keys])
     covariance = np.linalg.inv(information)[np.ix_(columns, columns)]
-    return 0.5 * (covariance + covariance.T), order
+    return 0.5 * (covariance + covariance.T)
 
 
 def joint_nees(survey: Survey, result: Result, truth_nodes: dict[str, np.ndarray],
