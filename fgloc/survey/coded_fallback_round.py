@@ -180,11 +180,11 @@ def _searches_s(coded: CodedSurvey, looks: Mapping[str, Mapping[str, list[tuple[
         node_lanes = []
         for c, cells in node_looks.items():
             ops: list[Any] = []
-            at = head[c]
-            for target in nearest_first(cells, nearest_look(cells, at)):
-                if at is None or target != at:  # a head already at the look only grabs (LedLocator.rests_at)
-                    ops += [Slew.between(at or target, target), Settle()]
-                ops.append(Frames(grabs))
+            # every look with its move and settle: the price leaves centring out, so it cannot know
+            # whether the head still rests at the look (then the search only grabs, LedLocator.rests_at)
+            at = head[c] or nearest_look(cells, None)
+            for target in nearest_first(cells, nearest_look(cells, head[c])):
+                ops += [Slew.between(at, target), Settle(), Frames(grabs)]
                 at = head[c] = target
             node_lanes.append(price(ops, coded.timing[c]))
         total += price([Radio(unicast=2), Wait(coded.rig.search.led_wait_s)], first).total + parallel(node_lanes).total
