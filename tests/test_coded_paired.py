@@ -87,7 +87,8 @@ def test_a_pair_needs_the_other_node_read_and_clear_of_the_predicted_disk():
 
 def _scene(searches: str, tmp_path: Path):
     """100 motes, 30 % of the pairs occluded (seed 3): after the round, cam0 and cam1 each
-    search one node the other read."""
+    search one node the other read. Returns the readings ((camera, node) -> (pan, tilt)), the
+    pairs journaled not found, the fallback's field-time records, the rig and the journal."""
     data = coded_rig(100, 320, occlusion=0.3, seed=3)
     data["coded"] = {"searches": searches}
     rig = parsed(data)
@@ -95,13 +96,15 @@ def _scene(searches: str, tmp_path: Path):
     out = tmp_path / searches
     run_survey(rig, out, opened=rig_opened)
     st = read_journal(out / "journal.jsonl")
-    read = {(c, n): (p, t) for (n, c, _), (p, t) in ((key, (o.pan, o.tilt)) for key, o in st.observations.items())}
+    read = {(c, n): (o.pan, o.tilt) for (n, c, _), o in st.observations.items()}
     assert not sim.scene.visible_pairs() - set(read), "every visible pair is read"
     fallback = [r for r in st.field_times if str(r.get("scope", "")).startswith("fallback")]
-    return read, set(st.not_found), fallback
+    return read, set(st.not_found), fallback, rig, out / "journal.jsonl"
 
 
 def test_paired_searches_read_the_same_pairs_in_less_time(tmp_path: Path):
+    """... and a kill after a pair was lit, resumed with both LEDs still on (motes keep their
+    LED), reads exactly the same: the partner is switched off before the other's search."""
     one = _scene("one", tmp_path)
     paired = _scene("paired", tmp_path)
     assert set(paired[0]) == set(one[0]) and paired[1] == one[1]
@@ -113,6 +116,20 @@ def test_paired_searches_read_the_same_pairs_in_less_time(tmp_path: Path):
                 if n == node:
                     assert value == pytest.approx(one[0][(c, n)], abs=1e-12)
     assert sum(r["total_s"] for r in paired[2]) < sum(r["total_s"] for r in one[2])
+
+    lines = paired[4].read_bytes().splitlines(keepends=True)
+    pair = pairs[0]["nodes"]
+    cut = max(k for k, line in enumerate(lines) if b'"node_started"' in line
+              and any(f'"{n}"'.encode() in line for n in pair))
+    resumed = tmp_path / "cut"
+    resumed.mkdir()
+    (resumed / "journal.jsonl").write_bytes(b"".join(lines[:cut + 1]))
+    rig_opened, sim = opened(paired[3])
+    sim.scene.lit = set(pair)  # the killed batch's LEDs
+    run_survey(paired[3], resumed, resume=True, opened=rig_opened)
+    st = read_journal(resumed / "journal.jsonl")
+    assert {(c, n): (o.pan, o.tilt) for (n, c, _), o in st.observations.items()} == paired[0]
+    assert st.duplicates_ignored == 0 and not sim.scene.lit
 
 
 def test_an_old_header_resumes_one_at_a_time_and_the_lever_is_schema_checked():

@@ -341,9 +341,13 @@ class SurveyRunner:
         where it read it (:attr:`~fgloc.camera.led_search.LedLocator.ignore`), and on-off
         detection blinks only the camera's own node: the caller lights together only nodes the
         camera read, far from where it looks for its own (:mod:`fgloc.survey.coded_fallback`).
-        Each node is journaled started, its readings or ``not_found``, then ``node_done``."""
+        Each node is journaled started, its readings or ``not_found``, then ``node_done``. A node
+        started and not done that is not in ``searches`` (a partner lit when the survey was
+        killed) is switched off first, so its light never meets another node's search."""
         st = self.state
         nodes = list(dict.fromkeys(searches.values()))
+        for node in [n for n in st.started if n not in st.done and n not in nodes and n not in st.led_failed]:
+            self.switch_off(node)  # lit when the survey was killed mid-batch (a pair's partner): dark first
         lit: list[str] = []
         for node in nodes:
             if node not in st.started:
