@@ -3,6 +3,7 @@
 * A camera searching its node while another node is lit masks the other's light where it read
   it: on the example rig, with two LEDs in one frame, the unmasked search reads the wrong LED
   for some pair, the masked one reads its own LED for every pair, exactly as alone.
+* With on-off detection a camera blinks only its own LED, so the other's steady light cancels.
 * Two nodes share a batch only when each camera read the other node, far from the predicted
   disk of its own; otherwise each is searched alone.
 * On a seeded occluded scene, ``paired`` lights a pair together: the same pairs read and not
@@ -66,6 +67,47 @@ def test_a_camera_masks_the_other_lit_led_where_it_read_it():
             wrong_unmasked += unmasked != pytest.approx(alone[a], abs=1e-4)
     assert tried >= 5 and wrong_unmasked >= 1, (tried, wrong_unmasked)
     assert worker.locator.ignore == []  # measure leaves no mask behind
+
+
+def test_on_off_detection_blinks_only_the_cameras_own_led_so_the_other_cancels():
+    """Rendered frames (textured background, sensor noise) with on-off detection: a camera
+    blinking only its own LED while another LED in the same frame stays lit reads its own LED
+    as alone (within the noisy centroid's error), with no mask."""
+    rig = load_rig(EXAMPLE.parent / "rig-rendered.json")
+    sim = InProcessRig(rig)
+    worker = CameraWorker("cam0", lambda: sim.open_head("cam0"), rig, RunnerStats())
+    half = 0.4 * min(PinholePixelModel(rig.cameras[0].intrinsics).field_of_view())
+    seen = [j for j in range(len(sim.scene.node_ids)) if sim.scene.visible[0, j]]
+
+    def blink_only(node: str):
+        def blink(grab):
+            sim.scene.lit.discard(node)
+            off = grab()
+            sim.scene.lit.add(node)
+            return grab(), off
+        return blink
+
+    def read(node: str, start: tuple[float, float]) -> tuple[float, float]:
+        got: list[tuple[float, float]] = []
+        assert worker.measure(node, [0], start, lambda _i, p, t: got.append((p, t)), blink_only(node)) is None
+        return got[0]
+
+    tried = 0
+    for a in seen:
+        b = next((b for b in seen if b != a and 0.05 < math.acos(min(1.0, float(
+            pan_tilt_bearing(*sim.scene.apparent[0, a]) @ pan_tilt_bearing(*sim.scene.apparent[0, b])))) < half), None)
+        if b is None:
+            continue
+        start = tuple(sim.scene.apparent[0, a])
+        sim.scene.lit = {sim.scene.node_ids[a]}
+        alone = read(sim.scene.node_ids[a], start)
+        sim.scene.lit = {sim.scene.node_ids[a], sim.scene.node_ids[b]}
+        together = read(sim.scene.node_ids[a], start)
+        assert together == pytest.approx(alone, abs=3e-4)
+        tried += 1
+        if tried == 3:
+            break
+    assert tried == 3
 
 
 def _runner_with(readings: dict[tuple[str, str], tuple[float, float]], fx: float = 500.0) -> SimpleNamespace:
