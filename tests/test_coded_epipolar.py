@@ -35,7 +35,7 @@ from fgloc.survey.coded_epipolar import (
 )
 from fgloc.survey.coded_levers import LEGACY, blobs_near
 from fgloc.survey.session import run_survey
-from tests.test_survey_coded import coded_rig, opened, parsed, resumed_and_new
+from tests.test_survey_coded import check_lever_in_schema, coded_rig, opened, parsed, resumed_and_new
 
 
 def rotation_z(angle: float) -> np.ndarray:
@@ -169,12 +169,7 @@ def test_the_fallback_searches_fewer_nodes_inside_the_bands_and_reads_the_same_p
 
 
 def test_an_old_header_resumes_with_the_disk_and_the_lever_is_schema_checked() -> None:
-    from fgloc.files.json_io import check
-    from fgloc.files.rig_config import RigConfigError
 
     assert LEGACY["looks"] == "disk"
     assert resumed_and_new("looks", fallback="round", levels=[2 / 9, 1.0]) == ("disk", "epipolar")
-    data = coded_rig(6, width=160) | {"coded": {"looks": "disk"}}
-    check(data, "rig", "rig.json", RigConfigError)
-    with pytest.raises(RigConfigError, match="coded.looks"):
-        check(data | {"coded": {"looks": "ring"}}, "rig", "rig.json", RigConfigError)
+    check_lever_in_schema("looks", "disk", "ring")

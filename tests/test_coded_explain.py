@@ -13,12 +13,18 @@
 from __future__ import annotations
 
 import numpy as np
-import pytest
 
 from fgloc.camera.pixel_angles import pan_tilt_to_pixel, pixel_to_pan_tilt
 from fgloc.survey.coded_ladder import SEPARATION_PX, resolved_elsewhere
 from tests.test_coded_ladder import intrinsics_at
-from tests.test_survey_coded import coded_rig, cut_and_resume, parsed, resumed_and_new, view_records
+from tests.test_survey_coded import (
+    check_lever_in_schema,
+    coded_rig,
+    cut_and_resume,
+    parsed,
+    resumed_and_new,
+    view_records,
+)
 from tests.test_survey_coded_levers import survey_reads_every_visible_pair
 
 HEAD = (0.3, -0.2)
@@ -117,10 +123,4 @@ def test_a_header_without_the_explain_lever_resumes_with_readings():
 
 
 def test_the_explain_lever_is_schema_checked():
-    from fgloc.files.json_io import check
-    from fgloc.files.rig_config import RigConfigError
-
-    data = coded_rig(6, width=160) | {"coded": {"explain": "readings"}}
-    check(data, "rig", "rig.json", RigConfigError)
-    with pytest.raises(RigConfigError, match="coded.explain"):
-        check(data | {"coded": {"explain": "guess"}}, "rig", "rig.json", RigConfigError)
+    check_lever_in_schema("explain", "readings", "guess")

@@ -25,7 +25,15 @@ from fgloc.survey.coded_fallback_round import (
 )
 from fgloc.survey.session import run_survey
 from fgloc.survey.view_planner import coverage
-from tests.test_survey_coded import check_labels, coded_rig, cut_and_resume, opened, parsed, view_records
+from tests.test_survey_coded import (
+    check_labels,
+    check_lever_in_schema,
+    coded_rig,
+    cut_and_resume,
+    opened,
+    parsed,
+    view_records,
+)
 
 K = CameraIntrinsics(fx=160.0, fy=160.0, cx=160.0, cy=120.0, width=320, height=240)
 
@@ -188,15 +196,10 @@ def test_where_the_round_does_not_pay_the_survey_is_the_predicted_one(tmp_path: 
 
 def test_the_fallback_lever_is_schema_checked_and_a_disagreeing_flag_refused_on_resume(tmp_path: Path, capsys) -> None:
     from fgloc.core.errors import FglocError
-    from fgloc.files.json_io import check
-    from fgloc.files.rig_config import RigConfigError
     from fgloc.survey.coded_levers import coded_settings
     from tests.test_survey_coded import check_lever_refused_on_resume
 
-    data = coded_rig(6, width=160) | {"coded": {"fallback": "round"}}
-    check(data, "rig", "rig.json", RigConfigError)
-    with pytest.raises(RigConfigError, match="coded.fallback"):
-        check(data | {"coded": {"fallback": "rounds"}}, "rig", "rig.json", RigConfigError)
+    check_lever_in_schema("fallback", "round", "rounds")
     assert coded_settings(parsed(coded_rig(6, width=160))).fallback == "round"  # the default
     with pytest.raises(FglocError, match=r"--coded: fallback: expected one of blobs, predicted, round, got 'x'"):
         coded_settings(parsed(coded_rig(6, width=160)), {"fallback": "x"})

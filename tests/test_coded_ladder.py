@@ -39,7 +39,14 @@ from fgloc.survey.coded_ladder import (
     view_order,
 )
 from fgloc.survey.coded_levers import LEGACY, coded_settings
-from tests.test_survey_coded import check_lever_refused_on_resume, coded_rig, cut_and_resume, parsed, view_records
+from tests.test_survey_coded import (
+    check_lever_in_schema,
+    check_lever_refused_on_resume,
+    coded_rig,
+    cut_and_resume,
+    parsed,
+    view_records,
+)
 from tests.test_survey_coded_levers import survey_reads_every_visible_pair
 
 HEAD = (0.3, -0.2)
@@ -250,10 +257,4 @@ def test_a_ladder_flag_that_disagrees_with_the_journal_is_refused_in_one_line(tm
 
 
 def test_the_ladder_lever_is_schema_checked():
-    from fgloc.files.json_io import check
-    from fgloc.files.rig_config import RigConfigError
-
-    data = coded_rig(6, width=160) | {"coded": {"ladder": "climb"}}
-    check(data, "rig", "rig.json", RigConfigError)
-    with pytest.raises(RigConfigError, match="coded.ladder"):
-        check(data | {"coded": {"ladder": "jump"}}, "rig", "rig.json", RigConfigError)
+    check_lever_in_schema("ladder", "climb", "jump")

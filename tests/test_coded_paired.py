@@ -31,7 +31,7 @@ from fgloc.survey.coded_paired import CLEARANCE_PX, clear_of
 from fgloc.survey.runner import CameraWorker, RunnerStats
 from fgloc.survey.session import run_survey
 from tests.test_rig_config import EXAMPLE
-from tests.test_survey_coded import coded_rig, opened, parsed, resumed_and_new
+from tests.test_survey_coded import check_lever_in_schema, coded_rig, opened, parsed, resumed_and_new
 
 
 def _read(worker: CameraWorker, node: str, start: tuple[float, float], ignore: list[np.ndarray]) -> tuple[float, float]:
@@ -175,12 +175,7 @@ def test_paired_searches_read_the_same_pairs_in_less_time(tmp_path: Path):
 
 
 def test_an_old_header_resumes_one_at_a_time_and_the_lever_is_schema_checked():
-    from fgloc.files.json_io import check
-    from fgloc.files.rig_config import RigConfigError
 
     assert LEGACY["searches"] == "one"
     assert resumed_and_new("searches", fallback="round", levels=[2 / 9, 1.0]) == ("one", "paired")
-    data = coded_rig(6, width=160) | {"coded": {"searches": "one"}}
-    check(data, "rig", "rig.json", RigConfigError)
-    with pytest.raises(RigConfigError, match="coded.searches"):
-        check(data | {"coded": {"searches": "all"}}, "rig", "rig.json", RigConfigError)
+    check_lever_in_schema("searches", "one", "all")

@@ -111,6 +111,17 @@ def resumed_and_new(lever: str, **recorded: object) -> tuple[object, object]:
     return getattr(coded_settings(rig, None, JournalState(header)), lever), getattr(coded_settings(rig), lever)
 
 
+def check_lever_in_schema(lever: str, good: str, bad: str) -> None:
+    """rig.json ``coded.<lever>`` passes the rig schema with ``good`` and is refused, naming it, with ``bad``."""
+    from fgloc.files.json_io import check
+    from fgloc.files.rig_config import RigConfigError
+
+    data = coded_rig(6, width=160) | {"coded": {lever: good}}
+    check(data, "rig", "rig.json", RigConfigError)
+    with pytest.raises(RigConfigError, match=f"coded.{lever}"):
+        check(data | {"coded": {lever: bad}}, "rig", "rig.json", RigConfigError)
+
+
 def check_lever_refused_on_resume(data: dict, tmp_path, capsys, flag: str, named: str, own: str) -> None:
     """Survey with rig.json ``data``, cut the journal in half, resume with ``--coded flag``:
     refused in one line naming the lever ``named`` and the journal, exit 2, the journal
