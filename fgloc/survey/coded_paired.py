@@ -42,6 +42,7 @@ if TYPE_CHECKING:
     from fgloc.survey.runner import SurveyRunner
 
 __all__ = ["SEARCHES_MODES", "batches", "clear_of", "one_camera"]
+
 #: a paired node's predicted disk keeps this far (pixels at the search zoom) from the other lit node's
 #: reading: the masked disk and the spot finder's centroid window never meet, with 2 px to spare
 CLEARANCE_PX = IGNORE_RADIUS_PX + SPOT_RADIUS_PX + 2.0
