@@ -1,4 +1,5 @@
-"""The ``searches`` lever (fgloc/survey/coded_paired.py; docs/blink-codes.md "Searches in pairs").
+"""The ``searches`` lever (fgloc/survey/coded_paired.py; docs/blink-codes.md "A head already
+there only grabs, and searches in pairs").
 
 * A camera searching its node while another node is lit masks the other's light where it read
   it: on the example rig, with two LEDs in one frame, the unmasked search reads the wrong LED

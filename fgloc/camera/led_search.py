@@ -22,7 +22,7 @@ from typing import Protocol
 import numpy as np
 
 from fgloc.camera.intrinsics import CameraIntrinsics
-from fgloc.core.geometry import FloatArray
+from fgloc.core.geometry import FloatArray, angle_between
 from fgloc.core.hardware import PanTiltHead
 
 
@@ -263,8 +263,8 @@ class LedLocator:
         if self.resting_at is None:
             return False
         k = self.pixels.intrinsics
-        cos = float(_direction(*self.resting_at) @ _direction(pan, tilt))
-        return math.acos(max(-1.0, min(1.0, cos))) * max(k.fx, k.fy) <= self.search.centre_tolerance_px
+        angle = float(angle_between(_direction(*self.resting_at), _direction(pan, tilt)))
+        return angle * max(k.fx, k.fy) <= self.search.centre_tolerance_px
 
     def _look(self, call: Callable[[Callable[[PanTiltHead], object]], object], pan: float, tilt: float) -> Spot | None:
         pan, tilt = self.clamp(pan, tilt)

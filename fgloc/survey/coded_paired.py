@@ -2,9 +2,9 @@
 
 After the round, nearly every mote the fallback searches is searched by one camera: the
 other cameras have read it (at 1000 motes x 2 cameras, seeds 1-3: 13, 17 and 12 searches,
-all of them by one camera; docs/blink-codes.md "Searches in pairs"). One at a time, the
-other camera waits while one looks. With ``searches "paired"`` (the default) each camera's
-one-camera searches, in the fallback's sweep order (:func:`~fgloc.survey.coded_fallback.sweep_key`),
+all of them by one camera; docs/blink-codes.md "A head already there only grabs, and
+searches in pairs"). One at a time, the other camera waits while one looks. With
+``searches "paired"`` (the default) each camera's one-camera searches, in the fallback's sweep order (:func:`~fgloc.survey.coded_fallback.sweep_key`),
 are zipped into batches of one node per camera, lit together and searched in parallel
 (:meth:`fgloc.survey.runner.SurveyRunner.run_together`): each camera looks only at its own
 node's looks, and masks the other lit nodes' light where it read them
@@ -29,12 +29,13 @@ alone (the default of journals written before this lever). Angles radians.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping
 from typing import TYPE_CHECKING
 
+import numpy as np
+
 from fgloc.camera.led_search import IGNORE_RADIUS_PX, SPOT_RADIUS_PX
-from fgloc.core.geometry import pan_tilt_bearing
+from fgloc.core.geometry import angle_between, pan_tilt_bearing
 from fgloc.survey.coded_levers import PREDICTED_RADIUS, SEARCHES_MODES
 
 if TYPE_CHECKING:
@@ -64,11 +65,12 @@ def clear_of(runner: SurveyRunner, camera: str, predicted: tuple[float, float], 
     """Whether ``camera`` has read ``other`` and every such reading lies at least
     PREDICTED_RADIUS + CLEARANCE_PX from the ``predicted`` (pan, tilt) of its own node."""
     readings = runner.state.observations_of(other, camera)
+    if not readings:
+        return False
     k = runner.workers[camera].locator.pixels.intrinsics
-    need = PREDICTED_RADIUS + CLEARANCE_PX / max(k.fx, k.fy)
-    at = pan_tilt_bearing(*predicted)
-    return bool(readings) and all(
-        math.acos(max(-1.0, min(1.0, float(pan_tilt_bearing(o.pan, o.tilt) @ at)))) >= need for o in readings)
+    bearings = pan_tilt_bearing([o.pan for o in readings], [o.tilt for o in readings])
+    return bool(np.all(angle_between(bearings, pan_tilt_bearing(*predicted))
+                       >= PREDICTED_RADIUS + CLEARANCE_PX / max(k.fx, k.fy)))
 
 
 def batches(coded: CodedSurvey, runner: SurveyRunner, searches: list[Search], silent: set[str],
