@@ -205,3 +205,49 @@ def test_the_fallback_lever_is_schema_checked_and_a_disagreeing_flag_refused_on_
         coded_settings(parsed(coded_rig(6, width=160)), {"fallback": "x"})
     check_lever_refused_on_resume(coded_rig(6, width=160), tmp_path, capsys, "fallback=predicted", "fallback",
                                   "fallback=round")
+
+
+def _round_with(covers: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> tuple[int, int, dict, bool]:
+    """The forced round of seed 4 with lever ``covers``: (directions its views were planned over,
+    round views recorded, the survey's readings, whether every visible pair was read)."""
+    planned: list[int] = []
+    plan = fallback_round.round_views
+
+    def counted(intr, predicted, *args):  # type: ignore[no-untyped-def]
+        planned.append(len(np.asarray(predicted).reshape(-1, 2)))
+        return plan(intr, predicted, *args)
+
+    monkeypatch.setattr(fallback_round, "round_views", counted)
+    data = _scene("round", seed=4)
+    data["coded"]["covers"] = covers
+    rig = parsed(data)
+    rig_opened, sim = opened(rig)
+    run_survey(rig, tmp_path / covers, opened=rig_opened)
+    st = read_journal(tmp_path / covers / "journal.jsonl")
+    views = [r for r in view_records(tmp_path / covers / "journal.jsonl") if r["view"].startswith(ROUND_PREFIX)]
+    readings = {k: (o.pan, o.tilt) for k, o in st.observations.items()}
+    return sum(planned), len(views), readings, not sim.scene.visible_pairs() - {(c, n) for (n, c, _) in st.observations}
+
+
+def test_the_round_covers_only_the_motes_the_fallback_would_search_and_reads_the_same(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Lever ``covers``: ``searched`` (the default) plans the round over the placed motes with
+    a blob where the fallback looks for them; ``placed`` over every placed mote. In this scene
+    some placed motes have no such blob: fewer directions, fewer views, the same motes read
+    (the round's one reading from another view, so within a few hundredths of a degree)."""
+    _force_round(monkeypatch)
+    placed = _round_with("placed", tmp_path, monkeypatch)
+    searched = _round_with("searched", tmp_path, monkeypatch)
+    assert searched[0] < placed[0]
+    assert 0 < searched[1] < placed[1]
+    assert searched[2].keys() == placed[2].keys() and searched[3] and placed[3]
+    assert max(max(abs(a - b) for a, b in zip(searched[2][k], placed[2][k])) for k in placed[2]) < math.radians(0.05)
+
+
+def test_an_old_header_covers_every_placed_mote_and_the_lever_is_schema_checked() -> None:
+    from fgloc.survey.coded_levers import LEGACY
+    from tests.test_survey_coded import resumed_and_new
+
+    assert LEGACY["covers"] == "placed"
+    assert resumed_and_new("covers", fallback="round", levels=[2 / 9, 1.0]) == ("placed", "searched")
+    check_lever_in_schema("covers", "placed", "all")

@@ -86,16 +86,17 @@ ROUND_ORDERS = ("class", "view")
 DECODE_MODES = ("levels", "fit")
 LENGTH_MODES = ("fixed", "adaptive")
 SEARCHES_MODES = ("one", "paired")
+COVERS_MODES = ("placed", "searched")
 CHOICES = {"retry": RETRY_MODES, "separate": SEPARATE_MODES, "fallback": FALLBACK_MODES, "video": VIDEO_MODES,
            "probe": PROBE_MODES, "pairs": PAIRS_MODES, "rounds": ROUNDS_MODES, "round_order": ROUND_ORDERS,
            "ladder": LADDER_MODES, "decode": DECODE_MODES, "length": LENGTH_MODES, "explain": EXPLAIN_MODES,
-           "looks": LOOKS_MODES, "searches": SEARCHES_MODES}
+           "looks": LOOKS_MODES, "searches": SEARCHES_MODES, "covers": COVERS_MODES}
 #: the defaults before the journal recorded the levers: a journal without recorded levers resumes with these,
 #: and a lever a journal's header does not record (added after it was written) resumes with its value here
 LEGACY: dict[str, Any] = {"retry": "burst", "separate": "zoom", "fallback": "blobs", "video": "frames", "probe": "off",
                           "pairs": "off", "rounds": "full", "round_order": "class", "ladder": "climb",
                           "decode": "levels", "length": "fixed", "explain": "readings",
-                          "looks": "disk", "searches": "one"}
+                          "looks": "disk", "searches": "one", "covers": "placed"}
 #: the zoom ladder of journals that recorded none (the default before ``(2/9, 1)``)
 LEGACY_LEVELS: tuple[float, ...] = (1 / 9, 3 / 9, 1.0)
 PREDICTED_RADIUS = math.radians(3.0)  #: a blob this close to a mote's predicted direction may hide it

@@ -99,6 +99,11 @@ class CodedSettings:
     #: into batches of one node per camera, lit together (:mod:`fgloc.survey.coded_paired`; the
     #: default); ``"one"``: one node at a time (the default of journals written before this lever)
     searches: str = "paired"
+    #: fallback ``"round"``: which motes a camera did not read its round views cover (by their
+    #: predicted directions): ``"searched"``: those the fallback would search (an unexplained blob
+    #: where it looks for them, :func:`~fgloc.survey.coded_levers.blobs_near`; the default);
+    #: ``"placed"``: every placed one (the default of journals written before this lever)
+    covers: str = "searched"
 
     def view_decoder(self) -> DecoderConfig:
         """The decoder configuration of the views, as ``decode`` chooses."""
