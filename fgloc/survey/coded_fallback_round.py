@@ -19,7 +19,7 @@ The round asks all of them at once, by code:
    when there are none. The round covers the first kind (lever ``covers "searched"``, the
    default); with ``covers "placed"`` it also covers the second, in case a mote hides in a
    blob read as its neighbour (it would blink there alone). Measured at 1000 motes, three
-   scenes: those rounds covered 239 such motes and read none of them; without them the
+   scenes: those rounds covered 219 such motes and read none of them; without them the
    survey took 2.7–4.9 s less in frames (three scenes) and -2.7 to +2.4 s in fields (five)
    (docs/blink-codes.md, "The round covers what the fallback would search").
    A mote no camera read would be searched at every blob the camera left: the round then
