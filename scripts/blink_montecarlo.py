@@ -14,6 +14,11 @@ motes start at a broadcast epoch, each off by up to +-2 ms and drifting at 50 pp
 (sd), and the view is recorded a uniform 0..``--resync`` s after the last (re)start.
 ``--slide N``: the recording goes on for N more code lengths and is decoded in
 sliding windows (:func:`fgloc.camera.blink_decoder.decode_windows`, keys ``sl_*``).
+``--adaptive``: the survey's adaptive length with ``first_window "kept"``
+(:func:`fgloc.survey.coded_recording.record_adaptive`): the whole 3L + 2 samples' decode
+with the readings of the first 2L + 2 samples' decode it lacks
+(:func:`fgloc.camera.blink_decoder.supplement_decode`, keys ``ad_*``); counted over every
+view, as if each went on.
 ``--groups N``: each view also holds N crowded groups of three
 (:func:`fgloc.drivers.blink_frames.close_groups`: each LED ``4 sqrt(U)`` px from an earlier
 one of its group, no other mote within 4 px of any) and is decoded with group decoding on
@@ -64,7 +69,7 @@ from blink_crowds import (  # noqa: E402
 from blink_views import add_view_arguments, render_motes, video_label, view_camera  # noqa: E402
 
 from fgloc.camera.blink_codes import CodeBookError, code_book, sync_code_book  # noqa: E402
-from fgloc.camera.blink_decoder import DecoderConfig, decode_view, decode_windows  # noqa: E402
+from fgloc.camera.blink_decoder import DecoderConfig, decode_view, decode_windows, supplement_decode  # noqa: E402
 from fgloc.camera.blink_pairs import PairConfig  # noqa: E402
 from fgloc.camera.blink_word_fit import WordFitConfig  # noqa: E402
 from fgloc.camera.pixel_angles import pixel_to_pan_tilt  # noqa: E402
@@ -77,7 +82,7 @@ def trial(seed: int, n_motes: int, book_size: int, glints: int, fields: bool = F
           frames: int | None = None, extend: int = 0, sync: bool = False, resync_s: float = 10.0,
           slide: int = 0, pairs: int = 0, time_decode: bool = False, groups: int = 0,
           partner: bool = False, readout_s: float = 0.0, rate_fall_s: float | None = None,
-          length: int | None = None, word_fit: bool = False) -> dict[str, float]:
+          length: int | None = None, word_fit: bool = False, adaptive: bool = False) -> dict[str, float]:
     """One view. ``frames`` recorded (default 3L + 2); with ``extend`` > 0 the recording
     goes on for ``extend`` more frames and the whole stack is decoded again (keys ``ext_*``):
     the retry of a view whose motes were missed, without moving the head. ``slide``:
@@ -90,7 +95,8 @@ def trial(seed: int, n_motes: int, book_size: int, glints: int, fields: bool = F
     ``readout_s``, ``rate_fall_s``: rolling shutter and rate fall of the video
     (:class:`fgloc.drivers.blink_frames.BlinkRenderConfig`). ``length``: the book's word length
     (default the shortest that holds ``book_size`` words). ``word_fit``: the decoder's light-curve
-    fit on (:mod:`fgloc.camera.blink_word_fit`; rotation-free books)."""
+    fit on (:mod:`fgloc.camera.blink_word_fit`; rotation-free books). ``adaptive``: the first
+    2L + 2 samples' readings the whole recording's decode lacks added to it (keys ``ad_*``)."""
     rng = np.random.default_rng(seed)
     dcfg = DecoderConfig(word_fit=WordFitConfig()) if word_fit and not sync else None
     book = sync_code_book(book_size, length) if sync else code_book(book_size, length)
@@ -119,10 +125,16 @@ def trial(seed: int, n_motes: int, book_size: int, glints: int, fields: bool = F
     def within(periods: int) -> list[tuple[float, np.ndarray]]:  # frames of the first periods (jitter << period)
         return [f for f in stack if f[0] < t_start + (periods - 0.5) / cfg.frame_rate_hz]
 
-    runs = [""] + (["ext_"] if extend else []) + (["sl_"] if slide else [])
+    runs = [""] + (["ext_"] if extend else []) + (["sl_"] if slide else []) + (["ad_"] if adaptive else [])
     pc = PairConfig(max_group=3) if groups else PairConfig() if pairs else None
     for prefix in runs:
-        if prefix == "sl_":
+        if prefix == "ad_":
+            res = supplement_decode(
+                decode_view(within(k0), 1.0 / cfg.frame_rate_hz, book, intr, head_pan, head_tilt, dcfg, sync=timing,
+                            pairs=pc),
+                decode_view(within(2 * book.length + 2), 1.0 / cfg.frame_rate_hz, book, intr, head_pan, head_tilt, dcfg,
+                            sync=timing, pairs=pc))
+        elif prefix == "sl_":
             res = decode_windows(stack, 1.0 / cfg.frame_rate_hz, book, intr, head_pan, head_tilt, k0, config=dcfg, sync=timing,
                                  pairs=pc)
         else:
@@ -176,6 +188,8 @@ def main() -> None:
     ap.add_argument("--sync", action="store_true", help="synchronized book and start (epoch broadcast)")
     ap.add_argument("--resync", type=float, default=10.0, help="seconds between synchronized (re)starts")
     ap.add_argument("--slide", type=int, default=0, help="record this many more code lengths, sliding windows")
+    ap.add_argument("--adaptive", action="store_true",
+                    help="also add to the whole recording's decode the readings of its first 2L + 2 samples it lacks")
     ap.add_argument("--pairs", type=int, default=0, help="crowded pairs per view, decoded with pair decoding on")
     ap.add_argument("--groups", type=int, default=0,
                     help="crowded groups of three per view, decoded with group decoding on (max_group=3)")
@@ -213,7 +227,7 @@ def main() -> None:
         for key, v in trial(args.seed + k, args.motes, args.book, args.glints, args.fields, args.frames,
                              args.extend, args.sync, args.resync, args.slide, args.pairs, args.time_decode,
                              args.groups, args.partner, args.readout, args.rate_fall, args.length,
-                             args.word_fit).items():
+                             args.word_fit, args.adaptive).items():
             if key in times:
                 times[key].append(v)
             else:
@@ -229,7 +243,8 @@ def main() -> None:
           + (f"every second frame lost from {args.rate_fall:g} s, " if args.rate_fall is not None else "")
           + f"{dt:.0f} s")
     for prefix, k in [("", k0)] + ([("ext_", k0 + args.extend)] if args.extend else []) + (
-            [("sl_", k0 + args.slide * book.length)] if args.slide else []):
+            [("sl_", k0 + args.slide * book.length)] if args.slide else []) + (
+            [("ad_", k0)] if args.adaptive else []):
         miss = d - tot[prefix + "correct"] - tot[prefix + "mislabelled"]
         print(f"{k} samples/view, {tot[prefix + 'erased'] / tot[prefix + 'samples']:.1%} erased (drops + duplicates): "
               f"decodes {d:.0f}: correct {tot[prefix + 'correct']:.0f} ({tot[prefix + 'correct'] / d:.2%}), "

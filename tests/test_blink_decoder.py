@@ -16,6 +16,7 @@ from fgloc.camera.blink_decoder import (
     decode_view,
     decode_windows,
     sample_stack,
+    supplement_decode,
 )
 from fgloc.camera.intrinsics import CameraIntrinsics
 from fgloc.camera.pixel_angles import pixel_to_pan_tilt
@@ -206,3 +207,57 @@ def test_sliding_windows_report_each_refused_blob_once(monkeypatch: pytest.Monke
     frames = [(i / 30.0, np.zeros((2, 2), np.uint8)) for i in range(66)]
     res = bd.decode_windows(frames, 1 / 30.0, BOOK, INTR, 0.0, 0.0, window=50)
     assert res.readings == () and res.refused == (glint,)
+
+
+def test_the_first_window_keeps_a_mote_a_late_lamp_spoils() -> None:
+    """A lamp switched on next to a mote after the first 2L + 2 frames spoils that mote's blob in
+    the whole recording's decode; supplemented by the first frames' decode
+    (:func:`supplement_decode`, the adaptive length's ``first_window "kept"``) it is read, at its
+    pixel, and every other mote as the whole decode read it."""
+    uv = np.array([[60.0, 60.0], [160.0, 120.0], [260.0, 200.0], [100.0, 180.0]])
+    ids = [11, 22, 33, 44]
+    L = BOOK.length
+    k = frames_for(L)
+    rng = np.random.default_rng(7)
+    pan, tilt = 0.2, -0.3
+    p, t = pixel_to_pan_tilt(INTR, uv, pan, tilt)
+    pos = {f"m{j}": pan_tilt_bearing(p[j], t[j]) * 10.0 for j in range(4)}
+    cfg = BlinkRenderConfig(drop_rate=0.0)
+    period = 1 / cfg.frame_rate_hz
+    motes = motes_with_codes(pos, {f"m{j}": BOOK.bits(i) for j, i in enumerate(ids)}, round(period, 5), rng)
+    cam = RenderedCamera(CameraPose(np.zeros(3), np.eye(3)), LedScene(positions={}))
+    frames = render_view(cam, INTR, pan, tilt, motes, k, rng, cfg)
+    yy, xx = np.mgrid[0:INTR.height, 0:INTR.width]
+    lamp = 120.0 * np.exp(-((xx - 162.0) ** 2 + (yy - 121.0) ** 2) / (2 * 1.5**2))
+    late = [(tf, np.clip(img.astype(np.float64) + (lamp[..., None] if img.ndim == 3 else lamp), 0, 255).astype(img.dtype))
+            if j >= 2 * L + 2 else (tf, img) for j, (tf, img) in enumerate(frames)]
+    first = decode_view(late[:2 * L + 2], period, BOOK, INTR, pan, tilt)
+    whole = decode_view(late, period, BOOK, INTR, pan, tilt)
+    assert 22 in {r.index for r in first.readings} and 22 not in {r.index for r in whole.readings}
+    merged = supplement_decode(whole, first)
+    got = {r.index: r for r in merged.readings}
+    assert sorted(got) == sorted({r.index for r in whole.readings} | {22})
+    assert all(got[r.index] == r for r in whole.readings)
+    assert math.hypot(got[22].u - uv[1, 0], got[22].v - uv[1, 1]) < 0.3
+    assert not any(math.hypot(f.u - got[22].u, f.v - got[22].v) <= 2.0 for f in merged.refused)  # no refusal left there
+    assert (merged.samples, merged.erased) == (whole.samples, whole.erased)
+
+
+def test_the_first_window_adds_only_what_the_whole_decode_lacks() -> None:
+    """:func:`supplement_decode` keeps every reading and refusal of the whole decode but those at
+    an added reading, and adds none of a code the whole decode read (anywhere) or refused as
+    duplicate, nor one within 2 px of a reading of the whole decode."""
+
+    def reading(code: int, u: float, v: float) -> DecodedReading:
+        return DecodedReading(code, u, v, 0.05, 0.0, 0.0, 10)
+
+    whole = ViewDecode((reading(1, 10.0, 10.0), reading(2, 50.0, 50.0)),
+                       (RefusedBlob(90.0, 90.0, "ambiguous", "two LEDs"), RefusedBlob(120.0, 20.0, "duplicate", "x", 4),
+                        RefusedBlob(200.0, 30.0, "rejected", "glint")), 62, 3)
+    first = ViewDecode((reading(1, 30.0, 30.0), reading(3, 90.4, 90.2), reading(4, 120.0, 20.0), reading(5, 51.0, 50.5),
+                        reading(6, 150.0, 150.0)), (), 42, 2)
+    got = supplement_decode(whole, first)
+    assert [(r.index, r.u) for r in got.readings] == [(1, 10.0), (2, 50.0), (3, 90.4), (6, 150.0)]
+    assert [f.u for f in got.refused] == [120.0, 200.0]  # the merged blob at code 3 is read now
+    assert (got.samples, got.erased) == (62, 3)
+    assert supplement_decode(whole, ViewDecode((), (), 42, 0)) is whole

@@ -17,9 +17,9 @@ L = code_book(30).length  # the 30-mote scene's book (15 bits)
 L12 = code_book(12).length
 
 
-def _rig(length: str, n: int = 30, width: int = 320) -> dict:
+def _rig(length: str, n: int = 30, width: int = 320, **levers: str) -> dict:
     data = sc.coded_rig(n, width)
-    data["coded"] = {"length": length}
+    data["coded"] = {"length": length} | levers
     return data
 
 
@@ -60,10 +60,12 @@ def test_a_stopped_view_left_no_blob_unexplained(both):
 
 def test_adaptive_views_that_go_on_show_the_fixed_recording(tmp_path):
     """On the simulated rig a view that goes on to 3L + 2 decodes the very frames the fixed length
-    records: the first such wide view's readings are the fixed survey's, reading for reading."""
+    records: the first such wide view's readings are the fixed survey's, reading for reading
+    (with the first 2L + 2 frames' readings dropped; ``first_window`` keeps them:
+    tests/test_coded_first_window.py)."""
     recs = {}
     for length in ("fixed", "adaptive"):
-        rig = sc.parsed(_rig(length, 12, 160))
+        rig = sc.parsed(_rig(length, 12, 160, first_window="dropped"))
         run_survey(rig, tmp_path / length, opened=sc.opened(rig)[0])
         recs[length] = {(r["camera"], r["view"], r["attempt"]): r for r in sc.view_records(tmp_path / length / "journal.jsonl")}
     went_on = [k for k, r in recs["adaptive"].items() if r["view"] == "w000" and r["frames"] == 3 * L12 + 2]

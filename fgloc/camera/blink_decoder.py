@@ -465,3 +465,20 @@ def decode_windows(
         if not read and not seen:
             left.append(rf)
     return ViewDecode(readings, tuple(left), n, n - len(set(idx.tolist())), unsampled_positions(idx, book.length))
+
+
+def supplement_decode(whole: ViewDecode, first: ViewDecode, blob_px: float = 2.0) -> ViewDecode:
+    """``whole`` (the decode of a whole recording) with the readings of ``first`` (the decode of
+    its first samples) it lacks: a code ``whole`` neither read nor refused as duplicate, read
+    more than ``blob_px`` from every reading of ``whole``. ``whole``'s refusals within
+    ``blob_px`` of an added reading are dropped (that blob is read). Nothing ``whole`` read is
+    changed or lost; a code ``first`` read twice is not in its readings (it refused both)."""
+    read = {r.index for r in whole.readings}
+    dup = {f.code for f in whole.refused if f.kind == "duplicate" and f.code is not None}
+    added = [r for r in first.readings if r.index not in read and r.index not in dup
+             and all(math.hypot(r.u - w.u, r.v - w.v) > blob_px for w in whole.readings)]
+    if not added:
+        return whole
+    refused = tuple(f for f in whole.refused if all(math.hypot(f.u - r.u, f.v - r.v) > blob_px for r in added))
+    readings = tuple(sorted((*whole.readings, *added), key=lambda r: r.index))
+    return ViewDecode(readings, refused, whole.samples, whole.erased, whole.unsampled)

@@ -5,7 +5,7 @@ rig.json ``"coded"`` (optional) and ``fgloc survey --coded KEY=VALUE`` choose th
 (:func:`coded_settings`; a new survey's defaults are :class:`~fgloc.survey.coded_settings.CodedSettings`'s,
 the measured fastest free of mislabels and misses: continue, round (fallback), probe on, pairs groups, short
 view-major rounds, ladder focus, decode fit, length adaptive, explain views, looks epipolar, searches paired,
-zoom ladder 3x then 10x):
+covers searched, first window kept, zoom ladder 3x then 10x):
 
 * ``retry``: ``"burst"`` | ``"continue"`` (a retry goes on recording L frames, sliding windows);
 * ``separate``: ``"zoom"`` | ``"radio"`` (crowded motes paused by colour class first,
@@ -32,6 +32,11 @@ zoom ladder 3x then 10x):
   blobs near the epipolar plane of that reading, :mod:`fgloc.survey.coded_epipolar`);
 * ``searches``: ``"one"`` | ``"paired"`` (the fallback's one-camera searches of different cameras
   lit and searched together, one node per camera, :mod:`fgloc.survey.coded_paired`);
+* ``covers``: ``"placed"`` | ``"searched"`` (fallback round: a camera's round views cover only the
+  motes the fallback would search, :mod:`fgloc.survey.coded_fallback_round`);
+* ``first_window``: ``"dropped"`` | ``"kept"`` (``length "adaptive"``: a recording that goes on to
+  3L + 2 keeps the readings of its first 2L + 2 frames the whole decode lacks,
+  :func:`fgloc.survey.coded_recording.record_adaptive`);
 * ``levels``: the refinement zoom ladder, ascending fractions of the optical range (default
   ``[2/9, 1]``: 3x, then 10x).
 
@@ -41,7 +46,7 @@ value or ``--coded`` flag that names a lever with another value is refused in on
 flag or file, the lever, both values), never mixed in. A journal without recorded levers
 (written before they were recorded, or started as a sequential survey) resumes with
 :data:`LEGACY` (the defaults before this rule) overridden by rig.json and the flags, exactly as
-it resumed before. A lever added after a journal was written (``rounds``, ``round_order``, ``ladder``, ``decode``, ``length``, ``explain``, ``looks``, ``searches``) and
+it resumed before. A lever added after a journal was written (``rounds``, ``round_order``, ``ladder``, ``decode``, ``length``, ``explain``, ``looks``, ``searches``, ``covers``, ``first_window``) and
 so missing from its recorded levers resumes with its :data:`LEGACY` value, the only one the
 survey that wrote it knew; a journal without a recorded ladder climbs :data:`LEGACY_LEVELS`.
 
@@ -87,16 +92,19 @@ DECODE_MODES = ("levels", "fit")
 LENGTH_MODES = ("fixed", "adaptive")
 SEARCHES_MODES = ("one", "paired")
 COVERS_MODES = ("placed", "searched")
+FIRST_WINDOW_MODES = ("dropped", "kept")
 CHOICES = {"retry": RETRY_MODES, "separate": SEPARATE_MODES, "fallback": FALLBACK_MODES, "video": VIDEO_MODES,
            "probe": PROBE_MODES, "pairs": PAIRS_MODES, "rounds": ROUNDS_MODES, "round_order": ROUND_ORDERS,
            "ladder": LADDER_MODES, "decode": DECODE_MODES, "length": LENGTH_MODES, "explain": EXPLAIN_MODES,
-           "looks": LOOKS_MODES, "searches": SEARCHES_MODES, "covers": COVERS_MODES}
+           "looks": LOOKS_MODES, "searches": SEARCHES_MODES, "covers": COVERS_MODES,
+           "first_window": FIRST_WINDOW_MODES}
 #: the defaults before the journal recorded the levers: a journal without recorded levers resumes with these,
 #: and a lever a journal's header does not record (added after it was written) resumes with its value here
 LEGACY: dict[str, Any] = {"retry": "burst", "separate": "zoom", "fallback": "blobs", "video": "frames", "probe": "off",
                           "pairs": "off", "rounds": "full", "round_order": "class", "ladder": "climb",
                           "decode": "levels", "length": "fixed", "explain": "readings",
-                          "looks": "disk", "searches": "one", "covers": "placed"}
+                          "looks": "disk", "searches": "one", "covers": "placed",
+                          "first_window": "dropped"}
 #: the zoom ladder of journals that recorded none (the default before ``(2/9, 1)``)
 LEGACY_LEVELS: tuple[float, ...] = (1 / 9, 3 / 9, 1.0)
 PREDICTED_RADIUS = math.radians(3.0)  #: a blob this close to a mote's predicted direction may hide it

@@ -20,7 +20,13 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from fgloc.camera.blink_candidates import CandidateDecode
-from fgloc.camera.blink_decoder import ViewDecode, decode_view, decode_windows, unsampled_positions
+from fgloc.camera.blink_decoder import (
+    ViewDecode,
+    decode_view,
+    decode_windows,
+    supplement_decode,
+    unsampled_positions,
+)
 from fgloc.camera.blink_pairs import PairConfig
 from fgloc.survey.coded_rounds import RoundCandidates, decode_round, round_frames
 from fgloc.survey.coded_views import coded_observation, empty_view, on_off_centroid, unexplained_blob
@@ -135,7 +141,13 @@ def record_adaptive(coded: CodedSurvey, runner: SurveyRunner, camera: str, head:
     the camera has read): in a crowded far field that mote may be a neighbour, and a wide view
     so stopped lost 14 visible pairs of 1885 at 1000 motes. The simulated rigs render the
     recording a fixed length would (same keys and counts) and hand out its first 2L + 2
-    periods, so a view that goes on shows the frames it would have."""
+    periods, so a view that goes on shows the frames it would have. With ``first_window "kept"``
+    the readings of the first 2L + 2 periods' decode that the whole decode lacks are added
+    (:func:`~fgloc.camera.blink_decoder.supplement_decode`: codes it neither read nor refused as
+    duplicate, more than 2 px from its readings): light late in the recording (a neighbour's
+    in a crowd, a glint) spoils some blobs the first periods read. (Merging the two decodes
+    by the sliding windows' rules instead, which refuse a code read in both more than 1 px
+    apart, was slower in the two 1000-mote scenes tried: docs/blink-codes.md.)"""
     length, period = coded.book.length, coded.camera.frame_period_s
     short_count = 2 * length + 2
     have = length + 2 if frames else 0
@@ -157,8 +169,10 @@ def record_adaptive(coded: CodedSurvey, runner: SurveyRunner, camera: str, head:
         later = grab_frames(coded, runner, camera, coded.frames - short_count, t_start + short_count * period,
                             key + "++")
     frames = frames + later
-    dec = decode_view(frames, period, coded.book, intr, head[0], head[1], coded.settings.view_decoder(), pairs=pairs)
-    return frames, dec, coded.frames
+    whole = decode_view(frames, period, coded.book, intr, head[0], head[1], coded.settings.view_decoder(), pairs=pairs)
+    if coded.settings.first_window == "kept":  # the first 2L + 2 read motes the whole recording may refuse
+        whole = supplement_decode(whole, dec)
+    return frames, whole, coded.frames
 
 
 def check_steady_loss(coded: CodedSurvey, camera: str, vid: str, frames: list[Frame]) -> None:

@@ -104,6 +104,11 @@ class CodedSettings:
     #: where it looks for them, :func:`~fgloc.survey.coded_levers.blobs_near`; the default);
     #: ``"placed"``: every placed one (the default of journals written before this lever)
     covers: str = "searched"
+    #: ``length "adaptive"``: a first recording that goes on to 3L + 2: ``"kept"`` keeps the
+    #: readings of its first 2L + 2 frames' decode that the whole decode lacks
+    #: (:func:`fgloc.camera.blink_decoder.supplement_decode`; the default); ``"dropped"``: the
+    #: whole recording's decode alone (the default of journals written before this lever)
+    first_window: str = "kept"
 
     def view_decoder(self) -> DecoderConfig:
         """The decoder configuration of the views, as ``decode`` chooses."""
