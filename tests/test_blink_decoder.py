@@ -151,20 +151,29 @@ def test_synchronized_decode_right_ids_within_the_timing_budget(seed: int) -> No
         decode_view(frames, period, SYNC_BOOK, INTR, pan, tilt)
 
 
-def test_sliding_window_catches_what_the_first_window_missed() -> None:
-    uv = np.array([[60.0, 60.0], [160.0, 120.0], [260.0, 200.0], [100.0, 180.0]])
-    ids = [11, 22, 33, 44]
-    L = BOOK.length
-    k = frames_for(L)
+FOUR_UV = np.array([[60.0, 60.0], [160.0, 120.0], [260.0, 200.0], [100.0, 180.0]])
+FOUR_IDS = [11, 22, 33, 44]
+
+
+def _four_motes(n_frames: int) -> tuple[list[tuple[float, np.ndarray]], float, float, float]:
+    """Four motes (:data:`FOUR_UV`, codes :data:`FOUR_IDS`) rendered for ``n_frames`` frames
+    without drops, head at (0.2, -0.3) rad: (frames, frame period s, pan, tilt)."""
     rng = np.random.default_rng(7)
     pan, tilt = 0.2, -0.3
-    p, t = pixel_to_pan_tilt(INTR, uv, pan, tilt)
+    p, t = pixel_to_pan_tilt(INTR, FOUR_UV, pan, tilt)
     pos = {f"m{j}": pan_tilt_bearing(p[j], t[j]) * 10.0 for j in range(4)}
     cfg = BlinkRenderConfig(drop_rate=0.0)
     period = 1 / cfg.frame_rate_hz
-    motes = motes_with_codes(pos, {f"m{j}": BOOK.bits(i) for j, i in enumerate(ids)}, round(period, 5), rng)
+    motes = motes_with_codes(pos, {f"m{j}": BOOK.bits(i) for j, i in enumerate(FOUR_IDS)}, round(period, 5), rng)
     cam = RenderedCamera(CameraPose(np.zeros(3), np.eye(3)), LedScene(positions={}))
-    frames = render_view(cam, INTR, pan, tilt, motes, k + L, rng, cfg)
+    return render_view(cam, INTR, pan, tilt, motes, n_frames, rng, cfg), period, pan, tilt
+
+
+def test_sliding_window_catches_what_the_first_window_missed() -> None:
+    uv, ids = FOUR_UV, FOUR_IDS
+    L = BOOK.length
+    k = frames_for(L)
+    frames, period, pan, tilt = _four_motes(k + L)
     # the grabber lost every frame of one bit position in the first window: that window reads no mote
     lost = [f for j, f in enumerate(frames) if not (j < k and j % L == 5 and j > 0)]
     first = decode_view([f for f in lost if f[0] < (k - 0.5) * period], period, BOOK, INTR, pan, tilt)
@@ -214,19 +223,9 @@ def test_the_first_window_keeps_a_mote_a_late_lamp_spoils() -> None:
     the whole recording's decode; supplemented by the first frames' decode
     (:func:`supplement_decode`, the adaptive length's ``first_window "kept"``) it is read, at its
     pixel, and every other mote as the whole decode read it."""
-    uv = np.array([[60.0, 60.0], [160.0, 120.0], [260.0, 200.0], [100.0, 180.0]])
-    ids = [11, 22, 33, 44]
+    uv = FOUR_UV
     L = BOOK.length
-    k = frames_for(L)
-    rng = np.random.default_rng(7)
-    pan, tilt = 0.2, -0.3
-    p, t = pixel_to_pan_tilt(INTR, uv, pan, tilt)
-    pos = {f"m{j}": pan_tilt_bearing(p[j], t[j]) * 10.0 for j in range(4)}
-    cfg = BlinkRenderConfig(drop_rate=0.0)
-    period = 1 / cfg.frame_rate_hz
-    motes = motes_with_codes(pos, {f"m{j}": BOOK.bits(i) for j, i in enumerate(ids)}, round(period, 5), rng)
-    cam = RenderedCamera(CameraPose(np.zeros(3), np.eye(3)), LedScene(positions={}))
-    frames = render_view(cam, INTR, pan, tilt, motes, k, rng, cfg)
+    frames, period, pan, tilt = _four_motes(frames_for(L))
     yy, xx = np.mgrid[0:INTR.height, 0:INTR.width]
     lamp = 120.0 * np.exp(-((xx - 162.0) ** 2 + (yy - 121.0) ** 2) / (2 * 1.5**2))
     late = [(tf, np.clip(img.astype(np.float64) + (lamp[..., None] if img.ndim == 3 else lamp), 0, 255).astype(img.dtype))
