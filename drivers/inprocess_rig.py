@@ -349,6 +349,12 @@ class SceneHead:
             self.pointing_error = self._settle_error(new_pan, new_tilt)
         self.pan, self.tilt = new_pan, new_tilt
 
+    def move_and_zoom(self, pan: float, tilt: float, zoom: float) -> None:
+        """Zoom to ``zoom`` (fraction of the optical range) and move to (pan, tilt) radians at once,
+        as a VISCA head does in its two command sockets (two commands, one wait)."""
+        self.set_zoom(zoom)
+        self.move_to(pan, tilt)
+
     def _settle_error(self, pan: float, tilt: float) -> tuple[float, float]:
         """The pointing error of a settle at (pan, tilt): N(0, repeatability) per axis, seeded by
         the rig seed, the camera, the position's counts and the settles there before."""

@@ -168,3 +168,29 @@ def test_a_slew_between_two_heads_takes_pan_the_short_way_round() -> None:
     s = Slew.between((math.radians(170), 0.1), (math.radians(-170), -0.2))
     assert s.dpan == pytest.approx(math.radians(20)) and s.dtilt == pytest.approx(-0.3)
     assert Slew.between((0.3, 0.0), (-0.2, 0.4)) == Slew(-0.5, 0.4)
+
+
+def test_a_zoom_during_a_move_costs_only_what_outlasts_the_move_on_a_head_that_can() -> None:
+    """EVI-D100 (two VISCA sockets): a Slew with ``dzoom`` lasts max(axes, zoom) + one command
+    round trip; the move is reported as 'slew', the zoom's excess as 'zoom'. A head without
+    ``zoom_while_moving`` refuses such a Slew (its zoom must be priced as a Zoom)."""
+    from dataclasses import replace
+
+    from fgloc.survey.clock import SNC_RZ25N, Zoom, op_time
+
+    timing = RigTiming()
+    short, long_ = Slew(math.radians(10.0), 0.0, dzoom=0.78), Slew(math.radians(170.0), 0.0, dzoom=0.22)
+    pan_short = 2.0 * math.sqrt(math.radians(10.0) / (math.radians(300.0) / 0.2))  # triangle: 0.163 s
+    pan_long = math.radians(170.0) / math.radians(300.0) + 0.2  # trapezoid: 0.767 s
+    # the zoom (1.56 s) outlasts the short move; the long move outlasts its zoom (0.44 s)
+    assert op_time(short, timing) == pytest.approx(1.56 + 0.05)
+    assert op_time(long_, timing) == pytest.approx(pan_long + 0.05)
+    ft = price([short, long_], timing)
+    assert ft.phases["slew"] == pytest.approx(pan_short + pan_long + 2 * 0.05)
+    assert ft.phases["zoom"] == pytest.approx(1.56 - pan_short)
+    # apart, the same moves cost the zoom travel in full
+    apart = price([Zoom(0.78), Slew(short.dpan, 0.0), Zoom(0.22), Slew(long_.dpan, 0.0)], timing)
+    assert apart.total - ft.total == pytest.approx(pan_short + 0.44)
+    assert op_time(Slew(0.1, 0.0, dzoom=0.0), replace(timing, head=SNC_RZ25N)) > 0  # no zoom: any head
+    with pytest.raises(ValueError, match="does not zoom while it moves"):
+        price([short], replace(timing, head=SNC_RZ25N))

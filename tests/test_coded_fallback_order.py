@@ -59,11 +59,12 @@ def test_a_search_starting_at_one_of_its_cells_looks_there_once() -> None:
 def _fallback_survey(tmp_path: Path, name: str) -> tuple[float, set, set]:
     """A 60-mote coded survey with many pairs occluded (40 %, seed 2), decoded by the level
     decoder alone at the fixed length, every unexplained blob climbing the ladder (``ladder:
-    climb``): levers that leave the fallback many searches (12 nodes; with the defaults and
+    climb``, zooms apart from moves, so the recordings start when this scene was chosen): levers that leave the fallback many searches (12 nodes; with the defaults and
     the leftover-peak rule of the crowd decoder these scenes leave few or none). Returns (the
     fallback nodes' priced seconds, the (node, camera) pairs read, those journaled not found)."""
     data = coded_rig(60, 320, occlusion=0.4, seed=2)
-    data["coded"] = {"fallback": "predicted", "decode": "levels", "length": "fixed", "ladder": "climb"}
+    data["coded"] = {"fallback": "predicted", "decode": "levels", "length": "fixed", "ladder": "climb",
+                     "zoom_moves": "apart"}
     rig = parsed(data)
     rig_opened, _sim = opened(rig)
     out = tmp_path / name

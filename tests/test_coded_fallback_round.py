@@ -135,9 +135,11 @@ def _scene(fallback: str, seed: int = 1) -> dict:
     """60 motes, 30 % of the pairs occluded: the predicted fallback searches (tests/test_coded_fallback_order.py).
     Seed 4's forced round records four views over both cameras and reads a mote there, with
     the level decoder, the fixed length and the three-rung ladder (with the default fit,
-    adaptive length and two-rung ladder it reads nothing new in this scene)."""
+    adaptive length and two-rung ladder it reads nothing new in this scene). Zooms apart from
+    moves: the recordings start at the clock times this scene was chosen at."""
     data = coded_rig(60, 320, occlusion=0.3, seed=seed)
-    data["coded"] = {"fallback": fallback, "decode": "levels", "length": "fixed", "levels": [1 / 9, 3 / 9, 1.0]}
+    data["coded"] = {"fallback": fallback, "decode": "levels", "length": "fixed", "levels": [1 / 9, 3 / 9, 1.0],
+                     "zoom_moves": "apart"}
     return data
 
 

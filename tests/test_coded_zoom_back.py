@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
 
 from fgloc.drivers.inprocess_rig import SceneHead
@@ -51,7 +52,9 @@ def _lanes_at_the_end(monkeypatch) -> dict[str, list]:
 
 def test_a_refined_camera_zooms_back_on_its_lane_only_in_the_longest_lane_s_slack_and_every_head_ends_wide(
         tmp_path, monkeypatch, head_log):
-    rig = parsed(levels_rig(12, width=160))
+    data = levels_rig(12, width=160)
+    data["coded"]["zoom_moves"] = "apart"  # each zoom its own operation on the lane (together: the next test)
+    rig = parsed(data)
     lanes = _lanes_at_the_end(monkeypatch)
     rig_opened, sim = opened(rig)
     run_survey(rig, tmp_path, opened=rig_opened)
@@ -79,6 +82,52 @@ def test_a_refined_camera_zooms_back_on_its_lane_only_in_the_longest_lane_s_slac
         zooms = [v for k, what, v in head_log if k == i and what == "zoom"]
         if cam.id in refined:
             assert max(zooms) > cam.zoom and zooms[-1] == cam.zoom
+
+
+def test_a_head_that_zooms_while_moving_zooms_on_its_way_to_each_rung(tmp_path, monkeypatch) -> None:
+    """Lever ``zoom_moves``: with ``together`` the in-process head (an EVI-D100, which zooms while
+    moving) is driven through ``move_and_zoom``, and each rung's zoom travel rides on the Slew to
+    the rung's first tile (``dzoom``), which is priced max(axes, zoom) instead of their sum; with
+    ``apart`` each rung's zoom is its own Zoom before that Slew. Either way every reading lies on
+    its mote. (The two runs record at other clock times, so their noise, retries and views may differ.)"""
+    from fgloc.survey.clock import Slew, op_time
+
+    move_and_zoom = SceneHead.move_and_zoom
+    for mode in ("apart", "together"):
+        data = levels_rig(12, width=160)
+        data["coded"]["zoom_moves"] = mode
+        rig = parsed(data)
+        lanes = _lanes_at_the_end(monkeypatch)
+        calls: list[str] = []
+
+        def counting(self, pan, tilt, zoom, calls=calls):  # noqa: ANN001, ANN202
+            calls.append(self.scene.camera_ids[self.index])
+            return move_and_zoom(self, pan, tilt, zoom)
+
+        monkeypatch.setattr(SceneHead, "move_and_zoom", counting)
+        rig_opened, sim = opened(rig)
+        out = tmp_path / mode
+        run_survey(rig, out, opened=rig_opened)
+        timing = CodedSurvey(rig, rig_opened.open_head, rig_opened.leds, sim).lane_timing
+        records = view_records(out / "journal.jsonl")
+        check_labels(rig, sim.scene, read_journal(out / "journal.jsonl"), max_error_deg=0.2)
+        refined = {r["camera"] for r in records if float(r["zoom"]) > 0}
+        assert refined
+        assert bool(calls) == (mode == "together") and set(calls) <= set(rig.camera_ids)
+        for camera in refined:
+            rungs = sorted({float(r["zoom"]) for r in records if r["camera"] == camera})
+            steps = list(np.diff(rungs))  # the ladder ascends from the survey zoom, one zoom travel per rung
+            ins_zoom = [op.dzoom for op in lanes[camera] if isinstance(op, Zoom) and op.dzoom > 0]
+            moves = [op for op in lanes[camera] if isinstance(op, Slew) and op.dzoom > 0]
+            assert (ins_zoom, [op.dzoom for op in moves]) == ((steps, []) if mode == "apart" else ([], steps))
+            if mode == "together":
+                head, lane = timing[camera].head, lanes[camera]
+                apart = [x for op in lane for x in ((Zoom(op.dzoom), Slew(op.dpan, op.dtilt))
+                                                    if isinstance(op, Slew) and op.dzoom else (op,))]
+                saved = sum(min(head.zoom_time(op.dzoom), op_time(Slew(op.dpan, op.dtilt), timing[camera])
+                                - head.command_s) for op in moves)
+                assert saved > 0
+                assert price(apart, timing[camera]).total - price(lane, timing[camera]).total == pytest.approx(saved)
 
 
 def test_a_zoomed_camera_zooms_back_before_its_first_fallback_search_priced_there(tmp_path, monkeypatch, head_log):

@@ -17,6 +17,12 @@ slew lasts the longer of the two, plus the command round trip
 (``HeadModel.command_s``: sending the absolute-move packet and receiving ACK and
 Completion). Then the head settles (``settle_s``) before a frame is usable.
 
+**Zoom** travels linearly in the zoom fraction (``zoom_full_s`` wide to tele). A head with
+``zoom_while_moving`` (the EVI-D100: VISCA's two command sockets run a zoom and a pan-tilt move
+at once, protocols.md 1.4) can zoom during a move (:class:`Slew` with ``dzoom``): the move
+lasts the longer of the axes and the zoom, plus one command round trip (both commands are
+sent before either Completion is awaited). Otherwise a zoom is its own :class:`Zoom`.
+
 **Sources and assumptions** (all in ``docs/blink-codes.md``):
 
 * EVI-D100 top speeds 300 deg/s pan and 125 deg/s tilt: Sony technical manual p.44
@@ -92,15 +98,21 @@ class HeadModel:
     position_s: float  #: one position read-back
     zoom_full_s: float  #: wide <-> tele zoom travel (linear in the zoom fraction)
     interlaced: bool = False  #: video reaches the PC as interlaced fields (decodable at field rate)
+    #: the head runs a zoom and a pan-tilt move at once (VISCA: two command sockets)
+    zoom_while_moving: bool = False
 
     def slew_time(self, dpan: float, dtilt: float) -> float:
         """Seconds for an absolute move by (dpan, dtilt) radians: both axes at once + command."""
         return max(self.pan.move_time(dpan), self.tilt.move_time(dtilt)) + self.command_s
 
+    def zoom_time(self, dzoom: float) -> float:
+        """Seconds of zoom travel by ``dzoom`` (fraction of the optical range, sign ignored)."""
+        return abs(dzoom) * self.zoom_full_s
+
 
 EVI_D100 = HeadModel(
     name="EVI-D100", pan=_axis(300.0, 0.2), tilt=_axis(125.0, 0.2),
-    settle_s=0.1, command_s=0.05, position_s=0.04, zoom_full_s=2.0, interlaced=True,
+    settle_s=0.1, command_s=0.05, position_s=0.04, zoom_full_s=2.0, interlaced=True, zoom_while_moving=True,
 )
 SNC_RZ25N = HeadModel(
     name="SNC-RZ25N (assumed)", pan=_axis(300.0, 0.2), tilt=_axis(300.0, 0.2),
@@ -154,16 +166,21 @@ class RigTiming:
 # ----- operations ------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class Slew:
-    """Absolute move by (dpan, dtilt) radians; ``phase`` 'slew' (search/views) or 'centring'."""
+    """Absolute move by (dpan, dtilt) radians; ``phase`` 'slew' (search/views) or 'centring'.
+    ``dzoom``: a zoom by that fraction of the optical range run at the same time (a head with
+    ``zoom_while_moving``): the move lasts the longer of the two, the zoom's excess over the
+    move is reported in the 'zoom' phase."""
 
     dpan: float
     dtilt: float
     phase: str = "slew"
+    dzoom: float = 0.0
 
     @classmethod
-    def between(cls, start: tuple[float, float], end: tuple[float, float]) -> Slew:
-        """The slew from head (pan, tilt) ``start`` to ``end``, radians, pan the short way round."""
-        return cls(math.remainder(end[0] - start[0], 2 * math.pi), end[1] - start[1])
+    def between(cls, start: tuple[float, float], end: tuple[float, float], dzoom: float = 0.0) -> Slew:
+        """The slew from head (pan, tilt) ``start`` to ``end``, radians, pan the short way round,
+        with a zoom by ``dzoom`` at the same time."""
+        return cls(math.remainder(end[0] - start[0], 2 * math.pi), end[1] - start[1], dzoom=dzoom)
 
 
 @dataclass(frozen=True)
@@ -242,10 +259,21 @@ class FieldTime:
 ZERO = FieldTime({})
 
 
+def _zoom_excess(op: Slew, timing: RigTiming) -> float:
+    """Seconds a zoom run with the move ``op`` outlasts the move's axes."""
+    head = timing.head
+    if not op.dzoom:
+        return 0.0
+    if not head.zoom_while_moving:
+        raise ValueError(f"{head.name} does not zoom while it moves: price the zoom as its own Zoom")
+    axes = max(head.pan.move_time(op.dpan), head.tilt.move_time(op.dtilt))
+    return max(0.0, head.zoom_time(op.dzoom) - axes)
+
+
 def op_time(op: Op, timing: RigTiming) -> float:
     """Seconds one operation takes on ``timing``."""
     if isinstance(op, Slew):
-        return timing.head.slew_time(op.dpan, op.dtilt)
+        return timing.head.slew_time(op.dpan, op.dtilt) + _zoom_excess(op, timing)
     if isinstance(op, Settle):
         return timing.head.settle_s
     if isinstance(op, Frames):
@@ -253,7 +281,7 @@ def op_time(op: Op, timing: RigTiming) -> float:
     if isinstance(op, PositionRead):
         return timing.head.position_s
     if isinstance(op, Zoom):
-        return abs(op.dzoom) * timing.head.zoom_full_s
+        return timing.head.zoom_time(op.dzoom)
     if isinstance(op, Radio):
         return op.unicast * timing.radio.unicast_s + op.broadcast * timing.radio.broadcast_s
     if isinstance(op, Wait):
@@ -265,6 +293,10 @@ def price(ops: Iterable[Op], timing: RigTiming) -> FieldTime:
     """Field time per phase of operations executed one after the other."""
     phases = dict.fromkeys(PHASES, 0.0)
     for op in ops:
+        if isinstance(op, Slew) and op.dzoom:
+            phases[op.phase] = phases.get(op.phase, 0.0) + timing.head.slew_time(op.dpan, op.dtilt)
+            phases["zoom"] += _zoom_excess(op, timing)
+            continue
         phases[op.phase] = phases.get(op.phase, 0.0) + op_time(op, timing)
     return FieldTime(phases)
 

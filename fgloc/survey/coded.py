@@ -198,6 +198,7 @@ class CodedSurvey:
         self.bands: dict[str, dict[str, EpipolarBand]] = {}
         self.across_scale: float | None = None
         self.here: dict[str, tuple[float, float]] = {}  # camera -> head (pan, tilt) after its last view
+        self._zooms_while_moving: dict[str, bool] = {}  # camera -> zooms during its moves (zooms_while_moving)
         self.wide_records: dict[str, list[dict[str, Any] | None]] = {}
         self._done_views = 0
         self._never_dark: set[tuple[str, Blob]] = set()  # (camera, blob) of unexplained blobs that never went dark
@@ -256,18 +257,39 @@ class CodedSurvey:
             logger.info(f"{record['camera']} view {record['view']} ({record['attempt']}): {r['kind']} blob at "
                         f"({r['u']:.1f}, {r['v']:.1f}) px: {r['reason']}")
 
+    def zooms_while_moving(self, runner: SurveyRunner, camera: str) -> bool:
+        """Lever ``zoom_moves "together"``: does ``camera`` zoom during its moves? Its head model
+        must zoom while moving (:attr:`fgloc.survey.clock.HeadModel.zoom_while_moving`, priced so)
+        and its driver must run both at once (a ``move_and_zoom`` method: the VISCA head sends the
+        zoom and the move to the camera's two command sockets)."""
+        if camera not in self._zooms_while_moving:
+            if self.settings.zoom_moves != "together" or not self.lane_timing[camera].head.zoom_while_moving:
+                self._zooms_while_moving[camera] = False
+                return False
+            worker = runner.workers[camera]
+            try:
+                if worker.head is None:  # first asked at the camera's first view, before it owes anything
+                    worker.call(lambda h: None)  # opens the head
+            except CameraFailed:
+                return False  # its views fail too; asked again if it comes back
+            self._zooms_while_moving[camera] = callable(getattr(worker.head, "move_and_zoom", None))
+        return self._zooms_while_moving[camera]
+
     def _visit(self, runner: SurveyRunner, camera: str, vid: str, target: tuple[float, float], zoom: float,
                here: tuple[float, float] | None, extra: dict[str, Any] | None = None,
                candidates: RoundCandidates | None = None,
-               head: tuple[float, float] | None = None) -> dict[str, Any] | None:
+               head: tuple[float, float] | None = None, dzoom: float = 0.0) -> dict[str, Any] | None:
         """Record one view (and its second recording when needed) unless journaled; prices it
         on the camera's lane. Returns the view's last record (None: the camera failed).
         ``candidates``: a short round view (:mod:`fgloc.survey.coded_rounds`). ``here`` None:
         the head is already at ``target`` (view-major rounds: the same view, another class),
-        ``head`` its read-back angles if this process read them (None: read them on recording)."""
+        ``head`` its read-back angles if this process read them (None: read them on recording).
+        ``dzoom``: the zoom travel (fraction of the optical range) to ``zoom`` that runs during
+        the move here (a camera that :meth:`zooms_while_moving`), priced with the move."""
         worker, lane = runner.workers[camera], self.lanes[camera]
+        together = self.zooms_while_moving(runner, camera)
         if here is not None:
-            lane += [Slew.between(here, target), Settle(),
+            lane += [Slew.between(here, target, dzoom), Settle(),
                      PositionRead()]
             head = None
         self._head_at[camera] = head
@@ -281,9 +303,12 @@ class CodedSurvey:
             if rec is None:
                 try:
                     if head is None:
-                        def go(h: PanTiltHead) -> None:
-                            h.set_zoom(zoom)  # in the same call: a reconnect resets the survey zoom
-                            h.move_to(*target)
+                        def go(h: PanTiltHead) -> None:  # in one call: a reconnect resets the survey zoom
+                            if together:
+                                h.move_and_zoom(*target, zoom)  # type: ignore[attr-defined]
+                            else:
+                                h.set_zoom(zoom)
+                                h.move_to(*target)
 
                         worker.call(go)
                         got = worker.call(lambda h: h.position())
@@ -417,10 +442,13 @@ class CodedSurvey:
             tiles = [into_search_box(p, t, s.pan_min, s.pan_max, s.tilt_min, s.tilt_max) for p, t in plan_views(
                 self.intrinsics_at(camera, level), pts, self.settings.margin_px, start=here,
                 tilt_limits=(s.tilt_min, s.tilt_max))]
-            self.lanes[camera].append(Zoom(level - zoom))
-            zoom, last = level, []
-            for k, target in enumerate(tiles):
-                last.append(self._visit(runner, camera, f"r{rung}-{k:03d}", target, level, here))
+            together = bool(tiles) and self.zooms_while_moving(runner, camera)
+            if not together:
+                self.lanes[camera].append(Zoom(level - zoom))
+            dzoom, zoom, last = level - zoom, level, []
+            for k, target in enumerate(tiles):  # a head that zooms while moving zooms on its way to the first tile
+                last.append(self._visit(runner, camera, f"r{rung}-{k:03d}", target, level, here,
+                                        dzoom=dzoom if together and k == 0 else 0.0))
                 here = target
             self.stats.views += len(tiles)
             chased, failed, blobs = blobs, any(r is None for r in last), self.unexplained(last)

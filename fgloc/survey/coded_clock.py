@@ -84,7 +84,16 @@ class ClockedHeadProxy:
         self._sink.add(self._camera, Frames(1))
         return self._head.grab_frame()
 
+    def _move_and_zoom(self, pan: float, tilt: float, zoom: float) -> None:
+        if self._sink.active:  # priced inside a node: the zoom travel runs with the move
+            last = self._sink.where.get(self._camera, (0.0, 0.0))
+            self._sink.add(self._camera, Slew.between(last, (pan, tilt), zoom - float(self._head.zoom())), Settle())
+        self._head.move_and_zoom(pan, tilt, zoom)  # type: ignore[attr-defined]
+        self._sink.where[self._camera] = (pan, tilt)
+
     def __getattr__(self, name: str) -> Any:  # set_zoom, zoom, stop, home, close, driver extras
+        if name == "move_and_zoom" and callable(getattr(self._head, name, None)):
+            return self._move_and_zoom  # only a head that zooms while moving has it (coded.zooms_while_moving)
         return getattr(self._head, name)
 
 

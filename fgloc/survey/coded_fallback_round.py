@@ -263,18 +263,23 @@ def run_fallback_round(coded: CodedSurvey, runner: SurveyRunner, pool: ThreadPoo
 
 def _record_round(coded: CodedSurvey, runner: SurveyRunner, camera: str, views: list[tuple[float, float]],
                   lit: list[str]) -> None:
-    """One camera's round views at the survey zoom (zooming back first if the ladder left it
-    zoomed in), then its unexplained blobs replaced (:func:`blobs_after_round`)."""
+    """One camera's round views at the survey zoom (zooming back first, or on the way to the first
+    view on a head that zooms while moving, if the ladder left it zoomed in), then its unexplained blobs replaced (:func:`blobs_after_round`)."""
     from fgloc.survey.clock import Zoom
     from fgloc.survey.coded_ladder import unread
 
     zoom0, worker = coded.survey_zoom[camera], runner.workers[camera]
+    dzoom = 0.0  # the zoom back run during the move to the first round view (a head that zooms while moving)
     if camera in coded.owed_zoom and worker.before_next is not None:
-        coded.lanes[camera].append(Zoom(zoom0 - coded.owed_zoom[camera]))
+        if views and coded.zooms_while_moving(runner, camera):
+            dzoom = zoom0 - coded.owed_zoom[camera]
+        else:
+            coded.lanes[camera].append(Zoom(zoom0 - coded.owed_zoom[camera]))
         worker.before_next = None  # the round's first move sets the survey zoom itself
     records: list[dict[str, Any]] = []
     for k, target in enumerate(views):
-        rec = coded._visit(runner, camera, f"{ROUND_PREFIX}{k:03d}", target, zoom0, coded.here[camera], {"lit": lit})
+        rec = coded._visit(runner, camera, f"{ROUND_PREFIX}{k:03d}", target, zoom0, coded.here[camera], {"lit": lit},
+                           dzoom=dzoom if k == 0 else 0.0)
         coded.here[camera] = target
         if rec is None:
             return  # the camera failed: its blobs stay as they were, searched by the fallback

@@ -109,6 +109,10 @@ class CodedSettings:
     #: (:func:`fgloc.camera.blink_decoder.supplement_decode`; the default); ``"dropped"``: the
     #: whole recording's decode alone (the default of journals written before this lever)
     first_window: str = "kept"
+    #: ``"together"``: a zoom to a rung (or back to the survey zoom) runs during the move to the
+    #: next view, on heads whose model zooms while moving and whose driver has ``move_and_zoom``
+    #: (the default); ``"apart"``: zoom, then move (the default of journals written before this lever)
+    zoom_moves: str = "together"
 
     def view_decoder(self) -> DecoderConfig:
         """The decoder configuration of the views, as ``decode`` chooses."""
