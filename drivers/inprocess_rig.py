@@ -349,6 +349,8 @@ class SceneHead:
             self.pointing_error = self._settle_error(new_pan, new_tilt)
         self.pan, self.tilt = new_pan, new_tilt
 
+    concurrent_zoom = True  #: :meth:`move_and_zoom` stands for a head that runs both at once
+
     def move_and_zoom(self, pan: float, tilt: float, zoom: float) -> None:
         """Zoom to ``zoom`` (fraction of the optical range) and move to (pan, tilt) radians at once,
         as a VISCA head does in its two command sockets (two commands, one wait)."""

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from fgloc.drivers.head_adapter import FrameSourceArg, HeadAdapter
-from fgloc.drivers.ptz_units import EVI_D100, PanTiltUnits
+from fgloc.drivers.ptz_units import EVI_D100, PanTiltUnits, PositionOutOfRangeError
 from fgloc.drivers.visca.codec import (
     cmd_focus_auto,
     cmd_focus_manual,
@@ -31,7 +31,7 @@ from fgloc.drivers.visca.codec import (
 )
 from fgloc.drivers.visca.errors import ViscaError, ViscaProtocolError, ViscaTimeout
 from fgloc.drivers.visca.serial_link import SerialLink
-from fgloc.drivers.visca.session import Timeouts, ViscaSession
+from fgloc.drivers.visca.session import Timeouts, TogetherCommand, ViscaSession
 
 log = logging.getLogger(__name__)
 
@@ -60,6 +60,7 @@ class ViscaHead(HeadAdapter):
     """
 
     unsteady_error = ViscaProtocolError
+    _last_counts: tuple[int, int] | None  # HeadAdapter's; restated for mypy run on drivers/ outside the package
 
     def __init__(self, session: ViscaSession, units: PanTiltUnits | None = None, frames: FrameSourceArg = None,
                  settings: HeadSettings | None = None) -> None:
@@ -114,8 +115,52 @@ class ViscaHead(HeadAdapter):
     def move_to_counts(self, pan: int, tilt: int) -> None:
         """Absolute move in device counts; blocks until the camera reports completion."""
         self._ready()
-        m = self.model
         self.check_counts(pan, tilt)
+        self._run_alone(self._move_command(pan, tilt))
+        self._last_counts = (pan, tilt)
+        if self.settings.settle_seconds > 0:
+            time.sleep(self.settings.settle_seconds)
+
+    def move_and_zoom_counts(self, pan: int, tilt: int, zoom_counts: int) -> None:
+        """Absolute move to (pan, tilt) signed device counts and CAM_Zoom Direct to ``zoom_counts``
+        (unsigned zoom counts, 0 wide ... ``model.zoom_max``), both at once in the camera's two
+        command sockets; blocks until both have completed, then settles like :meth:`move_to_counts`.
+
+        Each command keeps its own completion timeout and read-back check (those of
+        :meth:`move_to_counts` and :meth:`set_zoom_counts`); what cannot run at once falls back to
+        one after the other (:meth:`fgloc.drivers.visca.session.ViscaSession.commands_at_once`).
+        Counts outside the model's ranges raise PositionOutOfRangeError before anything is sent.
+        """
+        self._ready()
+        self.check_counts(pan, tilt)
+        if not 0 <= zoom_counts <= self.model.zoom_max:
+            raise PositionOutOfRangeError(f"zoom {zoom_counts} counts outside {self.model.name} range "
+                                          f"0..{self.model.zoom_max}")
+        self.session.commands_at_once([self._move_command(pan, tilt), self._zoom_command(zoom_counts)])
+        self._last_counts = (pan, tilt)
+        if self.settings.settle_seconds > 0:
+            time.sleep(self.settings.settle_seconds)
+
+    @property
+    def concurrent_zoom(self) -> bool:
+        """Does :meth:`move_and_zoom` run the move and the zoom at once? Over a serial line, yes;
+        over VISCA over IP the link keeps one request's sequence number outstanding, so the session
+        runs them one after the other (:meth:`~fgloc.drivers.visca.session.ViscaSession.commands_at_once`)."""
+        return not getattr(self.session.link, "tags_replies", False)
+
+    def move_and_zoom(self, pan: float, tilt: float, zoom: float) -> None:
+        """Move to spec (pan, tilt) radians and zoom to a fraction of the optical range (0 wide ...
+        1 optical tele), both at once in the camera's two command sockets; blocks until the head
+        and the lens are there (:meth:`move_and_zoom_counts`)."""
+        pan_counts, tilt_counts = self.units.to_counts(pan, tilt)
+        self.move_and_zoom_counts(pan_counts, tilt_counts, self.units.zoom_to_counts(zoom))
+
+    def _run_alone(self, c: TogetherCommand) -> None:
+        self.session.command(c.packet, completion_timeout=c.completion_timeout, name=c.name, confirm=c.confirm)
+
+    def _move_command(self, pan: int, tilt: int) -> TogetherCommand:
+        """The absolute move to (pan, tilt) counts, its completion timeout (s) sized from the distance."""
+        m = self.model
         ps, ts = self._speeds()
         start = self._last_counts
         if start is None:  # size the completion timeout from the real distance (protocols.md 1.5)
@@ -129,11 +174,7 @@ class ViscaHead(HeadAdapter):
             dp, dt = pan - start[0], tilt - start[1]
         wait = m.move_seconds(dp, dt, ps, ts) * 1.2 + self.session.timeouts.completion_margin
         packet = cmd_pan_tilt_absolute(self.address, pan, tilt, ps, ts, m.pan_nibbles)
-        self.session.command(packet, completion_timeout=wait, name="pan-tilt absolute move",
-                             confirm=lambda: self._at(pan, tilt))
-        self._last_counts = (pan, tilt)
-        if self.settings.settle_seconds > 0:
-            time.sleep(self.settings.settle_seconds)
+        return TogetherCommand(packet, wait, "pan-tilt absolute move", lambda: self._at(pan, tilt))
 
     def _at(self, pan: int, tilt: int) -> bool:
         """The head reads back (pan, tilt) within CONFIRM_COUNTS (checks a possibly-stray Completion)."""
@@ -153,9 +194,13 @@ class ViscaHead(HeadAdapter):
 
     def set_zoom_counts(self, counts: int) -> None:
         """CAM_Zoom Direct to ``counts``; blocks until completion."""
+        self._run_alone(self._zoom_command(counts))
+
+    def _zoom_command(self, counts: int) -> TogetherCommand:
+        """CAM_Zoom Direct to ``counts`` (unsigned zoom counts), with its completion timeout (s)."""
         wait = 3.0 + self.session.timeouts.completion_margin
-        self.session.command(cmd_zoom_direct(self.address, counts), completion_timeout=wait, name="zoom direct",
-                             confirm=lambda: abs(self.zoom_counts() - counts) <= CONFIRM_COUNTS)
+        return TogetherCommand(cmd_zoom_direct(self.address, counts), wait, "zoom direct",
+                               lambda: abs(self.zoom_counts() - counts) <= CONFIRM_COUNTS)
 
     def zoom_counts(self) -> int:
         data = self.session.inquiry(cmd_zoom_position_inquiry(self.address), 4, name="zoom position inquiry")

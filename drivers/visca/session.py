@@ -27,6 +27,12 @@ drained by an inquiry, whose answer comes after every reply the camera sent befo
 power inquiry for a command without a check. A link whose replies
 carry their request's tag (VISCA over IP: the sequence number) already drops every reply to an
 earlier request, so over such a link no stray window is opened.
+
+Two commands at once (:meth:`ViscaSession.commands_at_once`, protocols.md 1.4-1.5 and pitfall 4):
+the camera has two command sockets, so a pan-tilt move and a zoom can run together. Each is sent
+only after the previous one's ACK (pitfall 3), then the Completions are matched by socket in
+whatever order they come; every rule above (stray windows, ``confirm()``, error classes) holds
+per socket. Whatever cannot run that way falls back to the one-at-a-time path (see the method).
 """
 
 from __future__ import annotations
@@ -34,7 +40,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Protocol, TypeVar
 
@@ -43,6 +49,7 @@ from fgloc.drivers.visca.codec import ReplyKind, cmd_address_set, cmd_if_clear, 
 from fgloc.drivers.visca.errors import (
     CommandBufferFull,
     ViscaDisconnected,
+    ViscaErrorReply,
     ViscaGarbledReply,
     ViscaProtocolError,
     ViscaTimeout,
@@ -105,8 +112,42 @@ class Timeouts:
     buffer_full_wait: float = 0.1
 
 
+#: command sockets of a Sony VISCA camera: at most this many commands run at once (protocols.md 1.4)
+SOCKETS = 2
+
+
+@dataclass(frozen=True)
+class TogetherCommand:
+    """One command of :meth:`ViscaSession.commands_at_once`, with the arguments of
+    :meth:`ViscaSession.command`: ``completion_timeout`` (s, None = the completion margin) counts
+    from its ACK; ``confirm()`` decides whether a Completion that may be a stray one is its own."""
+
+    packet: bytes
+    completion_timeout: float | None = None
+    name: str = ""
+    confirm: Callable[[], bool] | None = None
+
+    @property
+    def label(self) -> str:
+        return self.name or self.packet.hex(" ")
+
+
+@dataclass
+class _Running:
+    """A command of :meth:`ViscaSession.commands_at_once` ACKed and waiting for its Completion."""
+
+    command: TogetherCommand
+    wait: float  # completion budget, s
+    acked_at: float  # monotonic s
+
+    @property
+    def deadline(self) -> float:
+        return self.acked_at + self.wait
+
+
 class ViscaSession:
-    """One VISCA camera behind a link: sends commands one at a time and matches replies by socket."""
+    """One VISCA camera behind a link: sends commands one at a time (or two at once, one per
+    command socket) and matches replies by socket."""
 
     def __init__(self, link: ViscaLink, address: int = 1, timeouts: Timeouts | None = None,
                  reconnects: int = 3, on_reconnect: Callable[[], None] | None = None,
@@ -138,6 +179,42 @@ class ViscaSession:
         name = name or packet.hex(" ")
         wait = completion_timeout if completion_timeout is not None else self.timeouts.completion_margin
         self._with_reconnect(lambda: self._command(packet, wait, name, confirm))
+
+    def commands_at_once(self, commands: Sequence[TogetherCommand]) -> None:
+        """Run up to two commands at once, one in each command socket (e.g. a pan-tilt move and a
+        zoom: they must drive different actuators); returns when every one has completed.
+
+        Sends the first, waits for its ACK (``timeouts.ack`` s), sends the second, waits for its
+        ACK, then waits for the Completion of every ACKed socket, in either order: a Completion of
+        one socket met while waiting for another command's ACK or Completion is kept for it, not
+        dropped as stale. Each Completion obeys the rules of :meth:`command` (in its socket's stray
+        window it counts only if the command's ``confirm()`` holds); an error reply raises its
+        :func:`~fgloc.drivers.visca.errors.error_for` class once no other command is still running.
+
+        Fallbacks (all commands here are idempotent absolute commands, so a resend is safe); each
+        runs after every running command has its Completion, through the one-at-a-time path of
+        :meth:`command` with its retries:
+
+        * "command buffer full" for a command (a socket still held, e.g. by an abandoned command):
+          that command, and any after it, runs then;
+        * no ACK in time: that command (its send may still be run by the camera, so it is resent
+          as after an ACK timeout in :meth:`command`) and any after it run then;
+        * no Completion within a command's ``completion_timeout``: its socket gets a stray window
+          and the command runs again then;
+        * an ACK on a socket still waiting for its Completion (that Completion was lost on the
+          wire): the earlier command runs again then;
+        * over a link that tags replies (VISCA over IP) the link keeps only the newest command's
+          replies, so the commands run one after another with :meth:`command`.
+        """
+        todo = list(commands)
+        if len(todo) > SOCKETS:
+            raise ValueError(f"a VISCA camera has {SOCKETS} command sockets; got {len(todo)} commands at once")
+        if len(todo) == 1 or getattr(self.link, "tags_replies", False):
+            for c in todo:
+                self.command(c.packet, c.completion_timeout, c.name, c.confirm)
+            return
+        if todo:
+            self._with_reconnect(lambda: self._at_once(todo))
 
     def cancel(self, socket: int) -> bool:
         """Command cancel ``8x 2y FF``: True if the camera cancelled a command (``z0 6y 04 FF``),
@@ -236,15 +313,17 @@ class ViscaSession:
             return reply
 
     def _command(self, packet: bytes, completion_timeout: float, name: str,
-                 confirm: Callable[[], bool] | None = None) -> None:
-        """Send, wait for ACK (``ack`` s), then for the Completion on that socket; timeouts resend."""
+                 confirm: Callable[[], bool] | None = None, unanswered: bool = False) -> None:
+        """Send, wait for ACK (``ack`` s), then for the Completion on that socket; timeouts resend.
+        ``unanswered``: the packet was sent already and no ACK was read, so this first send is a
+        resend after an ACK timeout."""
         t = self.timeouts
-        acked = True  # a resend after an ACKed attempt is a new message, not a retransmission
+        acked = not unanswered  # a resend after an ACKed attempt is a new message, not a retransmission
         echoed = False  # a send whose ACK we never read may still be run by the camera (module doc)
 
         def attempt(n: int) -> None:
             nonlocal acked, echoed
-            retransmit = n > 0 and not acked
+            retransmit = (n > 0 or unanswered) and not acked
             echoed = echoed or (retransmit and not getattr(self.link, "tags_replies", False))
             self._send(packet, retransmit=retransmit)
             acked = False
@@ -254,9 +333,7 @@ class ViscaSession:
             try:
                 self._await_completion(socket, completion_timeout, name, confirm, echoed)
             except ViscaTimeout:  # the camera may still send this command's Completion later
-                if not getattr(self.link, "tags_replies", False):
-                    until = acked_at + 2 * completion_timeout
-                    self.stray[socket] = max(self.stray.get(socket, 0.0), until)
+                self._owe(socket, acked_at + 2 * completion_timeout)
                 raise
 
         def retryable(error: BaseException) -> bool:  # buffer full answers in place of the ACK only
@@ -268,6 +345,112 @@ class ViscaSession:
         RetryPolicy(t.retries + 1, retryable, wait).call(attempt, self._count_retry)
         if echoed and confirm is None:  # with a confirm, its inquiry has drained the wire (_believe)
             self._drain(name)
+
+    def _at_once(self, commands: list[TogetherCommand]) -> None:
+        """:meth:`commands_at_once` for one connection (a reconnect runs it again from the start)."""
+        running: dict[int, _Running] = {}  # socket -> the command ACKed there, awaiting its Completion
+        later: list[tuple[TogetherCommand, bool]] = []  # (command, sent without an ACK read): fallbacks
+        failure: ViscaErrorReply | None = None
+        try:
+            for c in commands:
+                if later or failure is not None:  # keep the order: nothing runs beside a fallback
+                    if failure is None:
+                        later.append((c, False))
+                    continue
+                self._send(c.packet)
+                try:
+                    socket = self._await_ack_beside(running, c.label)
+                except ViscaTimeout:
+                    self.stats.retries += 1
+                    log.info("camera %d: no ACK to %s; it runs again alone", self.address, c.label)
+                    later.append((c, True))
+                    continue
+                except CommandBufferFull:
+                    self.stats.retries += 1
+                    log.info("camera %d: %s refused (command buffer full); it runs again once the running "
+                             "command is done", self.address, c.label)
+                    later.append((c, False))
+                    continue
+                except ViscaErrorReply as exc:
+                    failure = exc
+                    continue
+                if socket in running:  # the camera freed that socket, so the command there is over
+                    before = running.pop(socket)
+                    theirs = [r for r in self._held if r.socket == socket]
+                    self._held[:] = [r for r in self._held if r.socket != socket]
+                    errors = [r for r in theirs if r.kind is ReplyKind.ERROR]
+                    if errors:
+                        failure = error_for(errors[0].error_code, socket, before.command.label)
+                    elif not theirs:  # its Completion was lost on the wire: run it again to be sure
+                        self.stats.retries += 1
+                        later.append((before.command, False))
+                wait = c.completion_timeout if c.completion_timeout is not None else self.timeouts.completion_margin
+                running[socket] = _Running(c, wait, time.monotonic())
+            while running:
+                socket, r = min(running.items(), key=lambda item: item[1].deadline)
+                reply = self._next(r.deadline)
+                if reply is None:
+                    del running[socket]
+                    self.stats.timeouts += 1
+                    self._owe(socket, r.acked_at + 2 * r.wait)
+                    if failure is None:
+                        self.stats.retries += 1
+                        log.info("camera %d: no completion for %s within %.1f s; it runs again alone",
+                                 self.address, r.command.label, r.wait)
+                        later.append((r.command, False))
+                    continue
+                mine = running.get(reply.socket)
+                if mine is None or reply.kind not in (ReplyKind.COMPLETION, ReplyKind.ERROR):
+                    self.stats.stale += 1
+                    continue
+                if reply.kind is ReplyKind.ERROR:
+                    del running[reply.socket]
+                    failure = failure or error_for(reply.error_code, reply.socket, mine.command.label)
+                    continue
+                if self._believe(reply.socket, mine.command.confirm, mine.command.label, keep_held=True):
+                    del running[reply.socket]
+        except BaseException:
+            for socket, r in running.items():  # abandoned: their Completions may still come
+                self._owe(socket, r.acked_at + 2 * r.wait)
+            raise
+        finally:  # replies held past the last Completion came before it and belong to nobody here
+            self.stats.stale += len(self._held)
+            self._held.clear()
+        if failure is not None:
+            raise failure
+        for c, unanswered in later:
+            wait = c.completion_timeout if c.completion_timeout is not None else self.timeouts.completion_margin
+            self._command(c.packet, wait, c.label, c.confirm, unanswered)
+
+    def _await_ack_beside(self, running: dict[int, _Running], name: str) -> int:
+        """The socket of the ACK to the command just sent while the commands in ``running`` run.
+
+        A Completion or error on a running socket met meanwhile is kept (in ``_held``) for the
+        Completion wait, where it is checked like any other (stray window, ``confirm()``). An ACK
+        on a running socket is returned like any other: the caller sorts out that socket."""
+        deadline = time.monotonic() + self.timeouts.ack
+        kept: list[Reply] = []
+        try:
+            while True:
+                reply = self._next(deadline)
+                if reply is None:
+                    self.stats.timeouts += 1
+                    raise ViscaTimeout(f"no ACK from camera {self.address} to {name}")
+                if reply.kind in (ReplyKind.COMPLETION, ReplyKind.ERROR) and reply.socket in running:
+                    kept.append(reply)
+                    continue
+                if reply.kind is ReplyKind.ACK:
+                    return reply.socket
+                if reply.kind is ReplyKind.ERROR:
+                    raise error_for(reply.error_code, reply.socket, name)
+                self.stats.stale += 1
+        finally:
+            self._held[:0] = kept
+
+    def _owe(self, socket: int, until: float) -> None:
+        """Open (or extend) ``socket``'s stray window until ``until`` (monotonic s), unless the link tags replies."""
+        if not getattr(self.link, "tags_replies", False):
+            self.stray[socket] = max(self.stray.get(socket, 0.0), until)
 
     def _drain(self, name: str) -> None:
         """After a resend: a power inquiry, whose answer comes after every reply the camera sent
@@ -316,9 +499,11 @@ class ViscaSession:
                 continue
             raise error_for(reply.error_code, reply.socket, name)
 
-    def _believe(self, socket: int, confirm: Callable[[], bool] | None, name: str, echoed: bool = False) -> bool:
+    def _believe(self, socket: int, confirm: Callable[[], bool] | None, name: str, echoed: bool = False,
+                 keep_held: bool = False) -> bool:
         """Is a Completion on ``socket`` ours? Yes outside a stray window; inside (or after a resend,
-        ``echoed``) if ``confirm()`` holds."""
+        ``echoed``) if ``confirm()`` holds. ``keep_held``: another command is still running, so the
+        replies confirm's inquiry met (maybe its Completion) are re-read afterwards even when it holds."""
         until = self.stray.get(socket)
         if not echoed and (until is None or time.monotonic() >= until):
             self.stray.pop(socket, None)
@@ -330,9 +515,10 @@ class ViscaSession:
             ok = confirm()
         finally:
             self._holding = False
-        if ok:  # the command is done: what confirm's inquiry met came before its answer, and is stale
-            self.stats.stale += len(self._held)
-            self._held.clear()
+        if ok:
+            if not keep_held:  # the command is done: what confirm's inquiry met came before its answer
+                self.stats.stale += len(self._held)
+                self._held.clear()
         else:
             self.stats.stray += 1
             log.warning("camera %d: ignoring a Completion on socket %d that is not %s's (a stray one of an "

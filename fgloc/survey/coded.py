@@ -260,8 +260,9 @@ class CodedSurvey:
     def zooms_while_moving(self, runner: SurveyRunner, camera: str) -> bool:
         """Lever ``zoom_moves "together"``: does ``camera`` zoom during its moves? Its head model
         must zoom while moving (:attr:`fgloc.survey.clock.HeadModel.zoom_while_moving`, priced so)
-        and its driver must run both at once (a ``move_and_zoom`` method: the VISCA head sends the
-        zoom and the move to the camera's two command sockets)."""
+        and its driver must run both at once: a ``move_and_zoom`` method and ``concurrent_zoom``
+        true (the VISCA head over a serial line sends the zoom and the move to the camera's two
+        command sockets; over IP it runs them one after the other)."""
         if camera not in self._zooms_while_moving:
             if self.settings.zoom_moves != "together" or not self.lane_timing[camera].head.zoom_while_moving:
                 self._zooms_while_moving[camera] = False
@@ -272,7 +273,8 @@ class CodedSurvey:
                     worker.call(lambda h: None)  # opens the head
             except CameraFailed:
                 return False  # its views fail too; asked again if it comes back
-            self._zooms_while_moving[camera] = callable(getattr(worker.head, "move_and_zoom", None))
+            self._zooms_while_moving[camera] = (callable(getattr(worker.head, "move_and_zoom", None))
+                                                and bool(getattr(worker.head, "concurrent_zoom", False)))
         return self._zooms_while_moving[camera]
 
     def _visit(self, runner: SurveyRunner, camera: str, vid: str, target: tuple[float, float], zoom: float,
