@@ -15,14 +15,15 @@ frames one camera records with its head still, by :func:`fgloc.drivers.blink_fra
   head's errors and the lever arm of its zoom now), so off-centre readings carry the head
   errors the view model of :mod:`fgloc.core.head_model` predicts;
 * each mote has its own crystal error (N(0, 50 ppm)) and start phase, seeded by the rig
-  seed and the node, so motes drift against the camera and against each other;
+  seed (``simulation.video_seed`` when given: another recording of the same scene) and the
+  node, so motes drift against the camera and against each other;
 * the background is the camera's texture (:class:`~fgloc.drivers.rendered_camera.RenderedCamera`,
   the same texture seed as the ``rendered`` frames) with the scene's static lights
   flickering at twice the mains frequency, plus the video faults of
   :class:`~fgloc.drivers.blink_frames.BlinkRenderConfig` (default: 5 % dropped frames,
   1 ms timestamp jitter, 0.05 px head jitter, 2 % ambient gain noise).
 
-Frames are seeded by (rig seed, camera, ``key``): the survey passes the view's id and
+Frames are seeded by (rig seed or video seed, camera, ``key``): the survey passes the view's id and
 attempt, so a resumed survey renders the same frames. Timestamps are seconds on the
 survey clock (``t_start``: the camera lane's predicted field time when recording starts).
 """
@@ -79,10 +80,10 @@ class SceneBlinks:
         self.field = field
         self.packets = packets
         self.config = config or BlinkRenderConfig()
-        self.seed = rig.simulation.seed
-        self.cameras = {
+        self.seed = rig.simulation.seed if rig.simulation.video_seed is None else rig.simulation.video_seed
+        self.cameras = {  # the background belongs to the scene: its texture keeps the scene's seed
             cid: RenderedCamera(scene.cameras[i], LedScene(positions={}),
-                                RenderSettings(texture_seed=_seed(self.seed, cid, "texture")))
+                                RenderSettings(texture_seed=_seed(rig.simulation.seed, cid, "texture")))
             for i, cid in enumerate(scene.camera_ids)
         }
 

@@ -33,6 +33,11 @@ so they are not independent samples). Usage::
     OPENBLAS_NUM_THREADS=1 python scripts/coded_survey.py --seeds 5 --motes 30 [--repeatability-deg 0.07]
     OPENBLAS_NUM_THREADS=1 python scripts/coded_survey.py --coded '{"separate": "radio"}' \
         --coded '{"separate": "radio", "rounds": "short"}'   # two lever sets side by side
+
+``--video-seeds K`` records each scene's coded surveys K times (rig.json ``simulation.video_seed``):
+a scene's field time depends on when each recording starts against the motes' phases, so a
+lever that moves the survey clock by a fraction of a second also redraws every decode; the
+mean over recordings separates the lever from that draw.
 """
 
 from __future__ import annotations
@@ -126,7 +131,8 @@ CodedSurvey.run_refine = _pricing_zoom(CodedSurvey.run_refine)  # type: ignore[m
 
 
 def rig_for(seed: int, motes: int, width: int, mode: str, fx: float | None = None, repeatability_deg: float = 0.0,
-            coded: dict | None = None, field_boxes: bool = False, box_margin_deg: float = 5.0):
+            coded: dict | None = None, field_boxes: bool = False, box_margin_deg: float = 5.0,
+            video_seed: int | None = None):
     data = json.loads(EXAMPLE.read_text())
     data["node_ids"] = [f"n{j:03d}" for j in range(motes)]
     f = fx or width / 2.0
@@ -134,6 +140,8 @@ def rig_for(seed: int, motes: int, width: int, mode: str, fx: float | None = Non
         cam["intrinsics"] = {"fx": f, "fy": f, "cx": width / 2, "cy": width * 3 / 8, "width": width,
                              "height": width * 3 // 4}
     data["simulation"] = {"seed": seed, "heights": [0.1, 0.12], "occlusion": 0.05, "dead_nodes": ["n003"]}
+    if video_seed is not None:  # another recording of the same scene (motes' phases and clocks, frame noise)
+        data["simulation"]["video_seed"] = video_seed
     data["retry"] = {"backoff_s": 0.0}
     data["identification"] = mode
     if coded:
@@ -301,8 +309,8 @@ def errors(survey: Survey, truth) -> tuple[list[float], list[float], tuple[float
 
 def run(seed: int, motes: int, width: int, mode: str, out: Path, fx: float | None = None,
         repeatability_deg: float = 0.0, coded: dict | None = None, field_boxes: bool = False,
-        box_margin_deg: float = 5.0) -> dict:
-    rig = rig_for(seed, motes, width, mode, fx, repeatability_deg, coded, field_boxes, box_margin_deg)
+        box_margin_deg: float = 5.0, video_seed: int | None = None) -> dict:
+    rig = rig_for(seed, motes, width, mode, fx, repeatability_deg, coded, field_boxes, box_margin_deg, video_seed)
     sim = InProcessRig(rig)
     times: list[FieldTime] = []
     if mode == "sequential":
@@ -376,12 +384,20 @@ def main() -> None:
                          "margin; across the +-180 deg seam for a camera whose nodes lie across it), both surveys")
     ap.add_argument("--box-margin-deg", type=float, default=5.0,
                     help="with --field-boxes: the margin around the visible nodes' bearings (degrees, default 5)")
+    ap.add_argument("--video-seeds", type=int, default=1,
+                    help="record each scene's coded surveys this many times (rig.json simulation.video_seed: the "
+                         "motes' start phases and clocks and the frame noise drawn anew, the scene kept; the first "
+                         "recording is the scene seed's): per scene the field time's mean and spread, and the "
+                         "speed-up of the mean (default 1)")
     args = ap.parse_args()
+    if args.video_seeds < 1:
+        ap.error(f"--video-seeds: at least 1 ({args.video_seeds})")
     if args.box_margin_deg < 0:
         ap.error(f"--box-margin-deg: degrees >= 0 ({args.box_margin_deg})")
     levers = [json.loads(c) for c in (args.coded or ["{}"])]
     names = ["coded"] if len(levers) == 1 else [f"coded {json.dumps(c, separators=(',', ':'))}" for c in levers]
     rows: dict[str, list[dict]] = {"sequential": [], **{n: [] for n in names}}
+    again: dict[str, list[list[float]]] = {n: [] for n in names}  # name -> per scene, every recording's field time
     with tempfile.TemporaryDirectory() as tmp:
         for seed in range(1, args.seeds + 1):
             rows["sequential"].append(run(seed, args.motes, args.width, "sequential", Path(tmp) / f"sequential{seed}",
@@ -390,6 +406,12 @@ def main() -> None:
             for i, (name, coded) in enumerate(zip(names, levers)):
                 rows[name].append(run(seed, args.motes, args.width, "coded", Path(tmp) / f"coded{i}-{seed}", args.fx,
                                       args.repeatability_deg, coded, args.field_boxes, args.box_margin_deg))
+                again[name].append([rows[name][-1]["field"].total])
+                for v in range(1, args.video_seeds):
+                    again[name][-1].append(run(seed, args.motes, args.width, "coded",
+                                               Path(tmp) / f"coded{i}-{seed}-v{v}", args.fx, args.repeatability_deg,
+                                               coded, args.field_boxes, args.box_margin_deg,
+                                               video_seed=video_seed_of(seed, v))["field"].total)
     for mode, rs in rows.items():
         med = statistics.median
         print(f"{mode}: field time median {med(r['field'].total for r in rs):.1f} s "
@@ -400,6 +422,26 @@ def main() -> None:
               f"RMS position error median {med(r['rms'] for r in rs):.5f}")
     for name in names:
         _report(name, rows, args)
+    if args.video_seeds > 1:
+        for name in names:
+            print(recordings_line(name, again[name], [r["field"].total for r in rows["sequential"]]))
+
+
+def video_seed_of(seed: int, recording: int) -> int:
+    """rig.json ``simulation.video_seed`` of scene ``seed``'s recording ``recording`` >= 1 (recording 0
+    is the scene seed's own)."""
+    return 1000 * seed + recording
+
+
+def recordings_line(name: str, times: list[list[float]], sequential: list[float]) -> str:
+    """Per scene, the coded field time over its recordings (mean, sample sd, each), and the
+    speed-ups of the means: median over scenes, and each scene's."""
+    means = [statistics.mean(t) for t in times]
+    speed = [s / m for s, m in zip(sequential, means)]
+    scenes = "; ".join(f"seed {k}: mean {m:.2f} s, sd {statistics.stdev(t):.2f} ({' '.join(f'{x:.2f}' for x in t)})"
+                       for k, (m, t) in enumerate(zip(means, times), start=1))
+    return (f"{name}, {len(times[0])} recordings per scene: {scenes}; speed-up of the means median "
+            f"{statistics.median(speed):.2f}x (per seed {' '.join(f'{x:.2f}x' for x in speed)})")
 
 
 def joint_line(scenes: list[tuple[float, int]]) -> str:

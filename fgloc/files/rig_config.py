@@ -124,6 +124,9 @@ class SimulationConfig:
     """
 
     seed: int = 0
+    #: seeds the blink video (motes' crystal errors and start phases, frame noise) of a coded
+    #: survey apart from the scene; None: the scene's ``seed`` (one scene, several recordings)
+    video_seed: int | None = None
     heights: tuple[float, ...] = (0.1, 0.1)
     occlusion: float = 0.0
     dead_nodes: tuple[str, ...] = ()
@@ -366,6 +369,7 @@ def parse_rig(data: Any, path: str = "rig.json", base: Path | None = None) -> Ri
         raise _fail(path, "simulation.disconnect_camera", f"camera {dcam!r} is not in cameras")
     simulation = SimulationConfig(
         seed=int(sim.get("seed", 0)),
+        video_seed=None if sim.get("video_seed") is None else int(sim["video_seed"]),
         heights=tuple(float(h) for h in heights),
         occlusion=float(sim.get("occlusion", 0.0)),
         dead_nodes=tuple(str(n) for n in dead),
@@ -416,7 +420,7 @@ def parse_rig(data: Any, path: str = "rig.json", base: Path | None = None) -> Ri
 # same list, and every reading already journaled stays valid.
 _MEANING_TOP = ("format", "nodes", "sigma_deg", "gauge", "repeats", "node_ids", "head_repeatability_deg")
 _MEANING_CAMERA = ("id", "model", "mounting", "zoom")
-_SCENE = ("seed", "heights", "occlusion", "dead_nodes", "head_errors")
+_SCENE = ("seed", "video_seed", "heights", "occlusion", "dead_nodes", "head_errors")
 _INTRINSICS = ("fx", "fy", "cx", "cy", "width", "height", "k1", "k2", "p1", "p2", "k3")
 
 
@@ -444,6 +448,8 @@ def rig_meaning(rig: RigConfig, simulated: bool = False) -> dict[str, Any]:
         sim = rig.simulation
         m |= {"simulation.seed": sim.seed, "simulation.heights": list(sim.heights),
               "simulation.occlusion": sim.occlusion, "simulation.dead_nodes": list(sim.dead_nodes)}
+        if sim.video_seed is not None:  # absent without, so journals of rigs without it compare as before
+            m["simulation.video_seed"] = sim.video_seed
         if sim.head_errors:
             m["simulation.head_errors"] = {c: list(v) for c, v in sim.head_errors.items()}
         if sim.head_zoom_levers:  # absent without, so journals of rigs without it compare as before
