@@ -23,6 +23,7 @@ from fgloc.drivers.visca.errors import ViscaTimeout
 from fgloc.drivers.visca.head import ViscaHead, open_serial_head
 from fgloc.drivers.visca.ip import open_ip_head
 from fgloc.drivers.visca.session import SessionStats, Timeouts, TogetherCommand
+from tests.test_visca_late_completion import _wait_for
 
 H = bytes.fromhex
 ACK1, ACK2, DONE1, DONE2 = H("90 41 FF"), H("90 42 FF"), H("90 51 FF"), H("90 52 FF")
@@ -141,13 +142,6 @@ def test_a_lost_completion_is_resent_alone_after_its_timeout() -> None:
         assert (s.timeouts, s.retries, s.stray) == (1, 1, 0)
 
 
-def _wait_for(predicate, timeout: float = 3.0) -> None:
-    deadline = time.monotonic() + timeout
-    while not predicate():
-        assert time.monotonic() < deadline, "timed out waiting"
-        time.sleep(0.002)
-
-
 def test_a_stray_completion_in_the_window_is_not_believed_unless_the_head_is_there() -> None:
     """Socket 1 may still owe the Completion of an abandoned move (stray window). While the new
     move (socket 1) and the zoom (socket 2) run, a Completion ``90 51 FF`` that is not the move's
@@ -173,7 +167,7 @@ def test_a_stray_completion_in_the_window_is_not_believed_unless_the_head_is_the
 
         thread = threading.Thread(target=run)
         thread.start()
-        _wait_for(lambda: ACK2 in twin.sent[n_sent:])
+        _wait_for(lambda: ACK2 in twin.sent[n_sent:], timeout=3.0)
         twin.inject_raw(DONE1)
         thread.join(timeout=10.0)
         assert not thread.is_alive() and not error, error
