@@ -260,32 +260,3 @@ def test_the_first_window_adds_only_what_the_whole_decode_lacks() -> None:
     assert [f.u for f in got.refused] == [120.0, 200.0]  # the merged blob at code 3 is read now
     assert (got.samples, got.erased) == (62, 3)
     assert supplement_decode(whole, ViewDecode((), (), 42, 0)) is whole
-
-
-@pytest.mark.parametrize(("reason", "kept"), [
-    ("never dark (off level 663 of amplitude 740): a flickering light", False),
-    ("on-off amplitude 369 < 12.0 x 44.0", True),
-])
-def test_a_code_one_window_reads_where_another_found_the_blob_never_dark_is_refused(
-        monkeypatch: pytest.MonkeyPatch, reason: str, kept: bool) -> None:
-    """Sliding windows: a blob one window found never dark (two LEDs merged: rarely both dark)
-    that another window reads as a code is refused as ambiguous, never read (at 1000 motes the
-    light-curve fit once took two motes 0.8 px apart for a third mote's word in the retry's
-    window). A blob refused for another reason (too faint in one window) is read as before."""
-    import fgloc.camera.blink_decoder as bd
-
-    book = code_book(100)
-    period = 1.0 / 60.0
-    first = ViewDecode((), (bd.RefusedBlob(309.14, 96.75, "rejected", reason),), 62, 0)
-    mote, other = (bd.DecodedReading(5, 309.32, 95.26, 0.3, 0.1, 0.0, 6),
-                   bd.DecodedReading(7, 40.0, 40.0, 0.3, 0.2, 0.0, 20))
-    second = ViewDecode((mote, other), (), 62, 0)
-    windows = iter([first, second])
-    monkeypatch.setattr(bd, "decode_view", lambda *args, **kw: next(windows))
-    frames = [(k * period, np.zeros((4, 4))) for k in range(book.length * 3 + 2 + book.length)]
-    intr = CameraIntrinsics(500.0, 500.0, 320.0, 240.0, 640, 480)
-    got = bd.decode_windows(frames, period, book, intr, 0.0, 0.0, 3 * book.length + 2)
-    assert [r.index for r in got.readings] == ([5, 7] if kept else [7])
-    refused_5 = [r for r in got.refused if r.code == 5]
-    assert bool(refused_5) == (not kept)
-    assert all(r.kind == "ambiguous" for r in refused_5)

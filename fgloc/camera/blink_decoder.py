@@ -282,7 +282,7 @@ def read_blob(stack: np.ndarray, valid: np.ndarray, cand: LedDetection, noise_si
     if amp < cfg.min_snr * noise:
         why = f"on-off amplitude {amp:.0f} < {cfg.min_snr} x {noise:.1f}"
     elif abs(off) > cfg.max_off_level * amp + 4.0 * noise:
-        why = f"{NEVER_DARK} (off level {off:.0f} of amplitude {amp:.0f}): a flickering light"
+        why = f"never dark (off level {off:.0f} of amplitude {amp:.0f}): a flickering light"
     if why is not None:
         return RefusedBlob(cand.u, cand.v, "rejected", why)
     bits = np.full(n, -1, dtype=np.int8)
@@ -419,10 +419,8 @@ def decode_windows(
     (default one code length) samples, each by :func:`decode_view`, and merge (see the
     module docstring): a code read in several windows must be read within ``merge_px``
     of its first reading, codes whose readings lie within ``blob_px`` of each other
-    are refused as one ambiguous blob, a code refused as duplicate anywhere is
-    refused, and so is a code read within ``blob_px`` of a blob a window found never dark
-    (two LEDs merged in one blob are rarely both dark, and in another window the light-curve
-    fit can take their blend for a third mote's word: seen once at 1000 motes). The reading kept for a code is the one with the most on samples. ``pairs``: see
+    are refused as one ambiguous blob, and a code refused as duplicate anywhere is
+    refused. The reading kept for a code is the one with the most on samples. ``pairs``: see
     :func:`decode_view`; the two readings of one pair-decoded blob do not clash."""
     if not frames:
         return ViewDecode((), (), 0, 0)
@@ -453,12 +451,6 @@ def decode_windows(
             refused += [RefusedBlob(r.u, r.v, "duplicate", f"code {code} {why}", code) for r in rds]
             continue
         kept[code] = max(rds, key=lambda r: r.on_samples)
-    for code in sorted(kept):  # a blob some window found never dark is no single blinking LED
-        rd = kept[code]
-        if any(never_dark(rf) and math.hypot(rf.u - rd.u, rf.v - rd.v) <= blob_px for rf in refused):
-            del kept[code]
-            refused.append(RefusedBlob(rd.u, rd.v, "ambiguous", f"code {code} read where another window's samples "
-                                       "were never dark (LEDs merged, or a lamp under the mote)", code))
     clash = {a for a in kept for b in kept
              if a != b and kept[a].partner != b and b not in kept[a].group and math.hypot(kept[a].u - kept[b].u, kept[a].v - kept[b].v) <= blob_px}
     for code in sorted(clash):
@@ -473,15 +465,6 @@ def decode_windows(
         if not read and not seen:
             left.append(rf)
     return ViewDecode(readings, tuple(left), n, n - len(set(idx.tolist())), unsampled_positions(idx, book.length))
-
-
-#: how :func:`led_samples` begins the reason of a blob that stayed lit in every sample
-NEVER_DARK = "never dark"
-
-
-def never_dark(refused: RefusedBlob) -> bool:
-    """A refused blob that stayed lit in every sample: a lamp, or LEDs merged so that one is always on."""
-    return refused.kind == "rejected" and refused.reason.startswith(NEVER_DARK)
 
 
 def supplement_decode(whole: ViewDecode, first: ViewDecode, blob_px: float = 2.0) -> ViewDecode:

@@ -39,7 +39,6 @@ from typing import Any
 
 import numpy as np
 
-from fgloc.camera.blink_decoder import NEVER_DARK
 from fgloc.camera.intrinsics import CameraIntrinsics
 from fgloc.camera.pixel_angles import pan_tilt_to_pixel, pixel_to_pan_tilt
 from fgloc.core.geometry import pan_tilt_bearing
@@ -54,11 +53,12 @@ FOCUS_PX = 12.0
 EXPLAINED_PX = 1.5
 #: two LEDs closer than this (pixels of one recording) make one blob there (the decoder's separation)
 SEPARATION_PX = 6.0
+_NEVER_DARK = "never dark"
 
 
 def never_dark(refused: dict[str, object]) -> bool:
     """A refused blob that stayed lit in every frame (a static lamp, or motes merged so that one is always on)."""
-    return refused.get("kind") == "rejected" and str(refused.get("reason", "")).startswith(NEVER_DARK)
+    return refused.get("kind") == "rejected" and str(refused.get("reason", "")).startswith(_NEVER_DARK)
 
 
 def direction(blob: Blob, intrinsics_at: Callable[[float], CameraIntrinsics]) -> tuple[float, float]:
