@@ -397,7 +397,7 @@ def main() -> None:
     levers = [json.loads(c) for c in (args.coded or ["{}"])]
     names = ["coded"] if len(levers) == 1 else [f"coded {json.dumps(c, separators=(',', ':'))}" for c in levers]
     rows: dict[str, list[dict]] = {"sequential": [], **{n: [] for n in names}}
-    again: dict[str, list[list[float]]] = {n: [] for n in names}  # name -> per scene, every recording's field time
+    again: dict[str, list[list[dict]]] = {n: [] for n in names}  # name -> per scene, every recording's run
     with tempfile.TemporaryDirectory() as tmp:
         for seed in range(1, args.seeds + 1):
             rows["sequential"].append(run(seed, args.motes, args.width, "sequential", Path(tmp) / f"sequential{seed}",
@@ -406,12 +406,12 @@ def main() -> None:
             for i, (name, coded) in enumerate(zip(names, levers)):
                 rows[name].append(run(seed, args.motes, args.width, "coded", Path(tmp) / f"coded{i}-{seed}", args.fx,
                                       args.repeatability_deg, coded, args.field_boxes, args.box_margin_deg))
-                again[name].append([rows[name][-1]["field"].total])
+                again[name].append([rows[name][-1]])
                 for v in range(1, args.video_seeds):
                     again[name][-1].append(run(seed, args.motes, args.width, "coded",
                                                Path(tmp) / f"coded{i}-{seed}-v{v}", args.fx, args.repeatability_deg,
                                                coded, args.field_boxes, args.box_margin_deg,
-                                               video_seed=video_seed_of(seed, v))["field"].total)
+                                               video_seed=video_seed_of(seed, v)))
     for mode, rs in rows.items():
         med = statistics.median
         print(f"{mode}: field time median {med(r['field'].total for r in rs):.1f} s "
@@ -433,15 +433,19 @@ def video_seed_of(seed: int, recording: int) -> int:
     return 1000 * seed + recording
 
 
-def recordings_line(name: str, times: list[list[float]], sequential: list[float]) -> str:
-    """Per scene, the coded field time over its recordings (mean, sample sd, each), and the
-    speed-ups of the means: median over scenes, and each scene's."""
+def recordings_line(name: str, runs: list[list[dict]], sequential: list[float]) -> str:
+    """Per scene, the coded field time over its recordings (mean, sample sd, each), the
+    speed-ups of the means (median over scenes, and each scene's), and the mislabelled readings
+    and unread visible pairs summed over every recording."""
+    times = [[r["field"].total for r in scene] for scene in runs]
     means = [statistics.mean(t) for t in times]
     speed = [s / m for s, m in zip(sequential, means)]
     scenes = "; ".join(f"seed {k}: mean {m:.2f} s, sd {statistics.stdev(t):.2f} ({' '.join(f'{x:.2f}' for x in t)})"
                        for k, (m, t) in enumerate(zip(means, times), start=1))
     return (f"{name}, {len(times[0])} recordings per scene: {scenes}; speed-up of the means median "
-            f"{statistics.median(speed):.2f}x (per seed {' '.join(f'{x:.2f}x' for x in speed)})")
+            f"{statistics.median(speed):.2f}x (per seed {' '.join(f'{x:.2f}x' for x in speed)}); over all "
+            f"{sum(len(t) for t in runs)} recordings: mislabelled {sum(r['wrong'] for t in runs for r in t)}, "
+            f"missing visible pairs {sum(r['missing'] for t in runs for r in t)}")
 
 
 def joint_line(scenes: list[tuple[float, int]]) -> str:

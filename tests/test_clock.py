@@ -194,3 +194,36 @@ def test_a_zoom_during_a_move_costs_only_what_outlasts_the_move_on_a_head_that_c
     assert op_time(Slew(0.1, 0.0, dzoom=0.0), replace(timing, head=SNC_RZ25N)) > 0  # no zoom: any head
     with pytest.raises(ValueError, match="does not zoom while it moves"):
         price([short], replace(timing, head=SNC_RZ25N))
+
+
+def test_a_clocked_head_moves_and_zooms_only_where_its_head_can_priced_as_one_move_inside_a_node() -> None:
+    """``ClockedHeadProxy``: ``move_and_zoom`` exists only when the wrapped head has it (the coded
+    survey detects the capability by it); outside a priced node it only tracks where the head is;
+    inside, it records one Slew carrying the zoom travel, then the settle."""
+    from fgloc.survey.coded_clock import ClockedHeadProxy, ClockSink
+
+    class Plain:
+        def __init__(self) -> None:
+            self.at, self.zoom_now, self.calls = (0.0, 0.0), 0.0, []
+
+        def move_to(self, pan: float, tilt: float) -> None:
+            self.at = (pan, tilt)
+
+        def zoom(self) -> float:
+            return self.zoom_now
+
+    class Zooming(Plain):
+        def move_and_zoom(self, pan: float, tilt: float, zoom: float) -> None:
+            self.calls.append((pan, tilt, zoom))
+            self.at, self.zoom_now = (pan, tilt), zoom
+
+    sink = ClockSink(["cam0"])
+    assert not hasattr(ClockedHeadProxy(Plain(), "cam0", sink), "move_and_zoom")  # type: ignore[arg-type]
+    head = Zooming()
+    proxy = ClockedHeadProxy(head, "cam0", sink)  # type: ignore[arg-type]
+    proxy.move_and_zoom(0.1, 0.0, 0.5)
+    assert sink.take() == {"cam0": []} and head.calls == [(0.1, 0.0, 0.5)]
+    sink.active = True
+    proxy.move_and_zoom(0.3, -0.1, 0.25)
+    assert sink.take()["cam0"] == [Slew.between((0.1, 0.0), (0.3, -0.1), 0.25 - 0.5), Settle()]
+    assert head.at == (0.3, -0.1) and sink.where["cam0"] == (0.3, -0.1)

@@ -177,7 +177,7 @@ class ViscaSession:
         a stray one (see the module doc) is ours; without it such a Completion is taken.
         """
         name = name or packet.hex(" ")
-        wait = completion_timeout if completion_timeout is not None else self.timeouts.completion_margin
+        wait = self._budget(completion_timeout)
         self._with_reconnect(lambda: self._command(packet, wait, name, confirm))
 
     def commands_at_once(self, commands: Sequence[TogetherCommand]) -> None:
@@ -384,8 +384,7 @@ class ViscaSession:
                     elif not theirs:  # its Completion was lost on the wire: run it again to be sure
                         self.stats.retries += 1
                         later.append((before.command, False))
-                wait = c.completion_timeout if c.completion_timeout is not None else self.timeouts.completion_margin
-                running[socket] = _Running(c, wait, time.monotonic())
+                running[socket] = _Running(c, self._budget(c.completion_timeout), time.monotonic())
             while running:
                 socket, r = min(running.items(), key=lambda item: item[1].deadline)
                 reply = self._next(r.deadline)
@@ -419,8 +418,7 @@ class ViscaSession:
         if failure is not None:
             raise failure
         for c, unanswered in later:
-            wait = c.completion_timeout if c.completion_timeout is not None else self.timeouts.completion_margin
-            self._command(c.packet, wait, c.label, c.confirm, unanswered)
+            self._command(c.packet, self._budget(c.completion_timeout), c.label, c.confirm, unanswered)
 
     def _await_ack_beside(self, running: dict[int, _Running], name: str) -> int:
         """The socket of the ACK to the command just sent while the commands in ``running`` run.
@@ -446,6 +444,10 @@ class ViscaSession:
                 self.stats.stale += 1
         finally:
             self._held[:0] = kept
+
+    def _budget(self, completion_timeout: float | None) -> float:
+        """A command's Completion budget (s): its own, else the completion margin."""
+        return completion_timeout if completion_timeout is not None else self.timeouts.completion_margin
 
     def _owe(self, socket: int, until: float) -> None:
         """Open (or extend) ``socket``'s stray window until ``until`` (monotonic s), unless the link tags replies."""

@@ -293,11 +293,11 @@ def price(ops: Iterable[Op], timing: RigTiming) -> FieldTime:
     """Field time per phase of operations executed one after the other."""
     phases = dict.fromkeys(PHASES, 0.0)
     for op in ops:
-        if isinstance(op, Slew) and op.dzoom:
-            phases[op.phase] = phases.get(op.phase, 0.0) + timing.head.slew_time(op.dpan, op.dtilt)
+        if isinstance(op, Slew):  # a zoom run during the move reports what outlasts it as zoom
             phases["zoom"] += _zoom_excess(op, timing)
-            continue
-        phases[op.phase] = phases.get(op.phase, 0.0) + op_time(op, timing)
+            phases[op.phase] = phases.get(op.phase, 0.0) + timing.head.slew_time(op.dpan, op.dtilt)
+        else:
+            phases[op.phase] = phases.get(op.phase, 0.0) + op_time(op, timing)
     return FieldTime(phases)
 
 

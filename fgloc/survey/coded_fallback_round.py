@@ -264,7 +264,8 @@ def run_fallback_round(coded: CodedSurvey, runner: SurveyRunner, pool: ThreadPoo
 def _record_round(coded: CodedSurvey, runner: SurveyRunner, camera: str, views: list[tuple[float, float]],
                   lit: list[str]) -> None:
     """One camera's round views at the survey zoom (zooming back first, or on the way to the first
-    view on a head that zooms while moving, if the ladder left it zoomed in), then its unexplained blobs replaced (:func:`blobs_after_round`)."""
+    view on a head that zooms while moving, if the ladder left it zoomed in), then its unexplained
+    blobs replaced (:func:`blobs_after_round`)."""
     from fgloc.survey.clock import Zoom
     from fgloc.survey.coded_ladder import unread
 
