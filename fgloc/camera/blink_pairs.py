@@ -37,6 +37,7 @@ Rotation-free books only. Pixels: OpenCV convention; fluxes DN.
 from __future__ import annotations
 
 import functools
+import itertools
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -126,13 +127,30 @@ def _rotation_table(length: int, words: tuple[int, ...]) -> tuple[np.ndarray, np
     return np.array(rows, np.int8), np.array(idx, np.int64), np.array(rot, np.int64)
 
 
+@functools.lru_cache(maxsize=8)
+def _sorted_rows(length: int, words: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """The rows of :func:`_rotation_table` packed into integers (first bit most significant),
+    sorted, and the row index of each."""
+    bits, _, _ = _rotation_table(length, words)
+    packed = bits.astype(np.int64) @ (np.int64(1) << np.arange(length - 1, -1, -1, dtype=np.int64))
+    order = np.argsort(packed, kind="stable")
+    return packed[order], order
+
+
+@functools.lru_cache(maxsize=8)
+def _flip_masks(length: int, flips: int) -> np.ndarray:
+    """Every integer with exactly ``flips`` of its low ``length`` bits set."""
+    return np.array([sum(1 << p for p in ps) for ps in itertools.combinations(range(length), flips)], np.int64)
+
+
 def explain_counts(book: CodeBook, counts: np.ndarray, max_distance: int = 2) -> list[PairExplanation]:
     """Every explanation of the count word ``counts`` ((L,), values 0..2, position 0 = first
     folded sample) within ``max_distance`` count errors (L1): single rotated words, and
     unordered pairs of rotated words (the same word twice included), sorted by distance.
-    Exhaustive over the book: a pair is only a candidate when its first word explains all
-    but ``max_distance`` positions alone (a 1 where the count is 0 or a 0 where it is 2
-    costs one error each), and each candidate is compared with every rotated word."""
+    Exhaustive over the book: for a first word ``a`` the L1 distance of ``a + b`` is the number
+    of positions where ``counts - a`` is -1 or 2 plus the Hamming distance of ``b`` from
+    ``clip(counts - a, 0, 1)``, so every ``b`` within the budget left is looked up among the
+    book's rotated words (sorted, packed into integers) instead of compared with each."""
     if book.synchronized:
         raise ValueError("pair decoding needs a rotation-free book")
     c = np.asarray(counts, np.int8)
@@ -146,15 +164,24 @@ def explain_counts(book: CodeBook, counts: np.ndarray, max_distance: int = 2) ->
     resid = c[None, :] - bits  # (M, L) in -1..2
     bad = ((resid < 0) | (resid > 1)).sum(axis=1)
     cand = np.flatnonzero(bad <= max_distance)
-    if cand.size:
-        d = np.abs(resid[cand][:, None, :] - bits[None, :, :]).sum(axis=2, dtype=np.int64)  # (K, M)
-        ka, b = np.nonzero(d <= max_distance)
-        a = cand[ka]
-        lo, hi = np.minimum(a, b), np.maximum(a, b)
-        _, first = np.unique(lo * bits.shape[0] + hi, return_index=True)
-        for k in first.tolist():
-            out.append(PairExplanation(int(idx[lo[k]]), int(rot[lo[k]]), int(idx[hi[k]]), int(rot[hi[k]]),
-                                       int(d[ka[k], b[k]])))
+    packed, order = _sorted_rows(book.length, book.words)
+    weights = np.int64(1) << np.arange(book.length - 1, -1, -1, dtype=np.int64)
+    target = np.clip(resid[cand], 0, 1).astype(np.int64) @ weights  # (K,) the b each a needs
+    found: dict[tuple[int, int], int] = {}
+    for flips in range(max_distance + 1):
+        fits = cand[bad[cand] + flips <= max_distance]
+        if not fits.size:
+            continue
+        tq = target[bad[cand] + flips <= max_distance]
+        query = (tq[:, None] ^ _flip_masks(book.length, flips)[None, :]).ravel()
+        lo = np.searchsorted(packed, query, "left")
+        hi = np.searchsorted(packed, query, "right")
+        for q in np.flatnonzero(hi > lo).tolist():
+            a = int(fits[q // (query.size // fits.size)])
+            for b in order[lo[q]:hi[q]].tolist():
+                found.setdefault((min(a, b), max(a, b)), int(bad[a]) + flips)
+    for (ra, rb), d in found.items():
+        out.append(PairExplanation(int(idx[ra]), int(rot[ra]), int(idx[rb]), int(rot[rb]), d))
     out.sort(key=lambda e: e.distance)
     return out
 
