@@ -177,3 +177,43 @@ def test_two_equal_leds_adding_up_to_a_straddled_word_are_refused_not_read_as_it
     # the same word straddled well off the middle has no such rival: read
     fit = fit_word(light_curve(k, r, 0.2, rng), valid, BOOK, NOISE, 12.0)
     assert isinstance(fit, WordFit) and fit.index == k
+
+
+def test_a_straddled_mote_is_read_when_the_imitating_pairs_motes_were_read_elsewhere() -> None:
+    k, r, (i, _ri, j, _rj) = _mimicking_pair()
+    rng = np.random.default_rng(5)
+    valid = np.ones(N, bool)
+    flux = light_curve(k, r, 0.5, rng)  # one mote, its edge mid-exposure: two other motes could make it
+    assert isinstance(fit_word(flux, valid, BOOK, NOISE, 12.0), str)
+    assert isinstance(fit_word(flux, valid, BOOK, NOISE, 12.0, elsewhere=lambda w: False), str)
+    # a mote read elsewhere is no LED of this blob: a pair holding it is no rival
+    fit = fit_word(flux, valid, BOOK, NOISE, 12.0, elsewhere=lambda w: w == i)
+    assert isinstance(fit, WordFit) and fit.index == k
+    fit = fit_word(flux, valid, BOOK, NOISE, 12.0, elsewhere=lambda w: w == j)
+    assert isinstance(fit, WordFit) and fit.index == k
+
+
+def test_the_decoder_takes_motes_read_elsewhere_out_of_rule_4_by_their_bearing() -> None:
+    """The rendered view of 11, 42 and 77 half-straddled: 11 and 42 are refused (pairs 6 + 7, and
+    32 + 52 and 2 + 33, make their light curves) until one mote of each pair was read away from
+    the blob."""
+    from fgloc.camera.blink_decoder import ELSEWHERE_PX
+
+    frames, pan, tilt, uv, ids = _straddling_view(0.5, (11, 42, 77))
+    period = 1 / BlinkRenderConfig().frame_rate_hz
+    cfg = DecoderConfig(word_fit=WordFitConfig())
+
+    def bearing(u: float, v: float) -> np.ndarray:
+        p, t = pixel_to_pan_tilt(INTR, np.array([[u, v]]), pan, tilt)
+        return pan_tilt_bearing(float(p[0]), float(t[0]))
+
+    def read(elsewhere: dict[int, np.ndarray] | None) -> set[int]:
+        return {r.index for r in decode_view(frames, period, BOOK, INTR, pan, tilt, cfg, elsewhere=elsewhere).readings}
+
+    assert read(None) == {77}
+    far = {6: bearing(10.0, 10.0), 52: bearing(300.0, 220.0), 2: bearing(300.0, 10.0)}
+    assert read(far) == {11, 42, 77}
+    assert read({k: b for k, b in far.items() if k != 2}) == {11, 77}  # one pair left: 42 stays refused
+    # read at the blob itself (closer than ELSEWHERE_PX) a mote may be part of it: still refused
+    near = far | {6: bearing(uv[0, 0] + 0.6 * ELSEWHERE_PX, uv[0, 1])}
+    assert read(near) == {42, 77}

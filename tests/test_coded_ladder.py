@@ -29,6 +29,7 @@ from fgloc.survey.coded_ladder import (
     EXPLAINED_PX,
     FOCUS_PX,
     SEPARATION_PX,
+    codes_read_before,
     focused,
     light_before,
     never_dark,
@@ -190,6 +191,23 @@ def test_view_order_and_the_readings_before_a_view():
     assert sorted(round(math.atan2(y, x), 6) for x, y, _ in b) == [0.1, 0.2]
     b = read_before(views, "cam0", 0, "r1-000", 0)
     assert sorted(round(math.atan2(y, x), 6) for x, y, _ in b) == [0.1, 0.2, 0.3, 0.4, 0.5]
+
+
+def test_codes_read_before_a_recording_are_the_camera_s_earlier_readings_by_code():
+    def rec(code: int, pan: float) -> dict:
+        return {"readings": [{"pan": pan, "tilt": 0.0, "code": code}, {"pan": 9.0, "tilt": 0.0}]}  # 2nd: no code
+
+    views = {("cam0", "w000", 0): rec(7, 0.1), ("cam0", "w001", 0): rec(8, 0.2), ("cam0", "w001", 1): rec(9, 0.3),
+             ("cam0", "w002", 0): rec(10, 0.4), ("cam1", "w000", 0): rec(11, 0.6)}
+
+    def pans(view: str, attempt: int) -> dict[int, float]:
+        got = codes_read_before(views, "cam0", view, attempt)
+        return {c: round(math.atan2(b[1], b[0]), 6) for c, b in got.items()}
+
+    assert pans("w000", 0) == {}
+    assert pans("w001", 0) == {7: 0.1}  # not the view's own first recording: it is the one being decoded
+    assert pans("w001", 1) == {7: 0.1, 8: 0.2}
+    assert pans("r1-000", 0) == {7: 0.1, 8: 0.2, 9: 0.3, 10: 0.4}  # never another camera's
 
 
 # ----- the survey

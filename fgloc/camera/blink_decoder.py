@@ -55,7 +55,7 @@ from __future__ import annotations
 
 import math
 from collections import Counter
-from collections.abc import Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -66,6 +66,7 @@ from fgloc.camera.blink_word_fit import WordFit, WordFitConfig, fit_word
 from fgloc.camera.intrinsics import CameraIntrinsics
 from fgloc.camera.led_detection import DetectorConfig, LedDetection, detect_led, to_gray
 from fgloc.camera.pixel_angles import pixel_to_pan_tilt
+from fgloc.core.geometry import pan_tilt_bearing
 
 
 @dataclass(frozen=True)
@@ -307,7 +308,8 @@ def read_blob(stack: np.ndarray, valid: np.ndarray, cand: LedDetection, noise_si
 
 
 def fit_blob(stack: np.ndarray, valid: np.ndarray, cand: LedDetection, noise_sigma: float, book: CodeBook,
-             cfg: DecoderConfig, refusal: RefusedBlob) -> tuple[BlobSamples, int] | RefusedBlob:
+             cfg: DecoderConfig, refusal: RefusedBlob,
+             elsewhere: Callable[[int], bool] | None = None) -> tuple[BlobSamples, int] | RefusedBlob:
     """Step 4's second look: a blob the level decoder refused (``refusal``: its levels or its bits) read
     by the light-curve fit (:func:`fgloc.camera.blink_word_fit.fit_word`), with the single-LED
     centroid tests of step 5 on its lit samples: (samples, book index), or ``refusal``
@@ -316,7 +318,7 @@ def fit_blob(stack: np.ndarray, valid: np.ndarray, cand: LedDetection, noise_sig
     if got is None or cfg.word_fit is None:
         return refusal
     flux, big, bgk, noise = got
-    fit = fit_word(flux, valid, book, noise, cfg.min_snr, cfg.word_fit)
+    fit = fit_word(flux, valid, book, noise, cfg.min_snr, cfg.word_fit, elsewhere)
     why = fit if isinstance(fit, str) else None
     if isinstance(fit, WordFit):
         us, vs = lit_centroids(big, bgk, fit.lit, cand)
@@ -351,16 +353,34 @@ def _word_of_samples(bits: np.ndarray, positions: np.ndarray, book: CodeBook, sh
     return (None, hit) if hit is not None else ("word is no rotation of a book code", None)
 
 
+#: a mote read this many pixels (at the view's zoom) or more from a blob is no part of it (rule 4 of the fit)
+ELSEWHERE_PX = 5.0
+
+
+def _read_away(elsewhere: Mapping[int, np.ndarray] | None, intr: CameraIntrinsics, head_pan: float,
+               head_tilt: float, u: float, v: float) -> Callable[[int], bool] | None:
+    """Whether a code was read :data:`ELSEWHERE_PX` or more away from the blob at (u, v) px."""
+    if not elsewhere:
+        return None
+    pan, tilt = pixel_to_pan_tilt(intr, np.array([[u, v]]), head_pan, head_tilt)
+    here = pan_tilt_bearing(float(pan[0]), float(tilt[0]))
+    cos_far = math.cos(ELSEWHERE_PX / intr.fx)
+    return lambda code: code in elsewhere and float(np.dot(elsewhere[code], here)) < cos_far
+
+
 def decode_view(
     frames: Sequence[tuple[float, np.ndarray]], period: float, book: CodeBook, intr: CameraIntrinsics,
     head_pan: float, head_tilt: float, config: DecoderConfig | None = None, sync: SyncTiming | None = None,
-    pairs: PairConfig | None = None,
+    pairs: PairConfig | None = None, elsewhere: Mapping[int, np.ndarray] | None = None,
 ) -> ViewDecode:
     """Decode every mote in ``frames`` (see the module docstring). ``sync`` is required
     with a synchronized book and refused with a rotation-free one. ``pairs`` (rotation-free
     books only; default off): refused blobs are tried as two LEDs
     (:func:`fgloc.camera.blink_pairs.decode_pair`, see
-    :func:`fgloc.camera.blink_crowd_decoding.crowd_readings`)."""
+    :func:`fgloc.camera.blink_crowd_decoding.crowd_readings`). ``elsewhere``: book code -> unit
+    bearing (head frame, :func:`fgloc.core.geometry.pan_tilt_bearing`) where this camera read
+    that mote before; the light-curve fit's rule 4 takes a mote read more than
+    :data:`ELSEWHERE_PX` from a blob to be no part of it."""
     cfg = config or DecoderConfig()
     if book.synchronized != (sync is not None):
         raise ValueError("a synchronized book needs sync timing, a rotation-free book none")
@@ -384,7 +404,8 @@ def decode_view(
             if why is not None:
                 got = RefusedBlob(cand.u, cand.v, "rejected", why)
         if isinstance(got, RefusedBlob) and fit_refused and got.kind == "rejected" and "border" not in got.reason:
-            fitted = fit_blob(stack, valid, cand, float(det.noise_sigma), book, cfg, got)
+            fitted = fit_blob(stack, valid, cand, float(det.noise_sigma), book, cfg, got,
+                              _read_away(elsewhere, intr, head_pan, head_tilt, cand.u, cand.v))
             if isinstance(fitted, tuple):
                 got, hit = fitted[0], (fitted[1], 0)
             else:
@@ -414,14 +435,15 @@ def decode_windows(
     frames: Sequence[tuple[float, np.ndarray]], period: float, book: CodeBook, intr: CameraIntrinsics,
     head_pan: float, head_tilt: float, window: int, step: int | None = None, config: DecoderConfig | None = None,
     sync: SyncTiming | None = None, merge_px: float = 1.0, blob_px: float = 2.0, pairs: PairConfig | None = None,
+    elsewhere: Mapping[int, np.ndarray] | None = None,
 ) -> ViewDecode:
     """Decode a continuous recording in sliding windows of ``window`` samples every ``step``
     (default one code length) samples, each by :func:`decode_view`, and merge (see the
     module docstring): a code read in several windows must be read within ``merge_px``
     of its first reading, codes whose readings lie within ``blob_px`` of each other
     are refused as one ambiguous blob, and a code refused as duplicate anywhere is
-    refused. The reading kept for a code is the one with the most on samples. ``pairs``: see
-    :func:`decode_view`; the two readings of one pair-decoded blob do not clash."""
+    refused. The reading kept for a code is the one with the most on samples. ``pairs``,
+    ``elsewhere``: see :func:`decode_view`; the two readings of one pair-decoded blob do not clash."""
     if not frames:
         return ViewDecode((), (), 0, 0)
     step = step or book.length
@@ -436,7 +458,7 @@ def decode_windows(
         part = [f for f, k in zip(frames, idx) if s0 <= k < s0 + window]
         if not part:
             continue
-        res = decode_view(part, period, book, intr, head_pan, head_tilt, config, sync, pairs)
+        res = decode_view(part, period, book, intr, head_pan, head_tilt, config, sync, pairs, elsewhere)
         for rd in res.readings:
             per_code.setdefault(rd.index, []).append(rd)
         for rf in res.refused:

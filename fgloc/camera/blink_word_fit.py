@@ -50,6 +50,7 @@ from __future__ import annotations
 
 import functools
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -92,12 +93,14 @@ def _rotation_table(book: CodeBook) -> tuple[np.ndarray, np.ndarray]:
 
 
 def fit_word(flux: np.ndarray, valid: np.ndarray, book: CodeBook, noise: float,
-             min_snr: float, config: WordFitConfig | None = None) -> WordFit | str:
+             min_snr: float, config: WordFitConfig | None = None,
+             elsewhere: Callable[[int], bool] | None = None) -> WordFit | str:
     """Fit every rotation of every word of the rotation-free ``book`` to a blob's per-sample
     ``flux`` (``valid``: delivered samples; sample ``i`` sits at bit position ``i mod L``)
     and return the accepted :class:`WordFit`, or the reason (one line) none is accepted.
     ``noise``: the flux sigma of one sample from pixel noise (DN); the residual scatter of
-    the best fit is used instead where larger."""
+    the best fit is used instead where larger. ``elsewhere(j)``: word ``j``'s mote is known
+    to be elsewhere (read away from this blob), so no rival pair of rule 4 holds it."""
     cfg = config or WordFitConfig()
     if book.synchronized:
         raise ValueError("the light-curve fit reads rotation-free books only")
@@ -151,7 +154,7 @@ def fit_word(flux: np.ndarray, valid: np.ndarray, book: CodeBook, noise: float,
     if margin < cfg.min_margin:
         return f"another word fits nearly as well (margin {margin:.0f} < {cfg.min_margin:.0f} noise variances)"
     if a > 0.0 and c > 0.0:
-        pair = _pair_rival(y, idx, table[best], book, cfg.pair_distance)
+        pair = _pair_rival(y, idx, table[best], book, cfg.pair_distance, elsewhere)
         if pair is not None and (pair[0] - cand[best]) / sigma**2 < cfg.min_margin:
             return (f"two LEDs, words {pair[1]} and {pair[2]}, fit nearly as well (margin"
                     f" {(pair[0] - cand[best]) / sigma**2:.0f} < {cfg.min_margin:.0f} noise variances)")
@@ -160,16 +163,16 @@ def fit_word(flux: np.ndarray, valid: np.ndarray, book: CodeBook, noise: float,
     return WordFit(int(word[best]), best % length, off, amp, c / amp if amp > 0 else 0.0, margin, lit)
 
 
-def _pair_rival(y: np.ndarray, idx: np.ndarray, bits: np.ndarray, book: CodeBook, distance: int
-                ) -> tuple[float, int, int] | None:
+def _pair_rival(y: np.ndarray, idx: np.ndarray, bits: np.ndarray, book: CodeBook, distance: int,
+                elsewhere: Callable[[int], bool] | None = None) -> tuple[float, int, int] | None:
     """Rule 4's best rival: (residual sum of squares, word i, word j) of the best unconstrained
-    two-LED fit ``off + a' * w_i + c' * w_j`` (i != j) over the pairs whose count word lies
-    within ``distance`` counts of ``bits + bits`` shifted by one position (``bits``: the
-    accepted word at its rotation, per bit position); None without such a pair."""
+    two-LED fit ``off + a' * w_i + c' * w_j`` (i != j, neither ``elsewhere``) over the pairs whose
+    count word lies within ``distance`` counts of ``bits + bits`` shifted by one position
+    (``bits``: the accepted word at its rotation, per bit position); None without such a pair."""
     counts = bits + np.roll(bits, -1)
     best: tuple[float, int, int] | None = None
     for e in explain_counts(book, counts.astype(np.int8), distance):
-        if e.b < 0 or e.a == e.b:
+        if e.b < 0 or e.a == e.b or (elsewhere is not None and (elsewhere(e.a) or elsewhere(e.b))):
             continue
         wa = np.roll(book.bits(e.a), -e.ra).astype(np.float64)[idx % book.length]
         wb = np.roll(book.bits(e.b), -e.rb).astype(np.float64)[idx % book.length]

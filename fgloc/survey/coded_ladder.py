@@ -82,22 +82,38 @@ def view_order(view: str) -> tuple[int, int, int]:
     return 1, 0, 0
 
 
+def _readings_before(views: Mapping[tuple[str, str, int], Mapping[str, Any]], camera: str, rung: int,
+                     view: str | None, attempt: int) -> list[Mapping[str, Any]]:
+    """The readings :func:`read_before` and :func:`codes_read_before` take, in journal order."""
+    bound = (2, rung + 1, 0) if view is None else view_order(view)
+    out: list[Mapping[str, Any]] = []
+    for (cam, vid, att), rec in views.items():
+        if cam != camera:
+            continue
+        order = view_order(vid)
+        if order < bound or (vid == view and att <= attempt):
+            out += rec.get("readings", [])
+    return out
+
+
 def read_before(views: Mapping[tuple[str, str, int], Mapping[str, Any]], camera: str, rung: int,
                 view: str | None = None, attempt: int = 0) -> np.ndarray:
     """(M, 3) unit bearings of ``camera``'s readings in its journaled ``views`` (keyed (camera,
     view id, attempt)) of the wide pass, the radio rounds and refinement rungs up to ``rung``:
     exactly the views done before rung ``rung + 1`` is planned, so a resume decides alike. With
     ``view``: the views before it (:func:`view_order`) and its own recordings up to ``attempt``."""
-    bound = (2, rung + 1, 0) if view is None else view_order(view)
-    out = []
-    for (cam, vid, att), rec in views.items():
-        if cam != camera:
-            continue
-        order = view_order(vid)
-        if not (order < bound or (vid == view and att <= attempt)):
-            continue
-        out += [pan_tilt_bearing(float(r["pan"]), float(r["tilt"])) for r in rec.get("readings", [])]
+    out = [pan_tilt_bearing(float(r["pan"]), float(r["tilt"])) for r in _readings_before(views, camera, rung, view, attempt)]
     return np.array(out, dtype=float).reshape(-1, 3)
+
+
+def codes_read_before(views: Mapping[tuple[str, str, int], Mapping[str, Any]], camera: str, view: str,
+                      attempt: int) -> dict[int, np.ndarray]:
+    """Book code -> unit bearing (``camera``'s head frame) of ``camera``'s readings in the
+    journaled views before ``view`` and its recordings before ``attempt`` (as :func:`read_before`,
+    so a resume decodes alike): where the light-curve fit may take a mote to be elsewhere
+    (:func:`fgloc.camera.blink_decoder.decode_view`, ``elsewhere``)."""
+    return {int(r["code"]): pan_tilt_bearing(float(r["pan"]), float(r["tilt"]))
+            for r in _readings_before(views, camera, 0, view, attempt - 1) if "code" in r}
 
 
 def retry_helps(record: Mapping[str, Any], read: np.ndarray, intrinsics_at: Callable[[float], CameraIntrinsics],

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -28,6 +29,7 @@ from fgloc.camera.blink_decoder import (
     unsampled_positions,
 )
 from fgloc.camera.blink_pairs import PairConfig
+from fgloc.survey.coded_ladder import codes_read_before
 from fgloc.survey.coded_rounds import RoundCandidates, decode_round, round_frames
 from fgloc.survey.coded_views import coded_observation, empty_view, on_off_centroid, unexplained_blob
 from fgloc.survey.runner import SurveyRunner
@@ -71,6 +73,7 @@ def record_view(coded: CodedSurvey, runner: SurveyRunner, camera: str, vid: str,
     intr = coded.intrinsics_at(camera, zoom)
     probed = False
     pairs = {"on": PairConfig(), "groups": PairConfig(max_group=3)}.get(coded.settings.pairs)
+    elsewhere = codes_read_before(runner.state.views, camera, vid, attempt)
     dec: ViewDecode | CandidateDecode | None = None
     if not before and not short and coded.settings.probe == "on":
         # the first L + 2 frames show every blinking mote on and off (each word has both bits in
@@ -80,13 +83,14 @@ def record_view(coded: CodedSurvey, runner: SurveyRunner, camera: str, vid: str,
         probed = True
         if not empty_view(frames, coded.camera.frame_period_s, coded.settings.view_decoder()):  # on to 3L + 2
             if coded.settings.length == "adaptive":
-                frames, dec, count = record_adaptive(coded, runner, camera, head, zoom, t_start, frames, key, pairs)
+                frames, dec, count = record_adaptive(coded, runner, camera, head, zoom, t_start, frames, key, pairs,
+                                                     elsewhere)
             else:
                 frames += grab_frames(coded, runner, camera, coded.frames - count,
                                       t_start + count * coded.camera.frame_period_s, key + "+")
                 count = coded.frames
     elif not before and not short and coded.settings.length == "adaptive":
-        frames, dec, count = record_adaptive(coded, runner, camera, head, zoom, t_start, [], key, pairs)
+        frames, dec, count = record_adaptive(coded, runner, camera, head, zoom, t_start, [], key, pairs, elsewhere)
     else:
         frames = grab_frames(coded, runner, camera, count, t_start, key)
     coded._continue_at[(camera, vid)] = t_start + count * coded.camera.frame_period_s
@@ -97,10 +101,11 @@ def record_view(coded: CodedSurvey, runner: SurveyRunner, camera: str, vid: str,
     elif dec is None and before:
         frames = before + frames
         dec = decode_windows(frames, coded.camera.frame_period_s, coded.book, intr, head[0], head[1],
-                             coded.frames, coded.book.length, coded.settings.view_decoder(), pairs=pairs)
+                             coded.frames, coded.book.length, coded.settings.view_decoder(), pairs=pairs,
+                             elsewhere=elsewhere)
     elif dec is None:
         dec = decode_view(frames, coded.camera.frame_period_s, coded.book, intr, head[0], head[1],
-                          coded.settings.view_decoder(), pairs=pairs)
+                          coded.settings.view_decoder(), pairs=pairs, elsewhere=elsewhere)
     check_steady_loss(coded, camera, vid, frames)
     readings, refused = [], [{"kind": r.kind, "u": r.u, "v": r.v, "reason": r.reason} for r in dec.refused]
     st = runner.state
@@ -131,8 +136,8 @@ def record_view(coded: CodedSurvey, runner: SurveyRunner, camera: str, vid: str,
 
 
 def record_adaptive(coded: CodedSurvey, runner: SurveyRunner, camera: str, head: tuple[float, float], zoom: float,
-                    t_start: float, frames: list[Frame], key: str,
-                    pairs: PairConfig | None) -> tuple[list[Frame], ViewDecode, int]:
+                    t_start: float, frames: list[Frame], key: str, pairs: PairConfig | None,
+                    elsewhere: Mapping[int, np.ndarray] | None = None) -> tuple[list[Frame], ViewDecode, int]:
     """Lever ``length: adaptive``: record (on from ``frames``, the probe's L + 2, if any) to
     2L + 2 frame periods and decode them; stop there when the decode leaves no blob unexplained
     (:func:`~fgloc.survey.coded_views.unexplained_blob`: every blob read, or at the image
@@ -161,7 +166,8 @@ def record_adaptive(coded: CodedSurvey, runner: SurveyRunner, camera: str, head:
     else:
         frames = frames + grab_frames(coded, runner, camera, short_count - have, t_start + have * period, tail_key)
     intr = coded.intrinsics_at(camera, zoom)
-    dec = decode_view(frames, period, coded.book, intr, head[0], head[1], coded.settings.view_decoder(), pairs=pairs)
+    dec = decode_view(frames, period, coded.book, intr, head[0], head[1], coded.settings.view_decoder(), pairs=pairs,
+                      elsewhere=elsewhere)
     refused = [{"kind": r.kind, "u": r.u, "v": r.v, "reason": r.reason} for r in dec.refused]
     if not any(unexplained_blob(r) for r in refused):
         return frames, dec, short_count
@@ -169,7 +175,8 @@ def record_adaptive(coded: CodedSurvey, runner: SurveyRunner, camera: str, head:
         later = grab_frames(coded, runner, camera, coded.frames - short_count, t_start + short_count * period,
                             key + "++")
     frames = frames + later
-    whole = decode_view(frames, period, coded.book, intr, head[0], head[1], coded.settings.view_decoder(), pairs=pairs)
+    whole = decode_view(frames, period, coded.book, intr, head[0], head[1], coded.settings.view_decoder(), pairs=pairs,
+                        elsewhere=elsewhere)
     if coded.settings.first_window == "kept":  # the first 2L + 2 read motes the whole recording may refuse
         whole = supplement_decode(whole, dec)
     return frames, whole, coded.frames
