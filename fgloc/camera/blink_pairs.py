@@ -169,15 +169,15 @@ def explain_counts(book: CodeBook, counts: np.ndarray, max_distance: int = 2) ->
     target = np.clip(resid[cand], 0, 1).astype(np.int64) @ weights  # (K,) the b each a needs
     found: dict[tuple[int, int], int] = {}
     for flips in range(max_distance + 1):
-        fits = cand[bad[cand] + flips <= max_distance]
-        if not fits.size:
+        keep = bad[cand] + flips <= max_distance
+        if not keep.any():
             continue
-        tq = target[bad[cand] + flips <= max_distance]
-        query = (tq[:, None] ^ _flip_masks(book.length, flips)[None, :]).ravel()
+        masks = _flip_masks(book.length, flips)
+        query = (target[keep][:, None] ^ masks[None, :]).ravel()  # (first word, flip) row-major
         lo = np.searchsorted(packed, query, "left")
         hi = np.searchsorted(packed, query, "right")
         for q in np.flatnonzero(hi > lo).tolist():
-            a = int(fits[q // (query.size // fits.size)])
+            a = int(cand[keep][q // masks.size])
             for b in order[lo[q]:hi[q]].tolist():
                 found.setdefault((min(a, b), max(a, b)), int(bad[a]) + flips)
     for (ra, rb), d in found.items():
