@@ -172,12 +172,12 @@ def explain_counts(book: CodeBook, counts: np.ndarray, max_distance: int = 2) ->
         keep = bad[cand] + flips <= max_distance
         if not keep.any():
             continue
-        masks = _flip_masks(book.length, flips)
+        masks, firsts = _flip_masks(book.length, flips), cand[keep]
         query = (target[keep][:, None] ^ masks[None, :]).ravel()  # (first word, flip) row-major
         lo = np.searchsorted(packed, query, "left")
         hi = np.searchsorted(packed, query, "right")
         for q in np.flatnonzero(hi > lo).tolist():
-            a = int(cand[keep][q // masks.size])
+            a = int(firsts[q // masks.size])
             for b in order[lo[q]:hi[q]].tolist():
                 found.setdefault((min(a, b), max(a, b)), int(bad[a]) + flips)
     for (ra, rb), d in found.items():
