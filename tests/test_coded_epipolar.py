@@ -137,6 +137,28 @@ def test_the_fallback_looks_only_at_blobs_inside_a_motes_band(tmp_path: Path) ->
     assert blobs_near(coded, "cam1", at, "n1") == [off]
 
 
+def test_with_fields_the_band_allows_half_the_separation_in_field_rows(tmp_path: Path) -> None:
+    """A field row spans twice a column's angle: a mote merged into a blob lies up to 3 field
+    rows (3 px of 80, not of 160) off its centroid across a horizontal plane. Seed 5's recording
+    3 at 1000 motes lost n661 so: its merged blob lay 1.04 deg off the plane, the band was 0.82."""
+    data = coded_rig(30, 320)
+    data["coded"] = {"video": "fields"}
+    rig = parsed(data)
+    _opened, sim = opened(rig)
+    coded = CodedSurvey(rig, sim.open_head, sim.leds, sim)
+    k = coded.intrinsics_at("cam1", coded.survey_zoom["cam1"])
+    assert (k.fx, k.fy) == (160.0, 80.0)
+    at = (0.2, 0.0)
+    rows = (0.2, 0.01 + 2.5 / 80)  # 2.5 field rows beyond the scale: inside 3 rows, outside 3 columns
+    beyond = (0.2, 0.01 + 3.5 / 80)
+    coded.bands = {"cam1": {"n1": EpipolarBand(np.array([0.0, 0.0, 1.0]), 0.8)}}  # the plane tilt = 0
+    coded.across_scale = 0.01
+    coded.final_blobs["cam1"] = np.array([rows])
+    assert blobs_near(coded, "cam1", at, "n1") == [rows]
+    coded.final_blobs["cam1"] = np.array([beyond])
+    assert blobs_near(coded, "cam1", at, "n1") == []
+
+
 def _occluded_scene(looks: str, tmp_path: Path) -> tuple[int, float, set, set, int]:
     """100 motes with half the pairs occluded (seed 2), the predicted fallback after the level
     decoder at the fixed length with every unexplained blob climbing the ladder: the fallback

@@ -220,6 +220,8 @@ def blobs_near(coded: CodedSurvey, camera: str, at: tuple[float, float], node: s
     fov = 2 * math.atan(min(k.width / (2 * k.fx), k.height / (2 * k.fy)))
     keep = cos >= math.cos(PREDICTED_RADIUS)
     if node is not None and banded(coded, camera, node) and coded.across_scale is not None:
+        # the decoder's pixels: in fields a row spans twice the angle of a column, and a mote
+        # merged into a blob may lie half the separation off its centroid along either axis
         keep &= within_band(pts, coded.bands[camera][node], coded.across_scale,
-                            half_separation(SEPARATION_PX, max(k.fx, k.fy)))
+                            half_separation(SEPARATION_PX, min(k.fx, k.fy)))
     return distinct_directions(pts[keep], 0.25 * fov)
