@@ -7,9 +7,11 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
 import pytest
 
 from fgloc.camera.blink_codes import code_book
+from fgloc.survey.coded_views import reading_centroid
 from fgloc.survey.session import run_survey
 from tests import test_survey_coded as sc
 from tests.test_survey_coded_levers import survey_reads_every_visible_pair
@@ -76,3 +78,23 @@ def test_the_journal_records_the_lever_and_an_old_header_drops_the_first_window(
     assert LEGACY["first_window"] == "dropped"
     assert resumed_and_new("first_window") == ("dropped", "kept")
     check_lever_in_schema("first_window", "kept", "whole")
+
+
+def _spot(u: float, v: float, size: int = 15, sigma: float = 1.2) -> np.ndarray:
+    ys, xs = np.mgrid[0:size, 0:size]
+    return 200.0 * np.exp(-((xs - u) ** 2 + (ys - v) ** 2) / (2 * sigma**2))
+
+
+def test_a_reading_the_first_window_added_takes_its_centroid_from_those_frames():
+    """A mote at (7.0, 7.0) blinks from the start; from frame 34 (2L + 2 of L = 16) a neighbour
+    2 px to its right lights with it. Over all 50 frames the centroid is pulled towards the
+    neighbour; over the first 34 it is the mote's. A pair-decoded LED keeps its decoder's."""
+    lit = np.arange(50) % 3 != 0
+    stack = np.full((50, 15, 15), 10.0)
+    stack[lit] += _spot(7.0, 7.0)
+    stack[lit & (np.arange(50) >= 34)] += _spot(9.0, 7.0)
+    whole = reading_centroid(stack, 7.2, 7.1, None)
+    first = reading_centroid(stack, 7.2, 7.1, None, first_frames=34)
+    assert whole[0] > 7.25  # the late light pulls it
+    assert first == pytest.approx((7.0, 7.0), abs=0.02)
+    assert reading_centroid(stack, 7.2, 7.1, partner=12, first_frames=34) == (7.2, 7.1)

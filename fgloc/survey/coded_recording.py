@@ -31,7 +31,7 @@ from fgloc.camera.blink_decoder import (
 from fgloc.camera.blink_pairs import PairConfig
 from fgloc.survey.coded_ladder import codes_read_before
 from fgloc.survey.coded_rounds import RoundCandidates, decode_round, round_frames
-from fgloc.survey.coded_views import coded_observation, empty_view, on_off_centroid, unexplained_blob
+from fgloc.survey.coded_views import coded_observation, empty_view, reading_centroid, unexplained_blob
 from fgloc.survey.runner import SurveyRunner
 
 if TYPE_CHECKING:
@@ -75,6 +75,7 @@ def record_view(coded: CodedSurvey, runner: SurveyRunner, camera: str, vid: str,
     pairs = {"on": PairConfig(), "groups": PairConfig(max_group=3)}.get(coded.settings.pairs)
     elsewhere = codes_read_before(runner.state.views, camera, vid, attempt)
     dec: ViewDecode | CandidateDecode | None = None
+    early: dict[int, int] = {}  # code -> frames of the first window whose decode added its reading
     if not before and not short and coded.settings.probe == "on":
         # the first L + 2 frames show every blinking mote on and off (each word has both bits in
         # any L samples): a view where they show no blob at all is empty, and the recording stops
@@ -83,14 +84,15 @@ def record_view(coded: CodedSurvey, runner: SurveyRunner, camera: str, vid: str,
         probed = True
         if not empty_view(frames, coded.camera.frame_period_s, coded.settings.view_decoder()):  # on to 3L + 2
             if coded.settings.length == "adaptive":
-                frames, dec, count = record_adaptive(coded, runner, camera, head, zoom, t_start, frames, key, pairs,
-                                                     elsewhere)
+                frames, dec, count, early = record_adaptive(coded, runner, camera, head, zoom, t_start, frames, key,
+                                                            pairs, elsewhere)
             else:
                 frames += grab_frames(coded, runner, camera, coded.frames - count,
                                       t_start + count * coded.camera.frame_period_s, key + "+")
                 count = coded.frames
     elif not before and not short and coded.settings.length == "adaptive":
-        frames, dec, count = record_adaptive(coded, runner, camera, head, zoom, t_start, [], key, pairs, elsewhere)
+        frames, dec, count, early = record_adaptive(coded, runner, camera, head, zoom, t_start, [], key, pairs,
+                                                    elsewhere)
     else:
         frames = grab_frames(coded, runner, camera, count, t_start, key)
     coded._continue_at[(camera, vid)] = t_start + count * coded.camera.frame_period_s
@@ -121,8 +123,7 @@ def record_view(coded: CodedSurvey, runner: SurveyRunner, camera: str, vid: str,
         if node in taken or have >= coded.rig.repeats:
             continue
         taken.add(node)
-        # a pair-decoded LED keeps the pair decoder's centroid (its window holds both LEDs)
-        uv = (rd.u, rd.v) if rd.partner is not None else on_off_centroid(stack, rd.u, rd.v) or (rd.u, rd.v)
+        uv = reading_centroid(stack, rd.u, rd.v, rd.partner, early.get(rd.index))
         obs = coded_observation(camera, vid, node, have, rd, intr, head, uv, coded.rig.sigma,
                                 coded.rig.head_repeatability)
         readings.append({"node": node, "index": obs.index, "pan": obs.pan, "tilt": obs.tilt, "code": rd.index,
@@ -137,12 +138,14 @@ def record_view(coded: CodedSurvey, runner: SurveyRunner, camera: str, vid: str,
 
 def record_adaptive(coded: CodedSurvey, runner: SurveyRunner, camera: str, head: tuple[float, float], zoom: float,
                     t_start: float, frames: list[Frame], key: str, pairs: PairConfig | None,
-                    elsewhere: Mapping[int, np.ndarray] | None = None) -> tuple[list[Frame], ViewDecode, int]:
+                    elsewhere: Mapping[int, np.ndarray] | None = None
+                    ) -> tuple[list[Frame], ViewDecode, int, dict[int, int]]:
     """Lever ``length: adaptive``: record (on from ``frames``, the probe's L + 2, if any) to
     2L + 2 frame periods and decode them; stop there when the decode leaves no blob unexplained
     (:func:`~fgloc.survey.coded_views.unexplained_blob`: every blob read, or at the image
     border), else go on to 3L + 2 as one recording and decode it whole. Returns (frames,
-    decode, frame periods recorded). Not the second recording's looser rule (a blob at a mote
+    decode, frame periods recorded, code -> frames of the first 2L + 2 periods for each reading
+    their decode added). Not the second recording's looser rule (a blob at a mote
     the camera has read): in a crowded far field that mote may be a neighbour, and a wide view
     so stopped lost 14 visible pairs of 1885 at 1000 motes. The simulated rigs render the
     recording a fixed length would (same keys and counts) and hand out its first 2L + 2
@@ -150,7 +153,9 @@ def record_adaptive(coded: CodedSurvey, runner: SurveyRunner, camera: str, head:
     the readings of the first 2L + 2 periods' decode that the whole decode lacks are added
     (:func:`~fgloc.camera.blink_decoder.supplement_decode`: codes it neither read nor refused as
     duplicate, more than 2 px from its readings): light late in the recording (a neighbour's
-    in a crowd, a glint) spoils some blobs the first periods read. (Merging the two decodes
+    in a crowd, a glint) spoils some blobs the first periods read, so an added reading's
+    centroid is taken over those periods too (:func:`~fgloc.survey.coded_views.reading_centroid`).
+    (Merging the two decodes
     by the sliding windows' rules instead, which refuse a code read in both more than 1 px
     apart, was slower in the two 1000-mote scenes tried: docs/blink-codes.md.)"""
     length, period = coded.book.length, coded.camera.frame_period_s
@@ -170,16 +175,20 @@ def record_adaptive(coded: CodedSurvey, runner: SurveyRunner, camera: str, head:
                       elsewhere=elsewhere)
     refused = [{"kind": r.kind, "u": r.u, "v": r.v, "reason": r.reason} for r in dec.refused]
     if not any(unexplained_blob(r) for r in refused):
-        return frames, dec, short_count
+        return frames, dec, short_count, {}
     if coded.recorder is None:
         later = grab_frames(coded, runner, camera, coded.frames - short_count, t_start + short_count * period,
                             key + "++")
+    first_frames = len(frames)
     frames = frames + later
     whole = decode_view(frames, period, coded.book, intr, head[0], head[1], coded.settings.view_decoder(), pairs=pairs,
                         elsewhere=elsewhere)
+    early: dict[int, int] = {}
     if coded.settings.first_window == "kept":  # the first 2L + 2 read motes the whole recording may refuse
+        read = {r.index for r in whole.readings}
         whole = supplement_decode(whole, dec)
-    return frames, whole, coded.frames
+        early = {r.index: first_frames for r in whole.readings if r.index not in read}
+    return frames, whole, coded.frames, early
 
 
 def check_steady_loss(coded: CodedSurvey, camera: str, vid: str, frames: list[Frame]) -> None:

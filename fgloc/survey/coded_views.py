@@ -101,6 +101,19 @@ def on_off_centroid(stack: np.ndarray, u: float, v: float, radius: int = 3) -> t
     return cu + float((diff * xs).sum()) / total, cv + float((diff * ys).sum()) / total
 
 
+def reading_centroid(stack: np.ndarray, u: float, v: float, partner: int | None,
+                     first_frames: int | None = None) -> tuple[float, float]:
+    """Where a decoded LED lies in its view, pixels: its decoder's (u, v) for a pair-decoded
+    LED (``partner``; its window holds both LEDs), else the on-off centroid
+    (:func:`on_off_centroid`) of the view's frames ``stack``, of its first ``first_frames``
+    only for a reading the first window's decode added (``first_window "kept"``: late light
+    spoilt the whole recording's blob, and would pull the centroid); (u, v) when there is none."""
+    if partner is not None:
+        return u, v
+    frames = stack if first_frames is None else stack[:first_frames]
+    return on_off_centroid(frames, u, v) or (u, v)
+
+
 def into_search_box(pan: float, tilt: float, pan_min: float, pan_max: float, tilt_min: float, tilt_max: float,
                     ) -> tuple[float, float]:
     """The head position nearest to (pan, tilt) inside the search box (pan wrapped first, as
