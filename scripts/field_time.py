@@ -81,20 +81,30 @@ every variant.
 
 from __future__ import annotations
 
-import argparse
 import math
-from dataclasses import dataclass, replace
+import sys
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any, NamedTuple
 
-import numpy as np
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from fgloc.camera.blink_codes import code_book, sync_code_book
-from fgloc.camera.intrinsics import CameraIntrinsics
-from fgloc.camera.led_search import SearchConfig
-from fgloc.core.geometry import bearing_pan_tilt, rot_z, world_to_base
-from fgloc.core.model import CameraPose
-from fgloc.survey.clock import HEAD_MODELS, CameraTiming, RigTiming, price
-from fgloc.survey.field_plans import (
+import numpy as np  # noqa: E402
+from field_time_cli import build_parser, check_scene_flags, round_frames_of, variant_from_args  # noqa: E402
+from field_time_report import print_header, print_seed_summary, report  # noqa: E402
+from field_time_variants import LADDERS, OLD, RESYNC_S, SEPARATION_PX, Variant  # noqa: E402
+
+from fgloc.camera.blink_codes import code_book, sync_code_book  # noqa: E402
+from fgloc.camera.intrinsics import CameraIntrinsics  # noqa: E402
+from fgloc.camera.led_search import SearchConfig  # noqa: E402
+from fgloc.core.geometry import bearing_pan_tilt, rot_z, world_to_base  # noqa: E402
+from fgloc.core.model import CameraPose  # noqa: E402
+from fgloc.survey.clock import HEAD_MODELS, CameraTiming, RigTiming, price  # noqa: E402
+from fgloc.survey.field_plans import (  # noqa: E402
     CodedTime,
+    GroupDecoding,
+    PairDecoding,
+    RadioSeparation,
     SequentialTime,
     coded_survey_time,
     crowd_decoding,
@@ -102,17 +112,33 @@ from fgloc.survey.field_plans import (
     group_decoding,
     near_decoding,
     pair_decoding,
-    pair_rate_table,
     radio_separation,
     refinement_ops,
     sequential_survey_time,
 )
-from fgloc.survey.view_planner import RefinePass, coverage, needed_from, neighbour_px, plan_refinement, plan_views
+from fgloc.survey.view_planner import (  # noqa: E402
+    RefinePass,
+    coverage,
+    needed_from,
+    neighbour_px,
+    plan_refinement,
+    plan_views,
+)
 
-SEPARATION_PX = 4.0  #: crowds (pairs, groups of three) are motes closer than this at the wide zoom
+#: the names tests and other scripts use (Variant and its constants live in field_time_variants,
+#: the command line in field_time_cli, the table in field_time_report)
+__all__ = ["LADDERS", "OLD", "RESYNC_S", "SEPARATION_PX", "Variant", "cameras", "field_directions", "main",
+           "report", "round_frames_of", "run"]
+
+_SEQUENTIAL: dict[tuple[int, int, int, RigTiming], SequentialTime] = {}  #: the same in every variant
+
+
+# --- the scene ------------------------------------------------------------------------------------
 
 
 def cameras(n: int, height: float = 0.1) -> dict[str, CameraPose]:
+    """``n`` (1..4) cameras ``cam0``.. ``height`` above the unit square's corners (0,0), (1,0),
+    (1,1), (0,1) in that order, each base turned (yaw about z) towards the centre (0.5, 0.5)."""
     corners = [(0.0, 0.0), (1.0, 0.0), (1.0, 1.0), (0.0, 1.0)][:n]
     out = {}
     for i, (x, y) in enumerate(corners):
@@ -122,6 +148,8 @@ def cameras(n: int, height: float = 0.1) -> dict[str, CameraPose]:
 
 
 def field_directions(pose: CameraPose, step: float = 0.01) -> np.ndarray:
+    """(M, 2) (pan, tilt) radians, in ``pose``'s base frame, of a grid of points ``step`` apart
+    over the unit square on z = 0 (the region both surveys search)."""
     g = np.arange(0.0, 1.0 + 1e-9, step)
     xx, yy = np.meshgrid(g, g)
     pts = np.column_stack([xx.ravel(), yy.ravel(), np.zeros(xx.size)])
@@ -130,63 +158,44 @@ def field_directions(pose: CameraPose, step: float = 0.01) -> np.ndarray:
 
 
 @dataclass(frozen=True)
-class Variant:
-    """How the coded survey is run (see the module docstring)."""
+class Scene:
+    """One seeded scene as the rig sees it; the per-camera dicts are keyed ``cam0``.. in order."""
 
-    fields: bool = True  #: decode fields on interlaced heads
-    broadcast: bool = True  #: one broadcast start, not one unicast per mote
-    sync: bool = False  #: synchronized book (epoch broadcast, resync every RESYNC_S)
-    extend: int = 0  #: more code lengths recorded in every view (sliding windows)
-    continuous_retry: bool = True  #: a retry goes on recording one code length, not a new burst
-    retry_refinement: bool = True  #: refinement views are retried like wide views
-    zoom_out: bool = False  #: zoom back out after the last refinement pass
-    need: int = 0  #: refine a mote only where fewer than this many other cameras resolve it (0: always)
-    share_tiles: bool = True  #: a higher-zoom refinement tile also serves lower-zoom targets it covers
-    pick_ladder: bool = True  #: per camera, the zoom ladder of LADDERS whose refinement is cheapest on the clock
-    #: crowded motes: "zoom" refinement only; "radio": every camera pauses colour classes and
-    #: re-records its wide views; "best": the cheapest subset of cameras doing so, on the clock
-    separate: str = "zoom"
-    #: pair decoding: share of crowded groups of exactly two that the pair decoder resolves in
-    #: the wide view (measured, scripts/blink_montecarlo.py --pairs); 0: off
-    pair_rate: float | tuple[tuple[float, float], ...] = 0.0
-    #: group decoding: the same for crowded groups of exactly three (blink_montecarlo.py --groups); 0: off
-    group_rate: float | tuple[tuple[float, float], ...] = 0.0
-    #: short rounds: radio-round views record this many samples, labelled against the class's
-    #: candidates (blink_candidates); 0: off (a round view records K like a wide view)
-    round_frames: tuple[int, int] = (0, 0)  #: (a, b): a L + b samples; (0, 0): off
-    #: isolated miss rate of a short-round view (blink_candidates_montecarlo.py --candidates); None: the wide rate
-    round_miss_rate: float | None = None
-    #: cover rounds: share of crowded groups of exactly two whose unread member the known-partner
-    #: decoder reads from the wide view once the other was read in a round (blink_montecarlo.py
-    #: --partner), or a table by the distance to the nearest third mote; 0: off (colour rounds)
-    partner_rate: float | tuple[tuple[float, float], ...] = 0.0
-    partner_any: bool = False  #: every crowded group may leave one member unread (upper bound only)
-    #: the same for crowded groups of exactly three (two read in rounds, the third decoded); 0: off
-    partner_group_rate: float | tuple[tuple[float, float], ...] = 0.0
-    #: radio rounds: "class" (class-major), "view" (each camera's round views shared across classes,
-    #: it stays on a view while its classes take turns: field_plan_radio.view_major_round_time) or
-    #: "best" (the cheaper of the two on the clock)
-    round_order: str = "class"
-    #: the blind decoder reads a mote as isolated when no other lies this close (px) at the wide
-    #: zoom; 4 (the default, every earlier table) is the crowd criterion; a larger value with
-    #: ``near_rate`` prices the measured read rate of motes whose neighbour lies between 4 px and it
-    separation_px: float = SEPARATION_PX
-    #: share of those motes the blind decoder reads (blink_near_montecarlo.py), or a table by
-    #: the nearest neighbour's distance; 0: none is read (all refined or separated)
-    near_rate: float | tuple[tuple[float, float], ...] = 0.0
-    #: crowds of k motes alone at ``separation_px`` (k, rate or table by each mote's nearest
-    #: neighbour, blink_near_montecarlo.py --group k --pairs): the share of their motes the
-    #: decoder reads in the wide view (field_plans.crowd_decoding); their draws replace the
-    #: pair and group decoders' draws of the crowds within 4 px inside them; (): none is read
-    crowd_rates: tuple[tuple[int, float | tuple[tuple[float, float], ...]], ...] = ()
+    n_motes: int  #: N, uniform in the unit square on z = 0
+    n_cams: int  #: cameras asked for (:func:`cameras` places at most four)
+    intr: CameraIntrinsics  #: every camera's, at the wide end (640 x 480 px, 65 deg horizontal)
+    cams: dict[str, CameraPose]
+    bearings: dict[str, np.ndarray]  #: (N, 3) unit directions of the motes in each camera's base frame
+    pts: dict[str, np.ndarray]  #: (N, 2) (pan, tilt) radians of the motes from each camera
+    searches: dict[str, SearchConfig]  #: the sequential survey's pan-tilt box of the square, radians
+    views: dict[str, list[tuple[float, float]]]  #: the coded survey's wide views (pan, tilt) radians, in order
 
 
-_SEQUENTIAL: dict[tuple[int, int, int, RigTiming], SequentialTime] = {}
-OLD = Variant(continuous_retry=False, retry_refinement=False, zoom_out=True, share_tiles=False,
-              pick_ladder=False)
-#: candidate refinement zoom ladders (fractions of the optical range, 1x..10x): the old one first
-LADDERS = ((1 / 9, 3 / 9, 1.0), (1 / 9, 2 / 9, 4 / 9, 1.0), (0.2, 0.5, 1.0), (1 / 18, 1 / 9, 2 / 9, 1 / 3, 5 / 9, 1.0))
-RESYNC_S = 10.0
+def _search_box(region: np.ndarray) -> SearchConfig:
+    """The pan-tilt box (radians) bounding ``region``'s (M, 2) (pan, tilt) directions."""
+    return SearchConfig(pan_min=float(region[:, 0].min()), pan_max=float(region[:, 0].max()),
+                        tilt_min=float(region[:, 1].min()), tilt_max=float(region[:, 1].max()))
+
+
+def seeded_scene(n_motes: int, n_cams: int, seed: int) -> Scene:
+    """``n_motes`` motes uniform in the unit square on z = 0 (``default_rng(seed)``), seen by
+    :func:`cameras` ``(n_cams)``, with each camera's search box and wide views of the square."""
+    rng = np.random.default_rng(seed)
+    nodes = np.column_stack([rng.uniform(0, 1, (n_motes, 2)), np.zeros(n_motes)])
+    intr = CameraIntrinsics.from_fov(640, 480, 65.0)
+    cams = cameras(n_cams)
+    bearings, pts, searches, views = {}, {}, {}, {}
+    for c, pose in cams.items():
+        d = world_to_base(pose.rotation, pose.position, nodes)
+        bearings[c] = d / np.linalg.norm(d, axis=1, keepdims=True)
+        pts[c] = np.column_stack(bearing_pan_tilt(bearings[c]))
+        region = field_directions(pose)
+        searches[c] = _search_box(region)
+        views[c] = plan_views(intr, region)
+    return Scene(n_motes, n_cams, intr, cams, bearings, pts, searches, views)
+
+
+# --- what the wide views read ---------------------------------------------------------------------
 
 
 def _retry_fraction(intr: CameraIntrinsics, pt: np.ndarray, views: list[tuple[float, float]], q: float) -> float:
@@ -197,36 +206,35 @@ def _retry_fraction(intr: CameraIntrinsics, pt: np.ndarray, views: list[tuple[fl
     return float(np.mean(1.0 - (1.0 - q) ** per_view))
 
 
-def run(n_motes: int, n_cams: int, timing: RigTiming, miss_rate: float, seed: int = 0,
-        variant: Variant = Variant(), levels: tuple[float, ...] = (1 / 9, 3 / 9, 1.0),
-        periods: int = 3) -> dict[str, float]:
-    rng = np.random.default_rng(seed)
-    nodes = np.column_stack([rng.uniform(0, 1, (n_motes, 2)), np.zeros(n_motes)])
-    intr = CameraIntrinsics.from_fov(640, 480, 65.0)
-    cams = cameras(n_cams)
-    bearings, searches, views = {}, {}, {}
-    book = sync_code_book(n_motes) if variant.sync else code_book(n_motes)
-    k = frames_for(book.length, periods)
-    fields = variant.fields and timing.head.interlaced
-    coded_timing = replace(timing, camera=timing.camera.at_field_rate()) if fields else timing
-    retry_views = 0.0
-    pts: dict[str, np.ndarray] = {}
-    for c, pose in cams.items():
-        d = world_to_base(pose.rotation, pose.position, nodes)
-        bearings[c] = d / np.linalg.norm(d, axis=1, keepdims=True)
-        region = field_directions(pose)
-        searches[c] = SearchConfig(pan_min=float(region[:, 0].min()), pan_max=float(region[:, 0].max()),
-                                   tilt_min=float(region[:, 1].min()), tilt_max=float(region[:, 1].max()))
-        views[c] = plan_views(intr, region)
-        pts[c] = np.column_stack(bearing_pan_tilt(bearings[c]))
-        retry_views += _retry_fraction(intr, pts[c], views[c], miss_rate) / n_cams
-    sep = variant.separation_px
+def wide_retry_fraction(scene: Scene, miss_rate: float) -> float:
+    """Expected share of the wide views retried (mean over the cameras of :func:`_retry_fraction`)."""
+    return sum(_retry_fraction(scene.intr, scene.pts[c], scene.views[c], miss_rate) / scene.n_cams
+               for c in scene.cams)
+
+
+@dataclass(frozen=True)
+class WideReads:
+    """Which motes each camera reads in its wide views ((N,) bool per camera, or a decoder's draws)."""
+
+    resolved: dict[str, np.ndarray]  #: isolated at the separation, or read by any decoder below
+    near: dict[str, np.ndarray]  #: read though the nearest neighbour lies 4 px to the separation away
+    pairs: dict[str, PairDecoding]  #: the pair decoder's draws (4 px pairs), less the crowds' motes
+    groups: dict[str, GroupDecoding]  #: the group decoder's draws (4 px groups of three), less the crowds'
+    crowd_read: dict[str, np.ndarray]  #: motes of crowds alone at the separation that the decoder reads
+    crowd_member: dict[str, np.ndarray]  #: motes of those crowds
+
+
+def wide_reads(scene: Scene, variant: Variant, seed: int, fields: bool) -> WideReads:
+    """The decoders' seeded draws (each its own stream ``default_rng([seed, i])``, so turning one
+    on leaves the others' draws as they were) and what each camera resolves in its wide views
+    (pixels on field rows when ``fields``)."""
+    intr, pts, cams, sep = scene.intr, scene.pts, scene.cams, variant.separation_px
     resolved = {c: neighbour_px(pts[c], intr, fields) >= sep for c in cams}
-    near_rng = np.random.default_rng([seed, 20])  # its own stream: the other draws stay as they were
+    near_rng = np.random.default_rng([seed, 20])
     near = {c: near_decoding(intr, pts[c], SEPARATION_PX, sep, variant.near_rate, near_rng, fields) for c in cams}
     pair_rng = np.random.default_rng([seed, 16])
     pairs = {c: pair_decoding(intr, pts[c], SEPARATION_PX, variant.pair_rate, pair_rng, fields) for c in cams}
-    group_rng = np.random.default_rng([seed, 17])  # its own stream: the pair draws stay as they were
+    group_rng = np.random.default_rng([seed, 17])
     groups = {c: group_decoding(intr, pts[c], SEPARATION_PX, variant.group_rate, group_rng, fields) for c in cams}
     crowd_rng = np.random.default_rng([seed, 21])
     crowd = {c: crowd_decoding(intr, pts[c], sep, dict(variant.crowd_rates), crowd_rng, fields) for c in cams}
@@ -234,322 +242,326 @@ def run(n_motes: int, n_cams: int, timing: RigTiming, miss_rate: float, seed: in
         pairs[c] = replace(pairs[c], resolved=pairs[c].resolved & ~crowd[c][1])
         groups[c] = replace(groups[c], resolved=groups[c].resolved & ~crowd[c][1])
         resolved[c] = resolved[c] | pairs[c].resolved | groups[c].resolved | near[c] | crowd[c][0]
-    needed: dict[str, np.ndarray | None] = (
-        dict(needed_from(resolved, variant.need)) if variant.need else {c: None for c in cams})
-    if variant.pair_rate:  # pair-decoded motes need nothing more from that camera
-        needed = {c: (np.ones(n_motes, bool) if needed[c] is None else needed[c]) & ~pairs[c].resolved  # type: ignore[operator]
-                  for c in cams}
-    if variant.group_rate:  # group-decoded motes too
-        needed = {c: (np.ones(n_motes, bool) if needed[c] is None else needed[c]) & ~groups[c].resolved  # type: ignore[operator]
-                  for c in cams}
-    if sep > SEPARATION_PX:  # motes read in the wide view though a neighbour lies within sep
-        needed = {c: (np.ones(n_motes, bool) if needed[c] is None else needed[c]) & ~near[c] & ~crowd[c][0]  # type: ignore[operator]
-                  for c in cams}
-    partner_eligible: dict[str, np.ndarray] | None = None
-    partner_ok: dict[str, np.ndarray] | None = None
-    if variant.partner_rate or variant.partner_group_rate:  # cover rounds: which groups may leave a member unread, which succeed
-        partner_rng = np.random.default_rng([seed, 18])  # its own streams: the other draws stay as they were
-        group_partner_rng = np.random.default_rng([seed, 19])
-        partner_eligible, partner_ok = {}, {}
-        for c in cams:
-            if variant.partner_any:
-                partner_eligible[c] = ~(neighbour_px(pts[c], intr, fields) >= SEPARATION_PX)
-                partner_ok[c] = partner_eligible[c].copy()
-                continue
-            partner_eligible[c] = np.zeros(n_motes, bool)
-            partner_ok[c] = np.zeros(n_motes, bool)
-            if variant.partner_rate:
-                partner_eligible[c] |= pair_decoding(intr, pts[c], SEPARATION_PX, 1.0, np.random.default_rng(0),
-                                                     fields).resolved
-                partner_ok[c] |= pair_decoding(intr, pts[c], SEPARATION_PX, variant.partner_rate, partner_rng,
-                                               fields).resolved
-            if variant.partner_group_rate:
-                partner_eligible[c] |= group_decoding(intr, pts[c], SEPARATION_PX, 1.0, np.random.default_rng(0),
-                                                      fields).resolved
-                partner_ok[c] |= group_decoding(intr, pts[c], SEPARATION_PX, variant.partner_group_rate,
-                                                group_partner_rng, fields).resolved
-    extend = variant.extend * book.length
-    round_k = variant.round_frames[0] * book.length + variant.round_frames[1]
-    retry_frames = book.length if variant.continuous_retry else None
+    return WideReads(resolved, near, pairs, groups, {c: crowd[c][0] for c in cams}, {c: crowd[c][1] for c in cams})
 
-    def zoom_refine(c: str, need_c: np.ndarray | None) -> tuple[list[RefinePass], int, float, int]:
-        """The cheapest ladder's refinement of camera ``c``: passes, lost, retry fraction, views."""
+
+def needed_motes(scene: Scene, reads: WideReads, variant: Variant) -> dict[str, np.ndarray | None]:
+    """Which motes ((N,) bool) each camera must still separate by refinement or radio; None: every
+    crowded one. With ``variant.need``, only those fewer than that many other cameras resolve;
+    motes a decoder the variant turns on reads in the wide view need nothing more from that camera."""
+    cams = scene.cams
+    needed: dict[str, np.ndarray | None] = (
+        dict(needed_from(reads.resolved, variant.need)) if variant.need else {c: None for c in cams})
+    read_wide: list[dict[str, np.ndarray]] = []
+    if variant.pair_rate:  # pair-decoded motes
+        read_wide.append({c: reads.pairs[c].resolved for c in cams})
+    if variant.group_rate:  # group-decoded motes
+        read_wide.append({c: reads.groups[c].resolved for c in cams})
+    if variant.separation_px > SEPARATION_PX:  # motes read in the wide view though a neighbour lies within sep
+        read_wide.append(reads.near)
+        read_wide.append(reads.crowd_read)
+    for read in read_wide:
+        needed = {c: (np.ones(scene.n_motes, bool) if needed[c] is None else needed[c]) & ~read[c] for c in cams}
+    return needed
+
+
+@dataclass(frozen=True)
+class PartnerDraws:
+    """Cover rounds, per camera ((N,) bool): which crowded motes may be left unread in the rounds
+    (``eligible``: decodable by the known-partner decoder) and whose decode succeeds (``ok``)."""
+
+    eligible: dict[str, np.ndarray]
+    ok: dict[str, np.ndarray]
+
+
+def partner_draws(scene: Scene, variant: Variant, seed: int, fields: bool) -> PartnerDraws | None:
+    """The known-partner decoder's draws (None: cover rounds off). ``partner_any``: every crowded
+    mote (closer than 4 px) is eligible and succeeds (an upper bound); otherwise the motes of the
+    4 px pairs (groups of three) with ``partner_rate`` (``partner_group_rate``) on, each drawn on
+    its own stream ``default_rng([seed, 18])`` (``[seed, 19]``) so the other draws stay as they were."""
+    if not (variant.partner_rate or variant.partner_group_rate):
+        return None
+    intr, pts = scene.intr, scene.pts
+    partner_rng = np.random.default_rng([seed, 18])
+    group_partner_rng = np.random.default_rng([seed, 19])
+    draws = PartnerDraws({}, {})
+    for c in scene.cams:
+        if variant.partner_any:
+            draws.eligible[c] = ~(neighbour_px(pts[c], intr, fields) >= SEPARATION_PX)
+            draws.ok[c] = draws.eligible[c].copy()
+            continue
+        draws.eligible[c] = np.zeros(scene.n_motes, bool)
+        draws.ok[c] = np.zeros(scene.n_motes, bool)
+        if variant.partner_rate:
+            draws.eligible[c] |= pair_decoding(intr, pts[c], SEPARATION_PX, 1.0, np.random.default_rng(0),
+                                               fields).resolved
+            draws.ok[c] |= pair_decoding(intr, pts[c], SEPARATION_PX, variant.partner_rate, partner_rng,
+                                         fields).resolved
+        if variant.partner_group_rate:
+            draws.eligible[c] |= group_decoding(intr, pts[c], SEPARATION_PX, 1.0, np.random.default_rng(0),
+                                                fields).resolved
+            draws.ok[c] |= group_decoding(intr, pts[c], SEPARATION_PX, variant.partner_group_rate,
+                                          group_partner_rng, fields).resolved
+    return draws
+
+
+# --- the coded survey on the clock ----------------------------------------------------------------
+
+
+class Refinement(NamedTuple):
+    """One camera's zoom refinement (:meth:`CodedPlanner.refinement`)."""
+
+    passes: list[RefinePass]
+    lost: int  #: crowded motes it leaves unresolved
+    retry: float  #: expected share of its views retried
+    views: int  #: its views, all passes
+
+
+@dataclass(frozen=True)
+class CodedPlan:
+    """The coded survey priced for one choice of radio cameras and round order."""
+
+    coded: CodedTime
+    round_order: str  #: "class" or "view" with radio rounds, "-" without
+    unresolved: int  #: crowded motes no refinement resolves (all cameras)
+    refine_retry: float  #: expected share of the refinement views retried
+    radio_cams: tuple[str, ...]  #: the cameras separating by radio
+    classes: int  #: colour classes of the radio separation (0: none)
+    round_views: int  #: radio-round views (all cameras)
+    radio_retry: float  #: expected share of the radio-round views retried
+
+
+@dataclass
+class CodedPlanner:
+    """Prices the coded survey of one scene on ``timing``'s clock (seconds) for any subset of
+    cameras separating by radio, the rest refining by zoom; each camera's refinement is planned
+    once per role (zoom only, or the leftover of its radio rounds) and reused."""
+
+    scene: Scene
+    variant: Variant
+    timing: RigTiming  #: the coded survey's clock (the camera at its field rate when decoding fields)
+    fields: bool  #: decode fields (pixels on field rows)
+    miss_rate: float  #: per-decode miss rate of an isolated mote
+    levels: tuple[float, ...]  #: the fixed zoom ladder (fractions of the optical range)
+    k: int  #: samples per wide view (periods x L + 2)
+    code_length: int  #: L, samples
+    retry_views: float  #: expected share of the wide views retried
+    needed: dict[str, np.ndarray | None]  #: :func:`needed_motes`
+    partner: PartnerDraws | None  #: :func:`partner_draws`
+    _refinements: dict[tuple[str, bool], Refinement] = field(default_factory=dict)
+
+    @property
+    def extend(self) -> int:
+        """Samples recorded beyond ``k`` in every view."""
+        return self.variant.extend * self.code_length
+
+    @property
+    def round_k(self) -> int:
+        """Samples of a short-round view (a L + b); 0: short rounds off."""
+        return self.variant.round_frames[0] * self.code_length + self.variant.round_frames[1]
+
+    @property
+    def retry_frames(self) -> int | None:
+        """Samples a retry records on (one code length); None: a new burst of ``k``."""
+        return self.code_length if self.variant.continuous_retry else None
+
+    def _ladder_refinement(self, c: str, need_c: np.ndarray | None,
+                           ladder: tuple[float, ...]) -> tuple[float, Refinement]:
+        """Camera ``c``'s refinement on ``ladder`` from its last wide view, and its price (s)."""
+        intr, pt, start, v = self.scene.intr, self.scene.pts[c], self.scene.views[c][-1], self.variant
+        passes, lost = plan_refinement(intr, pt, v.separation_px, ladder, start=start,
+                                       field_rows=self.fields, needed=need_c, share_tiles=v.share_tiles)
+        nv = sum(len(rp.views) for rp in passes)
+        q = sum(_retry_fraction(intr.at_zoom(rp.zoom), pt, rp.views, self.miss_rate) * len(rp.views)
+                for rp in passes) / max(nv, 1)
+        ops = refinement_ops(passes, self.k, start, q if v.retry_refinement else 0.0, self.extend,
+                             self.retry_frames, v.zoom_out)
+        return price(ops, self.timing).total, Refinement(passes, lost, q, nv)
+
+    def cheapest_refinement(self, c: str, need_c: np.ndarray | None) -> Refinement:
+        """The cheapest ladder's refinement of camera ``c`` on the clock (ties: the first of
+        :data:`LADDERS`); only ``levels`` without ``pick_ladder``."""
         best = math.inf
-        for ladder in (LADDERS if variant.pick_ladder else (levels,)):
-            passes, lost = plan_refinement(intr, pts[c], sep, ladder, start=views[c][-1],
-                                           field_rows=fields, needed=need_c, share_tiles=variant.share_tiles)
-            nv = sum(len(rp.views) for rp in passes)
-            q = sum(_retry_fraction(intr.at_zoom(rp.zoom), pts[c], rp.views, miss_rate) * len(rp.views)
-                    for rp in passes) / max(nv, 1)
-            cost = price(refinement_ops(passes, k, views[c][-1], q if variant.retry_refinement else 0.0, extend,
-                                        retry_frames, variant.zoom_out), coded_timing).total
-            if cost < best:  # the cheapest ladder on the clock (ties: the first)
-                best, out = cost, (passes, lost, q, nv)
+        for ladder in (LADDERS if self.variant.pick_ladder else (self.levels,)):
+            cost, refinement = self._ladder_refinement(c, need_c, ladder)
+            if cost < best:
+                best, out = cost, refinement
         return out
 
-    cache: dict[tuple[str, bool], tuple[list[RefinePass], int, float, int]] = {}
+    def refinement(self, c: str, rs: RadioSeparation | None, radio_cams: tuple[str, ...]) -> Refinement:
+        """Camera ``c``'s refinement: of its needed motes, or of its radio rounds' leftover when it
+        separates by radio (``rs``); a camera's leftover depends on it alone, so it is cached."""
+        radio = rs is not None and c in radio_cams
+        key = (c, radio)
+        if key not in self._refinements:
+            need_c = rs.leftover[c] if rs is not None and radio else self.needed[c]
+            self._refinements[key] = self.cheapest_refinement(c, need_c)
+        return self._refinements[key]
 
-    def plan(radio_cams: tuple[str, ...]) -> dict[str, object]:
-        """Refinement (and radio separation for ``radio_cams``) priced on the clock; with
-        ``round_order`` "best" the cheaper of the class- and view-major rounds."""
-        orders = ("class", "view") if variant.round_order == "best" else (variant.round_order,)
-        return min((plan_order(radio_cams, o) for o in (orders if radio_cams else ("class",))),
-                   key=lambda pl: pl["coded"].time.total)  # type: ignore[attr-defined]
+    def _radio_separation(self, radio_cams: tuple[str, ...], order: str) -> RadioSeparation | None:
+        """The radio rounds of ``radio_cams`` (view-major stations for ``order`` "view"); None: none."""
+        if not radio_cams:
+            return None
+        s, p = self.scene, self.partner
+        return radio_separation(s.intr, s.pts, s.views, self.variant.separation_px, radio_cams, self.fields,
+                                self.needed, partner=p.eligible if p else None, partner_ok=p.ok if p else None,
+                                stations=order == "view")
 
-    def plan_order(radio_cams: tuple[str, ...], order: str) -> dict[str, object]:
-        rs = radio_separation(intr, pts, views, sep, radio_cams, fields, needed,
-                              partner=partner_eligible, partner_ok=partner_ok,
-                              stations=order == "view") if radio_cams else None
-        refine: dict[str, list[RefinePass]] = {}
-        unresolved = n_refine = 0
-        refine_retry = 0.0
-        for c in cams:
-            need_c = needed[c] if rs is None or c not in radio_cams else rs.leftover[c]
-            key = (c, rs is not None and c in radio_cams)  # a camera's leftover depends on it alone
-            if key not in cache:
-                cache[key] = zoom_refine(c, need_c)
-            refine[c], lost_c, q_c, nv_c = cache[key]
-            unresolved += lost_c
-            refine_retry += q_c * nv_c
-            n_refine += nv_c
-        refine_retry /= max(n_refine, 1)
+    def _radio_retry(self, rs: RadioSeparation | None) -> tuple[float, int]:
+        """Expected share of the radio-round views retried (at the round miss rate) and their count."""
         radio_retry, n_round = 0.0, 0
         if rs is not None:
-            q_round = miss_rate if variant.round_miss_rate is None else variant.round_miss_rate
-            for c, rounds in rs.rounds.items():
+            q_round = self.miss_rate if self.variant.round_miss_rate is None else self.variant.round_miss_rate
+            for rounds in rs.rounds.values():
                 for rr in rounds:
                     radio_retry += sum(1.0 - (1.0 - q_round) ** m for m in rr.view_targets)
                     n_round += len(rr.views)
             radio_retry /= max(n_round, 1)
-        coded = coded_survey_time(
-            views, n_motes, k, coded_timing, retry_fraction=retry_views, refine=refine,
-            broadcast_start=variant.broadcast, start_broadcasts=3, extend_frames=extend, retry_frames=retry_frames,
-            refine_retry_fraction=refine_retry if variant.retry_refinement else 0.0, zoom_out=variant.zoom_out,
-            resync_s=RESYNC_S if variant.sync else None, radio_rounds=rs.rounds if rs else None,
-            pause_broadcasts=rs.pause_broadcasts if rs else 3,
-            radio_retry_fraction=radio_retry if variant.retry_refinement else 0.0,
-            round_frames=round_k or None, round_order=order)
-        return {"coded": coded, "round_order": order if rs else "-", "unresolved": unresolved, "refine_retry": refine_retry, "radio_cams": radio_cams,
-                "classes": rs.classes if rs else 0, "round_views": n_round, "radio_retry": radio_retry}
+        return radio_retry, n_round
 
-    if variant.separate == "zoom":
-        choices: list[tuple[str, ...]] = [()]
-    elif variant.separate == "radio":
-        choices = [tuple(cams)]
-    else:  # best: every subset of cameras separating by radio, the cheapest on the clock
-        choices = [tuple(c for i, c in enumerate(cams) if m >> i & 1) for m in range(2 ** len(cams))]
-    plans = [plan(ch) for ch in choices]
-    chosen = min(plans, key=lambda pl: pl["coded"].time.total)  # type: ignore[attr-defined]
-    coded = chosen["coded"]
-    assert isinstance(coded, CodedTime)
-    key = (n_motes, n_cams, seed, timing)
-    if key not in _SEQUENTIAL:  # the same in every variant
-        _SEQUENTIAL[key] = sequential_survey_time(bearings, intr, searches, timing)
-    seq = _SEQUENTIAL[key]
-    radio_cams = ",".join(chosen["radio_cams"]) or "-"  # type: ignore[arg-type]
-    if chosen["round_order"] == "view":
-        radio_cams += " (view-major)"
+    def plan_order(self, radio_cams: tuple[str, ...], order: str) -> CodedPlan:
+        """The survey with ``radio_cams`` separating by radio in rounds of ``order`` ("class" or
+        "view"), every camera refining what is left by zoom, priced on the clock."""
+        v, rs = self.variant, self._radio_separation(radio_cams, order)
+        refine: dict[str, list[RefinePass]] = {}
+        unresolved = n_refine = 0
+        refine_retry = 0.0
+        for c in self.scene.cams:
+            refine[c], lost_c, q_c, nv_c = self.refinement(c, rs, radio_cams)
+            unresolved += lost_c
+            refine_retry += q_c * nv_c
+            n_refine += nv_c
+        refine_retry /= max(n_refine, 1)
+        radio_retry, n_round = self._radio_retry(rs)
+        coded = coded_survey_time(
+            self.scene.views, self.scene.n_motes, self.k, self.timing,
+            retry_fraction=self.retry_views, refine=refine, broadcast_start=v.broadcast, start_broadcasts=3,
+            extend_frames=self.extend, retry_frames=self.retry_frames,
+            refine_retry_fraction=refine_retry if v.retry_refinement else 0.0, zoom_out=v.zoom_out,
+            resync_s=RESYNC_S if v.sync else None, radio_rounds=rs.rounds if rs else None,
+            pause_broadcasts=rs.pause_broadcasts if rs else 3,
+            radio_retry_fraction=radio_retry if v.retry_refinement else 0.0,
+            round_frames=self.round_k or None, round_order=order)
+        return CodedPlan(coded, order if rs else "-", unresolved, refine_retry, radio_cams,
+                         rs.classes if rs else 0, n_round, radio_retry)
+
+    def plan(self, radio_cams: tuple[str, ...]) -> CodedPlan:
+        """Refinement (and radio separation for ``radio_cams``) priced on the clock; with
+        ``round_order`` "best" the cheaper of the class- and view-major rounds."""
+        orders = ("class", "view") if self.variant.round_order == "best" else (self.variant.round_order,)
+        return min((self.plan_order(radio_cams, o) for o in (orders if radio_cams else ("class",))),
+                   key=lambda pl: pl.coded.time.total)
+
+    def cheapest(self, choices: list[tuple[str, ...]]) -> CodedPlan:
+        """The cheapest on the clock of the plans of ``choices`` of radio cameras (ties: the first)."""
+        return min((self.plan(ch) for ch in choices), key=lambda pl: pl.coded.time.total)
+
+
+def coded_clock(timing: RigTiming, fields: bool) -> RigTiming:
+    """The coded survey's clock: ``timing`` with the camera at its field rate when decoding fields."""
+    return replace(timing, camera=timing.camera.at_field_rate()) if fields else timing
+
+
+def radio_choices(separate: str, cams: list[str]) -> list[tuple[str, ...]]:
+    """The subsets of ``cams`` to try separating by radio: none ("zoom"), all ("radio"), or every
+    subset ("best", in bitmask order: the cheapest on the clock is taken)."""
+    if separate == "zoom":
+        return [()]
+    if separate == "radio":
+        return [tuple(cams)]
+    return [tuple(c for i, c in enumerate(cams) if m >> i & 1) for m in range(2 ** len(cams))]
+
+
+def sequential_time(scene: Scene, seed: int, timing: RigTiming) -> SequentialTime:
+    """The sequential survey of ``scene`` (seeded with ``seed``) on ``timing``'s clock, priced once
+    per motes, cameras, seed and timing (it is the same in every variant)."""
+    key = (scene.n_motes, scene.n_cams, seed, timing)
+    if key not in _SEQUENTIAL:
+        _SEQUENTIAL[key] = sequential_survey_time(scene.bearings, scene.intr, scene.searches, timing)
+    return _SEQUENTIAL[key]
+
+
+# --- one scene's result ---------------------------------------------------------------------------
+
+
+def _radio_label(chosen: CodedPlan) -> str:
+    """The radio cameras, comma-separated ("-": none), marked when the rounds are view-major."""
+    label = ",".join(chosen.radio_cams) or "-"
+    return label + " (view-major)" if chosen.round_order == "view" else label
+
+
+def _survey_columns(planner: CodedPlanner, chosen: CodedPlan, seq: SequentialTime) -> dict[str, Any]:
+    """Times (s) and phases of both surveys, the coded survey's counts and retry shares."""
+    coded, n_cams = chosen.coded, planner.scene.n_cams
     return {
-        "motes": n_motes, "cameras": n_cams,
-        "seq": seq.time.total, "seq_desc": seq.time.describe(), "coded": coded.time.total,  # type: ignore[dict-item]
-        "coded_desc": coded.time.describe(), "views": sum(coded.views.values()) / n_cams,  # type: ignore[dict-item]
-        "L": book.length, "K": k + variant.extend * book.length, "refine": coded.refinements, "retry": retry_views,
-        "refine_retry": chosen["refine_retry"], "missing": seq.not_found,  # type: ignore[dict-item]
-        "unresolved": chosen["unresolved"], "radio_cams": radio_cams,  # type: ignore[dict-item]
-        "classes": chosen["classes"], "round_views": chosen["round_views"],  # type: ignore[dict-item]
-        "radio_retry": chosen["radio_retry"],  # type: ignore[dict-item]
-        "round_K": round_k if chosen["radio_cams"] else 0,  # type: ignore[dict-item]
-        "rate": coded_timing.camera.frame_rate_hz, "phases": coded.time.phases,  # type: ignore[dict-item]
-        "seq_phases": seq.time.phases,  # type: ignore[dict-item]
-        "pairs": sum(len(p.pairs) for p in pairs.values()),
-        "pairs_resolved": sum(p.resolved_pairs for p in pairs.values()),
-        "pairs_third8": sum(int((p.third_px < 8.0).sum()) for p in pairs.values()),
-        "groups": sum(len(g.groups) for g in groups.values()),
-        "groups_resolved": sum(g.resolved_groups for g in groups.values()),
-        "groups_fourth8": sum(int((g.fourth_px < 8.0).sum()) for g in groups.values()),
-        "crowd_motes": sum(int(crowd[c][1].sum()) for c in cams),
-        "crowd_read": sum(int(crowd[c][0].sum()) for c in cams),
-        "crowded": sum(int((~(neighbour_px(pts[c], intr, fields) >= sep)).sum()) for c in cams),
+        "motes": planner.scene.n_motes, "cameras": n_cams,
+        "seq": seq.time.total, "seq_desc": seq.time.describe(), "coded": coded.time.total,
+        "coded_desc": coded.time.describe(), "views": sum(coded.views.values()) / n_cams,
+        "L": planner.code_length, "K": planner.k + planner.extend, "refine": coded.refinements,
+        "retry": planner.retry_views, "refine_retry": chosen.refine_retry, "missing": seq.not_found,
+        "unresolved": chosen.unresolved, "radio_cams": _radio_label(chosen),
+        "classes": chosen.classes, "round_views": chosen.round_views, "radio_retry": chosen.radio_retry,
+        "round_K": planner.round_k if chosen.radio_cams else 0,
+        "rate": planner.timing.camera.frame_rate_hz, "phases": coded.time.phases, "seq_phases": seq.time.phases,
     }
 
 
-def round_frames_of(text: str) -> tuple[int, int]:
-    """``"18"`` -> (0, 18); ``"L+2"`` -> (1, 2); ``"2L+2"`` -> (2, 2): samples a L + b of a
-    short-round view. ValueError unless at least one code length (a >= 1) or 8 samples."""
-    t = text.replace(" ", "").upper()
-    if "L" in t:
-        a_txt, _, b_txt = t.partition("L")
-        a = int(a_txt) if a_txt else 1
-        b = int(b_txt) if b_txt else 0
-        if a < 1 or b < 0:
-            raise ValueError("a L + b needs a >= 1, b >= 0")
-        return a, b
-    k = int(t)
-    if k < 8:
-        raise ValueError("at least one code length (8 samples or more)")
-    return 0, k
+def _crowd_counts(scene: Scene, reads: WideReads, sep: float, fields: bool) -> dict[str, int]:
+    """Crowd counts over the cameras: 4 px pairs and groups of three (with a third / fourth mote
+    within 8 px, and resolved by their decoders), crowd motes alone at ``sep`` px (and read), and
+    mote-views with a neighbour closer than ``sep`` px."""
+    pairs, groups = reads.pairs.values(), reads.groups.values()
+    return {
+        "pairs": sum(len(p.pairs) for p in pairs),
+        "pairs_resolved": sum(p.resolved_pairs for p in pairs),
+        "pairs_third8": sum(int((p.third_px < 8.0).sum()) for p in pairs),
+        "groups": sum(len(g.groups) for g in groups),
+        "groups_resolved": sum(g.resolved_groups for g in groups),
+        "groups_fourth8": sum(int((g.fourth_px < 8.0).sum()) for g in groups),
+        "crowd_motes": sum(int(reads.crowd_member[c].sum()) for c in scene.cams),
+        "crowd_read": sum(int(reads.crowd_read[c].sum()) for c in scene.cams),
+        "crowded": sum(int((~(neighbour_px(scene.pts[c], scene.intr, fields) >= sep)).sum()) for c in scene.cams),
+    }
+
+
+def run(n_motes: int, n_cams: int, timing: RigTiming, miss_rate: float, seed: int = 0,
+        variant: Variant = Variant(), levels: tuple[float, ...] = (1 / 9, 3 / 9, 1.0),
+        periods: int = 3) -> dict[str, Any]:
+    """Both surveys of the seeded scene of ``n_motes`` motes and ``n_cams`` cameras on ``timing``'s
+    clock, the coded one run as ``variant`` (the cheapest of its radio choices; isolated motes
+    missed at ``miss_rate`` per decode, ``periods`` code periods per view, ``levels`` the fixed
+    zoom ladder): times in seconds, counts and retry shares, keyed as :func:`report` reads them."""
+    scene = seeded_scene(n_motes, n_cams, seed)
+    book = sync_code_book(n_motes) if variant.sync else code_book(n_motes)
+    fields = variant.fields and timing.head.interlaced
+    reads = wide_reads(scene, variant, seed, fields)
+    planner = CodedPlanner(
+        scene=scene, variant=variant, timing=coded_clock(timing, fields), fields=fields, miss_rate=miss_rate,
+        levels=levels, k=frames_for(book.length, periods), code_length=book.length,
+        retry_views=wide_retry_fraction(scene, miss_rate), needed=needed_motes(scene, reads, variant),
+        partner=partner_draws(scene, variant, seed, fields))
+    chosen = planner.cheapest(radio_choices(variant.separate, list(scene.cams)))
+    seq = sequential_time(scene, seed, timing)
+    return {**_survey_columns(planner, chosen, seq), **_crowd_counts(scene, reads, variant.separation_px, fields)}
+
+
+# --- the command line (options, checks and the Variant: field_time_cli) ---------------------------
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--head", default="EVI-D100", choices=sorted(HEAD_MODELS))
-    ap.add_argument("--miss-rate", type=float, default=0.0)
-    ap.add_argument("--fps", type=float, default=30000.0 / 1001.0)
-    ap.add_argument("--frames", action="store_true", help="decode frames, not fields (interlaced heads)")
-    ap.add_argument("--unicast", action="store_true", help="one unicast start per mote, not a broadcast")
-    ap.add_argument("--sync", action="store_true", help="the synchronized book (epoch broadcast, resync every 10 s)")
-    ap.add_argument("--extend", type=int, default=0, help="code lengths recorded beyond K in every view")
-    ap.add_argument("--burst-retry", action="store_true", help="a retry records a new burst of K frames")
-    ap.add_argument("--no-refine-retry", action="store_true", help="refinement views are never retried")
-    ap.add_argument("--zoom-out", action="store_true", help="zoom back out after the last refinement pass")
-    ap.add_argument("--separate-tiles", action="store_true", help="each zoom level tiles only its own targets")
-    ap.add_argument("--fixed-ladder", action="store_true", help="refine on --levels only, not the cheapest of LADDERS")
-    ap.add_argument("--separate", default="zoom", choices=("zoom", "radio", "best"),
-                    help="crowded motes: zoom refinement, radio separation (pause colour classes, re-record wide "
-                    "views), or per camera the cheaper on the clock")
-    ap.add_argument("--pair-decode", default="", metavar="RATE|PX:RATE,...,inf:RATE",
-                    help="crowded groups of exactly two motes are resolved by the pair decoder in the wide view with "
-                    "this measured success rate (scripts/blink_montecarlo.py --pairs), or per bound on the distance "
-                    "to the nearest third mote (px); default off")
-    ap.add_argument("--group-decode", default="", metavar="RATE|PX:RATE,...,inf:RATE",
-                    help="crowded groups of exactly three motes are resolved by the group decoder in the wide view "
-                    "with this measured rate (scripts/blink_montecarlo.py --groups), or per bound on the distance to "
-                    "the nearest fourth mote (px); default off")
-    ap.add_argument("--round-frames", default="", metavar="K'",
-                    help="short rounds: each radio-round view records K' samples, labelled against the class's "
-                    "candidates (fgloc.camera.blink_candidates): a count or a L + b in code lengths L (e.g. L+2, 2L+2); "
-                    "default off")
-    ap.add_argument("--round-miss-rate", type=float, default=None, metavar="Q",
-                    help="with --round-frames: isolated miss rate of a short-round view (scripts/"
-                    "blink_candidates_montecarlo.py --candidates); default: --miss-rate")
-    ap.add_argument("--partner-decode", default="", metavar="RATE|PX:RATE,...,inf:RATE",
-                    help="cover rounds (with --separate radio|best): a crowded group of exactly two needs only one "
-                    "member read in a radio round, the other decoded from the wide view by the known-partner decoder "
-                    "with this success rate (scripts/blink_montecarlo.py --partner), or per bound on the distance to "
-                    "the nearest third mote (px); failures are read in extra rounds; default off")
-    ap.add_argument("--partner-group-decode", default="", metavar="RATE|PX:RATE,...,inf:RATE",
-                    help="cover rounds: the same for crowded groups of exactly three (two read in rounds, the third "
-                    "decoded; scripts/blink_montecarlo.py --groups --partner), per bound on the nearest fourth mote")
-    ap.add_argument("--partner-any", action="store_true",
-                    help="with --partner-decode 1: every crowded group leaves one member unread (upper bound)")
-    ap.add_argument("--round-order", default="class", choices=("class", "view", "best"),
-                    help="with --separate radio|best: class-major rounds (each class in turn, every camera visiting "
-                    "its views), view-major (each camera's round views shared across the classes; it stays on a "
-                    "view while the classes it needs there take turns, one pause update per class change), or the "
-                    "cheaper of the two on the clock; default class")
-    ap.add_argument("--separation", type=float, default=SEPARATION_PX, metavar="PX",
-                    help="a mote is isolated (read as such in the wide view) when no other lies within PX px at the "
-                    "wide zoom; default 4 (the crowd criterion of every earlier table); the blind decoder's measured "
-                    "separation is ~8 px (scripts/blink_near_montecarlo.py)")
-    ap.add_argument("--near-decode", default="", metavar="RATE|PX:RATE,...,inf:RATE",
-                    help="with --separation above 4: the share of motes whose nearest neighbour lies 4 px to "
-                    "--separation away that the blind decoder still reads (blink_near_montecarlo.py), or per bound "
-                    "on that distance; default 0")
-    ap.add_argument("--crowd-decode", action="append", default=[], metavar="K=RATE|K=PX:RATE,...,inf:RATE",
-                    help="with --separation above 4, repeatable: the share of the motes of crowds of K (3 to 5) alone "
-                    "at --separation that the decoder reads in the wide view (blink_near_montecarlo.py --group K "
-                    "--pairs), or per bound on each mote's nearest-neighbour distance; replaces the pair and group "
-                    "decoders' draws inside those crowds; default none")
-    ap.add_argument("--need", type=int, default=0,
-                    help="refine a mote only where fewer than this many other cameras resolve it (0: always)")
-    ap.add_argument("--old", action="store_true", help="the previous plan: rotation-free book, burst retries of "
-                    "wide views only, zoom out at the end (other flags but --frames/--unicast ignored)")
-    ap.add_argument("--periods", type=int, default=3, help="code periods recorded per view (K = periods x L + 2)")
-    ap.add_argument("--levels", default="0.111,0.333,1", help="refinement zoom ladder (fractions, ascending)")
-    ap.add_argument("--sizes", default="100x2,100x4,1000x2,1000x4", help="scenes, motes x cameras")
-    ap.add_argument("--seeds", type=int, default=1, help="seeded scenes per size (0..N-1); summary of the speed-ups")
+    """Print the table of both surveys' times for every ``--sizes`` scene and seed."""
+    ap = build_parser(__doc__.splitlines()[0])
     args = ap.parse_args()
-    if args.seeds < 1:
-        ap.error(f"--seeds: at least 1 ({args.seeds})")
-    if not SEPARATION_PX <= args.separation <= 64.0:
-        ap.error(f"--separation: px in [{SEPARATION_PX:g}, 64] ({args.separation})")
-    if args.near_decode and args.separation <= SEPARATION_PX:
-        ap.error(f"--near-decode: needs --separation above {SEPARATION_PX:g} px ({args.near_decode})")
-    if args.crowd_decode and args.separation <= SEPARATION_PX:
-        ap.error(f"--crowd-decode: needs --separation above {SEPARATION_PX:g} px ({args.crowd_decode[0]})")
+    check_scene_flags(ap, args)
     levels = tuple(float(x) for x in args.levels.split(","))
     timing = RigTiming(head=HEAD_MODELS[args.head], camera=CameraTiming(frame_rate_hz=args.fps))
-    variant = Variant(fields=not args.frames, broadcast=not args.unicast, sync=args.sync,
-                      extend=args.extend, continuous_retry=not args.burst_retry,
-                      retry_refinement=not args.no_refine_retry, zoom_out=args.zoom_out, need=args.need,
-                      share_tiles=not args.separate_tiles, pick_ladder=not args.fixed_ladder,
-                      separate=args.separate, round_miss_rate=args.round_miss_rate, round_order=args.round_order,
-                      separation_px=args.separation)
-    if args.round_frames:
-        try:
-            variant = replace(variant, round_frames=round_frames_of(args.round_frames))
-        except ValueError as exc:
-            ap.error(f"--round-frames: {exc} ({args.round_frames})")
-    if args.round_miss_rate is not None and not (args.round_frames and 0.0 <= args.round_miss_rate < 1.0):
-        ap.error(f"--round-miss-rate: needs --round-frames and a rate in [0, 1) ({args.round_miss_rate})")
-    # crowd-decoding rates: one rate, or per bound on the distance to the nearest other mote
-    for flag, value, name in (("--pair-decode", args.pair_decode, "pair_rate"),
-                              ("--group-decode", args.group_decode, "group_rate"),
-                              ("--partner-decode", args.partner_decode, "partner_rate"),
-                              ("--partner-group-decode", args.partner_group_decode, "partner_group_rate"),
-                              ("--near-decode", args.near_decode, "near_rate")):
-        if not value:
-            continue
-        try:
-            table = pair_rate_table(value)
-        except ValueError as exc:
-            ap.error(f"{flag}: {exc} ({value})")
-        variant = replace(variant, **{name: table[0][1] if len(table) == 1 else table})
-    crowd_rates: dict[int, float | tuple[tuple[float, float], ...]] = {}
-    for value in args.crowd_decode:
-        size, _, text = value.partition("=")
-        try:
-            k, table = int(size), pair_rate_table(text)
-            if not 3 <= k <= 5 or k in crowd_rates:
-                raise ValueError(f"crowd size {k}: one of 3, 4, 5, each once")
-        except ValueError as exc:
-            ap.error(f"--crowd-decode: {exc} ({value})")
-        crowd_rates[k] = table[0][1] if len(table) == 1 else table
-    variant = replace(variant, crowd_rates=tuple(sorted(crowd_rates.items())))
-    if args.partner_decode:
-        variant = replace(variant, partner_any=args.partner_any)
-    if args.partner_any and args.partner_decode.strip() not in ("1", "1.0"):
-        ap.error(f"--partner-any: only with --partner-decode 1 (an upper bound) ({args.partner_decode or 'off'})")
-    if args.old:
-        variant = replace(OLD, fields=not args.frames, broadcast=not args.unicast)
-    print(f"head {args.head}, {args.fps:.2f} frames/s, miss rate {args.miss_rate}, refinement zooms {levels}, {variant}")
-    print("| motes | cameras | sequential (s) | coded (s) | speed-up | L | samples/view | decode rate (Hz) | "
-          "views/camera | refinement views | retried views (wide / refinement) | unresolved | "
-          "radio cameras | colour classes | radio round views (retry) |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    variant = variant_from_args(ap, args)
+    print_header(args, levels, variant)
     for size in args.sizes.split(","):
         n, c = (int(x) for x in size.split("x"))
         speedups = [report(run(n, c, timing, args.miss_rate, seed, variant, levels, args.periods), variant, args)
                     for seed in range(args.seeds)]
-        if args.seeds > 1:
-            print(f"|   | {n} x {c} over seeds 0..{args.seeds - 1}: speed-up median {np.median(speedups):.1f}x "
-                  f"(range {min(speedups):.1f}-{max(speedups):.1f}x) |||||||||||")
-
-
-def report(r: dict[str, float], variant: Variant, args: argparse.Namespace) -> float:
-    """Print one scene's rows; returns its speed-up."""
-    n, c = r["motes"], r["cameras"]
-    print(f"| {n} | {c} | {r['seq']:.1f} | {r['coded']:.1f} | {r['seq'] / r['coded']:.1f}x | {r['L']} | "
-          f"{r['K']} | {r['rate']:.2f} | {r['views']:.1f} | {r['refine']} | {r['retry']:.2f} / "
-          f"{r['refine_retry']:.2f} | {r['unresolved']} | {r['radio_cams']} | {r['classes']} | "
-          f"{r['round_views']} ({r['radio_retry']:.2f}) |")
-    print(f"|   | sequential phases: {r['seq_desc']} (not found {r['missing']}) |||||||||||")
-    print(f"|   | coded phases: {r['coded_desc']} |||||||||||")
-    if r["round_K"]:
-        print(f"|   | short rounds: {r['round_K']} samples per round view, candidate miss rate "
-              f"{variant.round_miss_rate if variant.round_miss_rate is not None else args.miss_rate} |||||||||||")
-    if variant.pair_rate:
-        print(f"|   | pair decoding: {r['pairs']} crowded pairs of exactly two over the cameras "
-              f"({r['pairs_third8']} with a third mote within 8 px), {r['pairs_resolved']} resolved; "
-              f"{r['crowded']} crowded mote-views |||||||||||")
-    if variant.group_rate:
-        print(f"|   | group decoding: {r['groups']} crowded groups of exactly three over the cameras "
-              f"({r['groups_fourth8']} with a fourth mote within 8 px), {r['groups_resolved']} resolved |||||||||||")
-    if variant.crowd_rates:
-        print(f"|   | crowd decoding: {r['crowd_motes']} mote-views in crowds of "
-              f"{', '.join(str(k) for k, _ in variant.crowd_rates)} alone at {variant.separation_px:g} px, "
-              f"{r['crowd_read']} read in the wide view |||||||||||")
-    return r["seq"] / r["coded"]
+        print_seed_summary(n, c, args.seeds, speedups)
 
 
 if __name__ == "__main__":
