@@ -167,7 +167,7 @@ def _occluded_scene(looks: str, tmp_path: Path) -> tuple[int, float, set, set, i
     band held no blob)."""
     data = coded_rig(100, 320, occlusion=0.5, seed=2)
     data["coded"] = {"fallback": "predicted", "decode": "levels", "length": "fixed", "ladder": "climb",
-                     "looks": looks, "searches": "one"}
+                     "looks": looks, "searches": "one", "levels": [2 / 9, 1.0]}
     rig = parsed(data)
     rig_opened, sim = opened(rig)
     out = tmp_path / looks

@@ -64,7 +64,7 @@ def _fallback_survey(tmp_path: Path, name: str) -> tuple[float, set, set]:
     fallback nodes' priced seconds, the (node, camera) pairs read, those journaled not found)."""
     data = coded_rig(60, 320, occlusion=0.4, seed=2)
     data["coded"] = {"fallback": "predicted", "decode": "levels", "length": "fixed", "ladder": "climb",
-                     "zoom_moves": "apart"}
+                     "zoom_moves": "apart", "levels": [2 / 9, 1.0]}
     rig = parsed(data)
     rig_opened, _sim = opened(rig)
     out = tmp_path / name

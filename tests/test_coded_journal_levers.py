@@ -67,7 +67,7 @@ def test_a_new_survey_records_the_measured_fastest_levers(tmp_path):
     rig = parsed(coded_rig(8, width=160))
     run_survey(rig, tmp_path, opened=opened(rig)[0])
     header = read_journal(tmp_path / "journal.jsonl").header
-    assert header.coded == NEW_DEFAULTS | {"levels": [2 / 9, 1.0]}  # 3x, then 10x
+    assert header.coded == NEW_DEFAULTS | {"levels": [2 / 9, 5 / 9, 1.0]}  # 3x, 6x, then 10x
     assert header.coded == settings_record(CodedSettings())
     recs = view_records(tmp_path / "journal.jsonl")
     assert all(r["probe"] == code_book(8).length + 2 for r in recs if r["attempt"] == 0)  # probe on by default
@@ -188,7 +188,7 @@ def test_a_lever_that_disagrees_with_the_journal_is_refused_in_one_line(tmp_path
     assert named in err[0] and str(journal) in err[0] and was in err[0] and now.strip('"') in err[0], err
     assert journal.read_bytes() == before  # nothing written
     # the same values the journal recorded, given explicitly, are no disagreement
-    rig_json.write_text(json.dumps(data | {"coded": {"probe": "on", "levels": [2 / 9, 1.0]}}))
+    rig_json.write_text(json.dumps(data | {"coded": {"probe": "on", "levels": [2 / 9, 5 / 9, 1.0]}}))
     assert main(args + ["--resume", "--coded", "retry=continue"]) == 0
 
 

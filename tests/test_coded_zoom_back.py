@@ -182,7 +182,8 @@ def test_a_survey_resumed_after_the_ladder_still_prices_the_owed_zoom_back(tmp_p
     searches price equals the uncut survey's. Scene: 60 motes, 40 % of the pairs occluded
     (tests/test_coded_fallback_order.py), whose fallback searches with a camera that ended zoomed in."""
     data = coded_rig(60, 320, occlusion=0.4, seed=2)
-    data["coded"] = {"fallback": "predicted", "decode": "levels", "length": "fixed", "ladder": "climb"}
+    data["coded"] = {"fallback": "predicted", "decode": "levels", "length": "fixed", "ladder": "climb",
+                     "levels": [2 / 9, 1.0]}
     rig = parsed(data)
     full, cut = tmp_path / "full", tmp_path / "cut"
     run_survey(rig, full, opened=opened(rig)[0])

@@ -41,7 +41,7 @@ covers searched, first window kept, zoom moves together, zoom ladder 3x then 10x
   runs during the move to the rung's first view on a head that can: the EVI-D100's two VISCA
   sockets, :meth:`fgloc.survey.coded.CodedSurvey.zooms_while_moving`);
 * ``levels``: the refinement zoom ladder, ascending fractions of the optical range (default
-  ``[2/9, 1]``: 3x, then 10x).
+  ``[2/9, 5/9, 1]``: 3x, 6x, then 10x; ``[2/9, 1]`` before stop 39, which journals recorded).
 
 **Resume rule.** A coded survey's journal header records the levers it started with
 (:func:`settings_record`, header ``coded``). A resume runs with the recorded levers; a rig.json

@@ -28,9 +28,9 @@ class CodedSettings:
     target_step: float = 0.7
     decoder: DecoderConfig = field(default_factory=DecoderConfig)
     #: refinement zooms (fractions of the optical range, ascending; :meth:`CameraIntrinsics.at_zoom`:
-    #: 3x, then 10x), used where the rig can record at other zooms (the in-process rig); journals
+    #: 3x, 6x, then 10x), used where the rig can record at other zooms (the in-process rig); journals
     #: that recorded no ladder resume with :data:`~fgloc.survey.coded_levers.LEGACY_LEVELS` (2x, 4x, 10x)
-    levels: tuple[float, ...] = (2 / 9, 1.0)
+    levels: tuple[float, ...] = (2 / 9, 5 / 9, 1.0)
     #: how a view with curable refusals is recorded again: ``"continue"`` goes on recording L more
     #: frames without moving and decodes the whole recording in sliding windows
     #: (:func:`~fgloc.camera.blink_decoder.decode_windows`); ``"burst"`` records a new 3L + 2
