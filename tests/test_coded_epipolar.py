@@ -137,7 +137,7 @@ def test_the_fallback_looks_only_at_blobs_inside_a_motes_band(tmp_path: Path) ->
     assert blobs_near(coded, "cam1", at, "n1") == [off]
 
 
-def test_with_fields_the_band_allows_half_the_separation_in_field_rows(tmp_path: Path) -> None:
+def test_with_fields_the_band_allows_half_the_separation_in_field_rows() -> None:
     """A field row spans twice a column's angle: a mote merged into a blob lies up to 3 field
     rows (3 px of 80, not of 160) off its centroid across a horizontal plane. Seed 5's recording
     3 at 1000 motes lost n661 so: its merged blob lay 1.04 deg off the plane, the band was 0.82."""
