@@ -6,6 +6,9 @@
   inside its image, a reading in it and no refused blob of any kind in it; by nothing else.
 * On a seeded 320 x 240 scene ``"views"`` records fewer refinement frames than
   ``"readings"`` and still reads every visible pair once, none mislabelled.
+* ``"crowds"`` also resolves a wide-pass blob, only where the other recording read two motes or
+  more in its clean neighbourhood; on a seeded scene it records fewer 3x frames than ``"views"``,
+  every visible pair read, none mislabelled.
 * A journal whose header predates the lever resumes with ``"readings"``; the lever is
   schema-checked.
 """
@@ -15,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from fgloc.camera.pixel_angles import pan_tilt_to_pixel, pixel_to_pan_tilt
-from fgloc.survey.coded_ladder import SEPARATION_PX, resolved_elsewhere
+from fgloc.survey.coded_ladder import CROWD_READINGS, SEPARATION_PX, resolved_elsewhere
 from tests.test_coded_ladder import intrinsics_at
 from tests.test_survey_coded import (
     check_lever_in_schema,
@@ -85,6 +88,29 @@ def test_a_blob_is_resolved_only_by_a_clean_neighbourhood_in_another_recording()
     assert not resolved(k, blob, {("cam1", "r1-001", 0): recording(k, d, beside, TILE, near)})
 
 
+def test_a_crowd_rule_asks_for_two_readings_in_the_clean_neighbourhood():
+    """``explain "crowds"`` on the wide pass's blobs: one reading in the other recording's clean
+    neighbourhood is not enough (an isolated mote beside it may be the blob), two read apart are."""
+    k = intrinsics_at()
+    blob, d = blob_and_direction(k, zoom=0.0)
+    beside = (HEAD[0] + 0.1, HEAD[1] + 0.03)  # the wide view beside: the blob lies well inside it
+    near = SEPARATION_PX - 1.5
+    one = recording(k, d, beside, 0.0, near)
+    two = recording(k, d, beside, 0.0, near)
+    two["readings"].append(dict(two["readings"][0], node="n2", u=two["readings"][0]["u"] - 2 * near))
+    for rec, expected in ((one, (True, False)), (two, (True, True))):
+        views = {("cam0", "w001", 0): rec}
+        got = tuple(resolved_elsewhere([blob], views, "cam0", 0, k, 0.0, min_readings=m)[0] for m in (1, CROWD_READINGS))
+        assert got == expected
+    # a refused blob in the neighbourhood still resolves nothing, however many readings
+    spoilt = dict(two, refused=[{"kind": "rejected", "u": two["readings"][0]["u"] - near, "v": two["readings"][0]["v"],
+                                 "reason": "x"}])
+    assert resolved_elsewhere([blob], {("cam0", "w001", 0): spoilt}, "cam0", 0, k, 0.0, min_readings=2) == [False]
+    # the blob's own wide view resolves nothing
+    assert resolved_elsewhere([blob], {("cam0", "w000", 0): dict(two, head=list(HEAD))}, "cam0", 0, k, 0.0,
+                              min_readings=2) == [False]
+
+
 def test_a_neighbourhood_cut_by_the_image_border_resolves_nothing():
     k = intrinsics_at()
     blob, d = blob_and_direction(k)
@@ -112,6 +138,20 @@ def test_views_records_fewer_refinement_frames_and_reads_every_visible_pair(tmp_
     assert 0 < frames["views"] < frames["readings"], frames
 
 
+def test_crowds_records_fewer_first_rung_frames_and_reads_every_visible_pair(tmp_path):
+    """The 320 x 240 rig (60 motes, seed 3): 3x tiles are not planned over wide-pass blobs where
+    another wide view read a crowd apart cleanly; every visible pair is still read once, none
+    mislabelled."""
+    frames = {}
+    for explain in ("views", "crowds"):
+        data = coded_rig(60, 320, seed=3)
+        data["coded"] = {"explain": explain}
+        out = tmp_path / explain
+        survey_reads_every_visible_pair(parsed(data), out)
+        frames[explain] = sum(r["frames"] for r in view_records(out / "journal.jsonl") if r["view"].startswith("r1"))
+    assert 0 < frames["crowds"] < frames["views"], frames
+
+
 def test_a_survey_explaining_by_views_resumes_to_the_uncut_readings(tmp_path):
     """Killed at the first refinement tile, in the middle of them (clean and torn) and after the last:
     the rule decides from journaled views only, so each resume records every view once."""
@@ -119,7 +159,7 @@ def test_a_survey_explaining_by_views_resumes_to_the_uncut_readings(tmp_path):
 
 
 def test_a_header_without_the_explain_lever_resumes_with_readings():
-    assert resumed_and_new("explain", ladder="focus", levels=[2 / 9, 1.0]) == ("readings", "views")  # old, new
+    assert resumed_and_new("explain", ladder="focus", levels=[2 / 9, 1.0]) == ("readings", "crowds")  # old, new
 
 
 def test_the_explain_lever_is_schema_checked():

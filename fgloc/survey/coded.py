@@ -106,6 +106,7 @@ from fgloc.survey.clock import (
 from fgloc.survey.coded_clock import SequentialClock
 from fgloc.survey.coded_epipolar import EpipolarBand
 from fgloc.survey.coded_ladder import (
+    CROWD_READINGS,
     SEPARATION_PX,
     Blob,
     focused,
@@ -368,17 +369,22 @@ class CodedSurvey:
 
     def _unread(self, runner: SurveyRunner, camera: str, blobs: list[Blob], rung: int) -> list[Blob]:
         """``blobs`` but those at a reading of the camera's views up to refinement ``rung``
-        (:func:`fgloc.survey.coded_ladder.unread`) and, with ``explain "views"``, between two
-        refinement rungs, those another of those recordings resolved
-        (:func:`fgloc.survey.coded_ladder.resolved_elsewhere`). Not from the wide pass: at
-        1000 motes that lost motes the first tiles read (docs/blink-codes.md, "Blobs another
-        view resolved"); not for the fallback: no gain measured there."""
+        (:func:`fgloc.survey.coded_ladder.unread`) and, with ``explain "views"`` or ``"crowds"``,
+        between two refinement rungs, those another of those recordings resolved
+        (:func:`fgloc.survey.coded_ladder.resolved_elsewhere`). From the wide pass only with
+        ``"crowds"``, and only where that recording read a crowd (:data:`CROWD_READINGS`): with one
+        reading enough, motes the first tiles read were lost (docs/blink-codes.md, "Blobs another
+        view resolved", "Crowds another wide view read apart"). Not for the fallback: no gain
+        measured there."""
         at = functools.partial(self.intrinsics_at, camera)
+        explain = self.settings.explain
         with runner._state_lock:
             read = read_before(runner.state.views, camera, rung)
             kept = [blobs[k] for k in unread(blobs, read, at, [(camera, b) in self._merged for b in blobs])]
-            if self.settings.explain == "views" and 1 <= rung < len(self.levels):
-                done = resolved_elsewhere(kept, runner.state.views, camera, rung, at, self.survey_zoom[camera])
+            between = explain in ("views", "crowds") and 1 <= rung < len(self.levels)
+            if between or (explain == "crowds" and rung == 0):
+                done = resolved_elsewhere(kept, runner.state.views, camera, rung, at, self.survey_zoom[camera],
+                                          min_readings=1 if between else CROWD_READINGS)
                 kept = [b for b, d in zip(kept, done) if not d]
         return kept
 

@@ -45,7 +45,7 @@ from fgloc.core.geometry import pan_tilt_bearing
 
 Blob = tuple[tuple[float, float], tuple[float, float], float]  #: (u, v) px, head (pan, tilt), zoom of a refused blob
 LADDER_MODES = ("climb", "focus")
-EXPLAIN_MODES = ("readings", "views")
+EXPLAIN_MODES = ("readings", "views", "crowds")
 #: a blob of a rung's tile is the chased blob's (a member of its cluster) within this many pixels
 #: of the chased blob's own recording: twice the 6 px the tiles reach around it
 FOCUS_PX = 12.0
@@ -53,6 +53,10 @@ FOCUS_PX = 12.0
 EXPLAINED_PX = 1.5
 #: two LEDs closer than this (pixels of one recording) make one blob there (the decoder's separation)
 SEPARATION_PX = 6.0
+#: ``explain "crowds"``: a wide-pass blob is resolved only where another recording read this many
+#: motes or more in its clean neighbourhood (a crowd read apart; one reading there resolved a blob
+#: that held an isolated mote 8 px from it at 100 motes)
+CROWD_READINGS = 2
 _NEVER_DARK = "never dark"
 
 
@@ -161,16 +165,19 @@ def unread(found: Sequence[Blob], read: np.ndarray, intrinsics_at: Callable[[flo
 
 
 def resolved_elsewhere(found: Sequence[Blob], views: Mapping[tuple[str, str, int], Mapping[str, Any]], camera: str,
-                       rung: int, intrinsics_at: Callable[[float], CameraIntrinsics], survey_zoom: float) -> list[bool]:
+                       rung: int, intrinsics_at: Callable[[float], CameraIntrinsics], survey_zoom: float,
+                       min_readings: int = 1) -> list[bool]:
     """Which blobs of ``found`` another recording resolved (lever ``explain "views"``): a
     journaled recording of ``camera`` in the views before refinement rung ``rung + 1`` (as
     :func:`read_before`), from another head or zoom, at the blob's zoom or closer, that has
     the whole neighbourhood of the blob (:data:`SEPARATION_PX` of the blob's own recording)
-    inside its image, a reading in it, and no refused blob of any kind in it (a border cut
-    counts). Every LED that could have merged into the blob lies in that neighbourhood, and the
-    same camera sees the same motes from another view: there each was read, or it would have
-    left a refused blob there. Measured at 1000 motes: two LEDs merged in one tile, read apart
-    in the tile beside it (docs/blink-codes.md, "Blobs another view resolved")."""
+    inside its image, ``min_readings`` readings or more in it, and no refused blob of any kind
+    in it (a border cut counts). Every LED that could have merged into the blob lies in that
+    neighbourhood, and the same camera sees the same motes from another view: there each was
+    read, or it would have left a refused blob there. Measured at 1000 motes: two LEDs merged in
+    one tile, read apart in the tile beside it (docs/blink-codes.md, "Blobs another view
+    resolved"). ``explain "crowds"`` asks the wide pass's blobs for :data:`CROWD_READINGS`
+    (docs/blink-codes.md, "Crowds another wide view read apart")."""
     bound = (2, rung + 1, 0)
     others = []  # (head, zoom, intrinsics, readings' pixels, refused blobs' pixels) of each candidate recording
     for (cam, vid, _att), rec in views.items():
@@ -191,7 +198,7 @@ def resolved_elsewhere(found: Sequence[Blob], views: Mapping[tuple[str, str, int
             px, front = pan_tilt_to_pixel(intr, float(pan), float(tilt), *at)
             if not front or not (radius <= px[0] <= intr.width - radius and radius <= px[1] <= intr.height - radius):
                 continue
-            if _any_within(read_px, px, radius) and not _any_within(refused_px, px, radius):
+            if _count_within(read_px, px, radius) >= min_readings and not _any_within(refused_px, px, radius):
                 resolved = True
                 break
         out.append(resolved)
@@ -203,8 +210,12 @@ def _pixels(items: Sequence[Mapping[str, Any]]) -> np.ndarray:
     return np.array([(float(i["u"]), float(i["v"])) for i in items if "u" in i], dtype=float).reshape(-1, 2)
 
 
+def _count_within(pixels: np.ndarray, centre: np.ndarray, radius: float) -> int:
+    return int(np.count_nonzero(np.hypot(*(pixels - np.asarray(centre, float)).T) <= radius)) if len(pixels) else 0
+
+
 def _any_within(pixels: np.ndarray, centre: np.ndarray, radius: float) -> bool:
-    return bool(len(pixels)) and bool(np.any(np.hypot(*(pixels - np.asarray(centre, float)).T) <= radius))
+    return _count_within(pixels, centre, radius) > 0
 
 
 def light_before(views: Mapping[tuple[str, str, int], Mapping[str, Any]], camera: str, rung: int,

@@ -4,7 +4,7 @@ remembered by the journal, and the predicted fallback.
 rig.json ``"coded"`` (optional) and ``fgloc survey --coded KEY=VALUE`` choose them
 (:func:`coded_settings`; a new survey's defaults are :class:`~fgloc.survey.coded_settings.CodedSettings`'s,
 the measured fastest free of mislabels and misses: continue, round (fallback), probe on, pairs groups, short
-view-major rounds, ladder focus, decode fit, length adaptive, explain views, looks epipolar, searches paired,
+view-major rounds, ladder focus, decode fit, length adaptive, explain crowds, looks epipolar, searches paired,
 covers searched, first window kept, zoom moves together, zoom ladder 3x, 6x then 10x):
 
 * ``retry``: ``"burst"`` | ``"continue"`` (a retry goes on recording L frames, sliding windows);
@@ -27,7 +27,8 @@ covers searched, first window kept, zoom moves together, zoom ladder 3x, 6x then
 * ``length``: ``"fixed"`` | ``"adaptive"`` (a first recording stops at 2L + 2 samples when it leaves
   no blob unexplained, :func:`fgloc.survey.coded_recording.record_adaptive`);
 * ``explain``: ``"readings"`` | ``"views"`` (ladder focus: a blob whose neighbourhood another
-  recording of the camera read cleanly is explained too, :func:`~fgloc.survey.coded_ladder.resolved_elsewhere`);
+  recording of the camera read cleanly is explained too, :func:`~fgloc.survey.coded_ladder.resolved_elsewhere`)
+  | ``"crowds"`` (and a wide-pass blob where another recording read a crowd apart, cleanly);
 * ``looks``: ``"disk"`` | ``"epipolar"`` (the fallback searches a mote another camera read only at
   blobs near the epipolar plane of that reading, :mod:`fgloc.survey.coded_epipolar`);
 * ``searches``: ``"one"`` | ``"paired"`` (the fallback's one-camera searches of different cameras

@@ -86,9 +86,11 @@ class CodedSettings:
     #: ladder ``"focus"``: which blobs are explained before a rung: ``"readings"`` those within 1.5 px
     #: of a reading of the camera (merged blobs never); ``"views"``: between two refinement rungs,
     #: also a blob whose neighbourhood another recording of the camera read cleanly
-    #: (:func:`~fgloc.survey.coded_ladder.resolved_elsewhere`; the default); ``"readings"`` is the
-    #: default of journals written before this lever
-    explain: str = "views"
+    #: (:func:`~fgloc.survey.coded_ladder.resolved_elsewhere`; the default before stop 40);
+    #: ``"crowds"`` (the default): also a wide-pass blob whose clean neighbourhood another
+    #: recording read two motes or more in (a crowd read apart); ``"readings"`` is the default of
+    #: journals written before this lever
+    explain: str = "crowds"
     #: fallback ``"predicted"``/``"round"``: the blobs a camera searches for a mote another camera
     #: read: ``"disk"``: every unexplained blob within 3° of its predicted direction; ``"epipolar"``:
     #: of those, only the ones near the plane through both cameras and the reading's ray
