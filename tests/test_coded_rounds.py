@@ -178,12 +178,13 @@ def test_a_mote_predicted_off_its_merged_blob_is_still_read(tmp_path):
     count as explained (cam0 would have no blob left and n002 would be journaled not found
     without a search): every visible pair is read once, none mislabelled. Killed before,
     in the middle of and after the refinement (clean and torn), each resume ends with the
-    uncut run's readings and not-found records (the blob rule reads the journal only)."""
+    uncut run's readings and not-found records (the blob rule reads the journal only). With
+    explain "views": "crowds" leaves this scene one refinement tile, too few cuts to resume from."""
     from fgloc.drivers.inprocess_rig import InProcessRig
     from tests.conftest import load_script
 
     rig = load_script("coded_survey").rig_for(1, 100, 640, "coded", 502, 0.0,
-                                              {"video": "fields", "separate": "radio"}, True)
+                                              {"video": "fields", "separate": "radio", "explain": "views"}, True)
     _, resumed = cut_and_resume(rig, tmp_path, "r")
     state = read_journal(tmp_path / "full" / "journal.jsonl")
     scene = InProcessRig(rig).scene
