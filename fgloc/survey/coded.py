@@ -111,6 +111,7 @@ from fgloc.survey.coded_ladder import (
     Blob,
     focused,
     light_before,
+    may_record_again,
     never_dark,
     read_before,
     resolved_elsewhere,
@@ -334,6 +335,8 @@ class CodedSurvey:
             last = rec
             if not (retry_wanted(rec) if candidates is not None else needs_second_recording(rec)):
                 break
+            if not may_record_again(vid, self.settings.retries_at):
+                break  # a higher rung's tile or a fallback round view (coded_ladder.may_record_again)
             if candidates is None and self.settings.ladder == "focus" and not self._retry_helps(runner, camera, rec):
                 break  # every blob it leaves unexplained is a mote this camera read (coded_ladder.retry_helps)
         return last

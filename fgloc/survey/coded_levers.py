@@ -5,7 +5,7 @@ rig.json ``"coded"`` (optional) and ``fgloc survey --coded KEY=VALUE`` choose th
 (:func:`coded_settings`; a new survey's defaults are :class:`~fgloc.survey.coded_settings.CodedSettings`'s,
 the measured fastest free of mislabels and misses: continue, round (fallback), probe on, pairs groups, short
 view-major rounds, ladder focus, decode fit, length adaptive, explain crowds, looks epipolar, searches paired,
-covers searched, first window kept, zoom moves together, zoom ladder 3x, 6x then 10x):
+covers searched, first window kept, zoom moves together, retries at the first rung, zoom ladder 3x, 6x then 10x):
 
 * ``retry``: ``"burst"`` | ``"continue"`` (a retry goes on recording L frames, sliding windows);
 * ``separate``: ``"zoom"`` | ``"radio"`` (crowded motes paused by colour class first,
@@ -41,6 +41,8 @@ covers searched, first window kept, zoom moves together, zoom ladder 3x, 6x then
 * ``zoom_moves``: ``"apart"`` | ``"together"`` (a zoom to a new rung, or back to the survey zoom,
   runs during the move to the rung's first view on a head that can: the EVI-D100's two VISCA
   sockets, :meth:`fgloc.survey.coded.CodedSurvey.zooms_while_moving`);
+* ``retries_at``: ``"all"`` | ``"first_rung"`` (only the wide pass, the radio rounds and the first
+  refinement rung's tiles are recorded a second time, :func:`fgloc.survey.coded_ladder.may_record_again`);
 * ``levels``: the refinement zoom ladder, ascending fractions of the optical range (default
   ``[2/9, 5/9, 1]``: 3x, 6x, then 10x; ``[2/9, 1]`` before stop 39, which journals recorded).
 
@@ -50,7 +52,7 @@ value or ``--coded`` flag that names a lever with another value is refused in on
 flag or file, the lever, both values), never mixed in. A journal without recorded levers
 (written before they were recorded, or started as a sequential survey) resumes with
 :data:`LEGACY` (the defaults before this rule) overridden by rig.json and the flags, exactly as
-it resumed before. A lever added after a journal was written (``rounds``, ``round_order``, ``ladder``, ``decode``, ``length``, ``explain``, ``looks``, ``searches``, ``covers``, ``first_window``, ``zoom_moves``) and
+it resumed before. A lever added after a journal was written (``rounds``, ``round_order``, ``ladder``, ``decode``, ``length``, ``explain``, ``looks``, ``searches``, ``covers``, ``first_window``, ``zoom_moves``, ``retries_at``) and
 so missing from its recorded levers resumes with its :data:`LEGACY` value, the only one the
 survey that wrote it knew; a journal without a recorded ladder climbs :data:`LEGACY_LEVELS`.
 
@@ -73,7 +75,7 @@ from fgloc.core.geometry import pan_tilt_bearing
 from fgloc.files.journal import JournalState
 from fgloc.files.rig_config import RigConfig
 from fgloc.survey.coded_epipolar import LOOKS_MODES, half_separation, within_band
-from fgloc.survey.coded_ladder import EXPLAIN_MODES, LADDER_MODES, SEPARATION_PX
+from fgloc.survey.coded_ladder import EXPLAIN_MODES, LADDER_MODES, RETRIES_AT_MODES, SEPARATION_PX
 from fgloc.survey.coded_settings import CodedSettings
 from fgloc.survey.coded_views import distinct_directions
 
@@ -102,14 +104,14 @@ CHOICES = {"retry": RETRY_MODES, "separate": SEPARATE_MODES, "fallback": FALLBAC
            "probe": PROBE_MODES, "pairs": PAIRS_MODES, "rounds": ROUNDS_MODES, "round_order": ROUND_ORDERS,
            "ladder": LADDER_MODES, "decode": DECODE_MODES, "length": LENGTH_MODES, "explain": EXPLAIN_MODES,
            "looks": LOOKS_MODES, "searches": SEARCHES_MODES, "covers": COVERS_MODES,
-           "first_window": FIRST_WINDOW_MODES, "zoom_moves": ZOOM_MOVES_MODES}
+           "first_window": FIRST_WINDOW_MODES, "zoom_moves": ZOOM_MOVES_MODES, "retries_at": RETRIES_AT_MODES}
 #: the defaults before the journal recorded the levers: a journal without recorded levers resumes with these,
 #: and a lever a journal's header does not record (added after it was written) resumes with its value here
 LEGACY: dict[str, Any] = {"retry": "burst", "separate": "zoom", "fallback": "blobs", "video": "frames", "probe": "off",
                           "pairs": "off", "rounds": "full", "round_order": "class", "ladder": "climb",
                           "decode": "levels", "length": "fixed", "explain": "readings",
                           "looks": "disk", "searches": "one", "covers": "placed",
-                          "first_window": "dropped", "zoom_moves": "apart"}
+                          "first_window": "dropped", "zoom_moves": "apart", "retries_at": "all"}
 #: the zoom ladder of journals that recorded none (the default before ``(2/9, 1)``)
 LEGACY_LEVELS: tuple[float, ...] = (1 / 9, 3 / 9, 1.0)
 PREDICTED_RADIUS = math.radians(3.0)  #: a blob this close to a mote's predicted direction may hide it
