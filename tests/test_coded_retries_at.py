@@ -3,7 +3,7 @@
 
 * ``"first_rung"`` lets the wide pass, the radio rounds and the first refinement rung's tiles be
   recorded a second time, not a higher rung's tiles nor the fallback round's views; ``"all"``
-  every view.
+  every view; ``"wide"`` the wide pass and the radio rounds only.
 * On the 640 x 480 rig of scripts/coded_survey.py (200 motes, seed 2, fields) ``"all"`` records a
   6x tile twice; ``"first_rung"`` does not, records fewer frames above the first rung, and still
   reads every visible pair once, none mislabelled.
@@ -28,6 +28,7 @@ from tests.test_survey_coded_levers import survey_reads_every_visible_pair
 ])
 def test_only_views_up_to_the_first_rung_are_recorded_again(view: str, first_rung: bool) -> None:
     assert may_record_again(view, "first_rung") is first_rung
+    assert may_record_again(view, "wide") is (view[0] in "ws")
     assert may_record_again(view, "all")
 
 

@@ -46,7 +46,7 @@ from fgloc.core.geometry import pan_tilt_bearing
 Blob = tuple[tuple[float, float], tuple[float, float], float]  #: (u, v) px, head (pan, tilt), zoom of a refused blob
 LADDER_MODES = ("climb", "focus")
 EXPLAIN_MODES = ("readings", "views", "crowds")
-RETRIES_AT_MODES = ("all", "first_rung")
+RETRIES_AT_MODES = ("all", "first_rung", "wide")
 #: a blob of a rung's tile is the chased blob's (a member of its cluster) within this many pixels
 #: of the chased blob's own recording: twice the 6 px the tiles reach around it
 FOCUS_PX = 12.0
@@ -90,14 +90,14 @@ def view_order(view: str) -> tuple[int, int, int]:
 def may_record_again(view: str, retries_at: str) -> bool:
     """Whether view id ``view`` may be recorded a second time (lever ``retries_at``): ``"all"``
     every view; ``"first_rung"`` the wide pass, the radio rounds and the first refinement rung's
-    tiles only. A blob a higher rung's tile or a fallback round view leaves unexplained goes to the
+    tiles only; ``"wide"`` the wide pass and the radio rounds only. A blob a higher rung's tile or a fallback round view leaves unexplained goes to the
     next rung or the fallback instead: at 1000 motes 80 % of the second recordings at 6× and
     every one at 10× read nothing, and 29 of 31 in the fallback round (docs/blink-codes.md,
     "Second recordings only up to the first rung")."""
     if retries_at == "all":
         return True
     kind, rung, _k = view_order(view)
-    return kind < 2 or (kind == 2 and rung <= 1)
+    return kind < 2 or (retries_at == "first_rung" and kind == 2 and rung <= 1)
 
 
 def _readings_before(views: Mapping[tuple[str, str, int], Mapping[str, Any]], camera: str, rung: int,

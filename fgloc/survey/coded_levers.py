@@ -42,7 +42,8 @@ covers searched, first window kept, zoom moves together, retries at the first ru
   runs during the move to the rung's first view on a head that can: the EVI-D100's two VISCA
   sockets, :meth:`fgloc.survey.coded.CodedSurvey.zooms_while_moving`);
 * ``retries_at``: ``"all"`` | ``"first_rung"`` (only the wide pass, the radio rounds and the first
-  refinement rung's tiles are recorded a second time, :func:`fgloc.survey.coded_ladder.may_record_again`);
+  refinement rung's tiles are recorded a second time, :func:`fgloc.survey.coded_ladder.may_record_again`)
+  | ``"wide"`` (only the wide pass and the radio rounds);
 * ``levels``: the refinement zoom ladder, ascending fractions of the optical range (default
   ``[2/9, 5/9, 1]``: 3x, 6x, then 10x; ``[2/9, 1]`` before stop 39, which journals recorded).
 
