@@ -125,30 +125,30 @@ def test_a_neighbourhood_cut_by_the_image_border_resolves_nothing():
         assert resolved(k, blob, {("cam0", "r1-001", 0): recording(k, d, head, TILE, -1.0)}) is expected
 
 
-def test_views_records_fewer_refinement_frames_and_reads_every_visible_pair(tmp_path):
-    """The 320 x 240 rig on the default ladder (3x, 10x): tiles at 10x are not planned over
-    blobs the tile beside resolved at 3x; every visible pair is still read once, none mislabelled."""
+def rung_frames(tmp_path, explains: tuple[str, ...], rung: str) -> dict[str, int]:
+    """The 320 x 240 rig (60 motes, seed 3) surveyed with each of ``explains``: every visible pair
+    read once, none mislabelled; the frames each recorded in tiles of ``rung`` (``"r1"``, ...)."""
     frames = {}
-    for explain in ("readings", "views"):
+    for explain in explains:
         data = coded_rig(60, 320, seed=3)
         data["coded"] = {"explain": explain}
         out = tmp_path / explain
         survey_reads_every_visible_pair(parsed(data), out)
-        frames[explain] = sum(r["frames"] for r in view_records(out / "journal.jsonl") if r["view"].startswith("r2"))
+        frames[explain] = sum(r["frames"] for r in view_records(out / "journal.jsonl") if r["view"].startswith(rung))
+    return frames
+
+
+def test_views_records_fewer_refinement_frames_and_reads_every_visible_pair(tmp_path):
+    """The second rung's tiles (6x) are not planned over blobs the tile beside resolved at 3x;
+    every visible pair is still read once, none mislabelled."""
+    frames = rung_frames(tmp_path, ("readings", "views"), "r2")
     assert 0 < frames["views"] < frames["readings"], frames
 
 
 def test_crowds_records_fewer_first_rung_frames_and_reads_every_visible_pair(tmp_path):
-    """The 320 x 240 rig (60 motes, seed 3): 3x tiles are not planned over wide-pass blobs where
-    another wide view read a crowd apart cleanly; every visible pair is still read once, none
-    mislabelled."""
-    frames = {}
-    for explain in ("views", "crowds"):
-        data = coded_rig(60, 320, seed=3)
-        data["coded"] = {"explain": explain}
-        out = tmp_path / explain
-        survey_reads_every_visible_pair(parsed(data), out)
-        frames[explain] = sum(r["frames"] for r in view_records(out / "journal.jsonl") if r["view"].startswith("r1"))
+    """3x tiles are not planned over wide-pass blobs where another wide view read a crowd apart
+    cleanly; every visible pair is still read once, none mislabelled."""
+    frames = rung_frames(tmp_path, ("views", "crowds"), "r1")
     assert 0 < frames["crowds"] < frames["views"], frames
 
 
