@@ -36,7 +36,7 @@ from tests.test_survey_coded import EXAMPLE, clean_cuts, coded_rig, levels_rig, 
 NEW_DEFAULTS = {"retry": "continue", "separate": "zoom", "fallback": "round", "video": "frames", "probe": "on",
                 "pairs": "groups", "rounds": "short", "round_order": "view", "ladder": "focus", "decode": "fit", "length": "adaptive",
                 "explain": "crowds", "looks": "epipolar", "searches": "paired", "covers": "searched",
-                "first_window": "kept", "zoom_moves": "together", "retries_at": "first_rung"}
+                "first_window": "kept", "zoom_moves": "together", "retries_at": "wide"}
 
 
 def lines_of(path: Path) -> list[bytes]:

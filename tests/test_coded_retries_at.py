@@ -6,7 +6,8 @@
   every view; ``"wide"`` the wide pass and the radio rounds only.
 * On the 640 x 480 rig of scripts/coded_survey.py (200 motes, seed 2, fields) ``"all"`` records a
   6x tile twice; ``"first_rung"`` does not, records fewer frames above the first rung, and still
-  reads every visible pair once, none mislabelled.
+  reads every visible pair once, none mislabelled; ``"wide"`` (the default) records no refinement
+  tile or round view twice and reads every visible pair once.
 * A journal whose header predates the lever resumes with ``"all"``; the lever is schema-checked.
 """
 
@@ -41,7 +42,7 @@ def test_first_rung_records_no_higher_view_twice_and_reads_every_visible_pair(tm
 
     rig_for = load_script("coded_survey").rig_for
     again, frames = {}, {}
-    for retries_at in ("all", "first_rung"):
+    for retries_at in ("all", "first_rung", "wide"):
         rig = rig_for(2, 200, 640, "coded", 502, 0.0, {"video": "fields", "retries_at": retries_at}, True)
         survey_reads_every_visible_pair(rig, tmp_path / retries_at)
         recs = view_records(tmp_path / retries_at / "journal.jsonl")
@@ -50,10 +51,13 @@ def test_first_rung_records_no_higher_view_twice_and_reads_every_visible_pair(tm
     assert again["all"], "the scene should record a view above the first rung twice"
     assert again["first_rung"] == []
     assert frames["first_rung"] < frames["all"], frames
+    # the default: no refinement tile nor round view recorded twice
+    recs = view_records(tmp_path / "wide" / "journal.jsonl")
+    assert not [r["view"] for r in recs if r["attempt"] == 1 and r["view"][0] in "rf"]
 
 
 def test_a_header_without_the_retries_at_lever_resumes_with_all() -> None:
-    assert resumed_and_new("retries_at") == ("all", "first_rung")  # old, new
+    assert resumed_and_new("retries_at") == ("all", "wide")  # old, new
 
 
 def test_the_retries_at_lever_is_schema_checked() -> None:

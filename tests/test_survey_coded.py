@@ -45,9 +45,10 @@ def levels_rig(n_nodes: int = 12, width: int = 160, **simulation) -> dict:
     on the three-rung zoom ladder (2x, 4x, 10x; the default before ``[2/9, 1]``): the scenes
     whose retries, refinement views and continued recordings the tests below cut come from
     that decoder's misses, which the light-curve fit (``decode: fit``) reads, and from that
-    ladder's tiles."""
+    ladder's tiles; every view may be recorded a second time (``retries_at: all``, the default
+    before stop 40: the retries these scenes cut are a refinement tile's)."""
     data = coded_rig(n_nodes, width, **simulation)
-    data["coded"] = {"decode": "levels", "levels": [1 / 9, 3 / 9, 1.0]}
+    data["coded"] = {"decode": "levels", "levels": [1 / 9, 3 / 9, 1.0], "retries_at": "all"}
     return data
 
 

@@ -5,7 +5,7 @@ rig.json ``"coded"`` (optional) and ``fgloc survey --coded KEY=VALUE`` choose th
 (:func:`coded_settings`; a new survey's defaults are :class:`~fgloc.survey.coded_settings.CodedSettings`'s,
 the measured fastest free of mislabels and misses: continue, round (fallback), probe on, pairs groups, short
 view-major rounds, ladder focus, decode fit, length adaptive, explain crowds, looks epipolar, searches paired,
-covers searched, first window kept, zoom moves together, retries at the first rung, zoom ladder 3x, 6x then 10x):
+covers searched, first window kept, zoom moves together, retries in the wide pass only, zoom ladder 3x, 6x then 10x):
 
 * ``retry``: ``"burst"`` | ``"continue"`` (a retry goes on recording L frames, sliding windows);
 * ``separate``: ``"zoom"`` | ``"radio"`` (crowded motes paused by colour class first,

@@ -115,11 +115,11 @@ class CodedSettings:
     #: next view, on heads whose model zooms while moving and whose driver has ``move_and_zoom``
     #: (the default); ``"apart"``: zoom, then move (the default of journals written before this lever)
     zoom_moves: str = "together"
-    #: which views may be recorded a second time: ``"first_rung"``: the wide pass, the radio rounds
-    #: and the first refinement rung's tiles (:func:`~fgloc.survey.coded_ladder.may_record_again`;
-    #: the default); ``"all"``: every view (the default before stop 40, and of journals written before
-    #: this lever)
-    retries_at: str = "first_rung"
+    #: which views may be recorded a second time: ``"wide"``: the wide pass and the radio rounds
+    #: (:func:`~fgloc.survey.coded_ladder.may_record_again`; the default); ``"first_rung"``: also the
+    #: first refinement rung's tiles; ``"all"``: every view (the default before stop 40, and of
+    #: journals written before this lever)
+    retries_at: str = "wide"
 
     def view_decoder(self) -> DecoderConfig:
         """The decoder configuration of the views, as ``decode`` chooses."""
