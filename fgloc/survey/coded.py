@@ -336,7 +336,7 @@ class CodedSurvey:
             if not (retry_wanted(rec) if candidates is not None else needs_second_recording(rec)):
                 break
             if not may_record_again(vid, self.settings.retries_at):
-                break  # a higher rung's tile or a fallback round view (coded_ladder.may_record_again)
+                break  # a view the lever retries_at records once (coded_ladder.may_record_again)
             if candidates is None and self.settings.ladder == "focus" and not self._retry_helps(runner, camera, rec):
                 break  # every blob it leaves unexplained is a mote this camera read (coded_ladder.retry_helps)
         return last

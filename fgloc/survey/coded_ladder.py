@@ -55,8 +55,8 @@ EXPLAINED_PX = 1.5
 #: two LEDs closer than this (pixels of one recording) make one blob there (the decoder's separation)
 SEPARATION_PX = 6.0
 #: ``explain "crowds"``: a wide-pass blob is resolved only where another recording read this many
-#: motes or more in its clean neighbourhood (a crowd read apart; one reading there resolved a blob
-#: that held an isolated mote 8 px from it at 100 motes)
+#: motes or more in its clean neighbourhood (a crowd read apart). With one reading enough, two
+#: motes with a single read neighbour within 1 deg went unread at 100 motes
 CROWD_READINGS = 2
 _NEVER_DARK = "never dark"
 
@@ -90,10 +90,11 @@ def view_order(view: str) -> tuple[int, int, int]:
 def may_record_again(view: str, retries_at: str) -> bool:
     """Whether view id ``view`` may be recorded a second time (lever ``retries_at``): ``"all"``
     every view; ``"first_rung"`` the wide pass, the radio rounds and the first refinement rung's
-    tiles only; ``"wide"`` the wide pass and the radio rounds only. A blob a higher rung's tile or a fallback round view leaves unexplained goes to the
-    next rung or the fallback instead: at 1000 motes 80 % of the second recordings at 6× and
-    every one at 10× read nothing, and 29 of 31 in the fallback round (docs/blink-codes.md,
-    "Second recordings only up to the first rung")."""
+    tiles only; ``"wide"`` the wide pass and the radio rounds only. A blob a view not recorded
+    again leaves unexplained goes up the ladder or to the fallback instead. At 1000 motes 80 % of
+    the second recordings at 6×, every one at 10× and 29 of 31 in the fallback round read
+    nothing, and without those at 3× too the survey took 5.7 % less field time
+    (docs/blink-codes.md, "Second recordings only up to the first rung")."""
     if retries_at == "all":
         return True
     kind, rung, _k = view_order(view)
