@@ -27,8 +27,13 @@ views. The coded survey is then also solved with its views ignored (each reading
 independent with its total sigma), and every solve is scored by the node NEES (planar, 2
 dof) against truth: ANEES over all nodes of all seeds with its two-sided 95 % chi-square
 bounds (independent nodes assumed), and per seed, with the mean of the seeds' ANEES and its
-95 % interval over seeds (the honest spread: one scene's nodes share its camera-pose errors,
-so they are not independent samples). Usage::
+95 % interval over seeds (one scene's nodes share its camera-pose errors, so they are not
+independent samples); each scene's joint NEES under its joint node covariance
+(:mod:`fgloc.evaluate.joint_nees`, chi-square with 2N dof); and the ANEES against its
+two-sided 95 % bounds under those joint covariances, over all seeds and per seed from that
+scene alone (a scene's summed node NEES is the generalized chi-square ``sum_k lambda_k
+chi2_1``, ``lambda`` the eigenvalues of its joint covariance whitened by the nodes'
+marginals: :mod:`fgloc.evaluate.anees_bounds`). Usage::
 
     OPENBLAS_NUM_THREADS=1 python scripts/coded_survey.py --seeds 5 --motes 30 [--repeatability-deg 0.07]
     OPENBLAS_NUM_THREADS=1 python scripts/coded_survey.py --coded '{"separate": "radio"}' \
@@ -59,7 +64,8 @@ sys.path.insert(0, str(ROOT))
 
 from fgloc.core.model import Survey  # noqa: E402
 from fgloc.drivers.inprocess_rig import InProcessRig  # noqa: E402
-from fgloc.evaluate.joint_nees import joint_nees  # noqa: E402
+from fgloc.evaluate.anees_bounds import anees_bounds_of_eigenvalues, node_nees_eigenvalues  # noqa: E402
+from fgloc.evaluate.joint_nees import joint_nees_and_covariance  # noqa: E402
 from fgloc.evaluate.score import nees  # noqa: E402
 from fgloc.files.journal import read_journal  # noqa: E402
 from fgloc.files.rig_config import parse_rig  # noqa: E402
@@ -297,14 +303,20 @@ def without_views(survey: Survey) -> Survey:
                                          for o in survey.observations])
 
 
-def errors(survey: Survey, truth) -> tuple[list[float], list[float], tuple[float, int]]:  # noqa: ANN001
-    """(position errors, NEES) of the joint solve's nodes (planar, 2 dof), and the scene's
-    joint NEES with its dof (:func:`fgloc.evaluate.joint_nees.joint_nees`)."""
+def errors(survey: Survey, truth) -> tuple[list[float], list[float], tuple[float, int], np.ndarray]:  # noqa: ANN001
+    """(position errors, NEES) of the joint solve's nodes (planar, 2 dof), the scene's joint
+    NEES with its dof (:func:`fgloc.evaluate.joint_nees.joint_nees`), and the eigenvalues of
+    its joint node covariance whitened by the nodes' marginals
+    (:func:`fgloc.evaluate.anees_bounds.node_nees_eigenvalues`: the weights of the scene's
+    summed per-node NEES as a generalized chi-square)."""
     result = solve_survey(survey)
     ids = list(result.nodes)
     e = np.array([result.nodes[n].position[:2] - truth.nodes[n][:2] for n in ids])
     cov = np.array([result.nodes[n].covariance for n in ids])
-    return list(np.linalg.norm(e, axis=1)), list(nees(e, cov)), joint_nees(survey, result, truth.nodes)
+    value, dof, joint_cov, order = joint_nees_and_covariance(survey, result, truth.nodes)
+    if sorted(order) != sorted(ids):
+        raise RuntimeError("the joint covariance's nodes are not the result's nodes")
+    return list(np.linalg.norm(e, axis=1)), list(nees(e, cov)), (value, dof), node_nees_eigenvalues(joint_cov, 2)
 
 
 def run(seed: int, motes: int, width: int, mode: str, out: Path, fx: float | None = None,
@@ -339,8 +351,8 @@ def run(seed: int, motes: int, width: int, mode: str, out: Path, fx: float | Non
     state = read_journal(out / "journal.jsonl")
     decoded, wrong, far = labels(rig, sim.scene, state)
     truth = sim.scene.truth
-    err, nv, joint = errors(survey, truth)
-    err_iv, nv_iv, joint_iv = errors(without_views(survey), truth)
+    err, nv, joint, eig = errors(survey, truth)
+    err_iv, nv_iv, joint_iv, eig_iv = errors(without_views(survey), truth)
     seen = {(c, n) for (n, c, _) in state.observations}
     extra: dict = {}
     if mode != "sequential":
@@ -355,7 +367,7 @@ def run(seed: int, motes: int, width: int, mode: str, out: Path, fx: float | Non
     return extra | {"field": ft, "wall": wall, "readings": len(state.observations), "decoded": decoded, "wrong": wrong,
             "far": far, "missing": len(sim.scene.visible_pairs() - seen), "rms": float(np.sqrt(np.mean(np.square(err)))),
             "views": len(state.views), "err": err, "nees": nv, "err_iv": err_iv, "nees_iv": nv_iv,
-            "joint": joint, "joint_iv": joint_iv,
+            "joint": joint, "joint_iv": joint_iv, "eig": eig, "eig_iv": eig_iv,
             "named_views": len({o.view for o in survey.observations if o.view is not None})}
 
 
@@ -459,6 +471,22 @@ def joint_line(scenes: list[tuple[float, int]]) -> str:
             f"{'inside' if lo <= total / dof <= hi else 'OUTSIDE'})")
 
 
+def correlated_anees_line(scenes: list[list[float]], eigenvalues: list[np.ndarray]) -> str:
+    """The per-node ANEES (planar, 2 dof) against its two-sided 95 % bounds under the scenes'
+    joint covariances (:func:`fgloc.evaluate.anees_bounds.anees_bounds_of_eigenvalues`: a
+    scene's summed NEES is a generalized chi-square, the scenes independent), over all scenes
+    and per scene from its own eigenvalues."""
+    values = [v for scene in scenes for v in scene]
+    a = float(np.mean(values))
+    lo, hi = anees_bounds_of_eigenvalues(eigenvalues, 2)
+    per_scene = [(float(np.mean(v)), *anees_bounds_of_eigenvalues([e], 2)) for v, e in zip(scenes, eigenvalues)]
+    outside = sum(not s_lo <= s <= s_hi for s, s_lo, s_hi in per_scene)
+    return (f"    ANEES {a:.2f} under the scenes' joint covariances: 95 % bounds {lo:.2f}-{hi:.2f} "
+            f"({'inside' if lo <= a <= hi else 'OUTSIDE'}); per seed "
+            f"{' '.join(f'{s:.2f} ({s_lo:.2f}-{s_hi:.2f})' for s, s_lo, s_hi in per_scene)} "
+            f"({outside} of {len(per_scene)} outside its own bounds)")
+
+
 def _report(name: str, rows: dict[str, list[dict]], args: argparse.Namespace) -> None:
     """Per-seed breakdown, speed-up, RMS ratio and accuracy of the coded survey ``name``."""
     print(f"{name}:")
@@ -497,6 +525,7 @@ def _report(name: str, rows: dict[str, list[dict]], args: argparse.Namespace) ->
         print(f"    per-seed ANEES {' '.join(f'{a:.2f}' for a in per_seed)}; mean {statistics.mean(per_seed):.2f} "
               f"+- {half:.2f} (95 %, seeds as independent samples: a scene's nodes share its pose errors)")
         print(joint_line([r["joint" + key] for r in rs]))
+        print(correlated_anees_line([r["nees" + key] for r in rs], [r["eig" + key] for r in rs]))
     print(f"  pooled RMS ratio coded / sequential: views solved {_ratio(rows, 'err', name):.3f}, "
           f"views ignored {_ratio(rows, 'err_iv', name):.3f}")
 

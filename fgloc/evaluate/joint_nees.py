@@ -62,8 +62,18 @@ def joint_nees(survey: Survey, result: Result, truth_nodes: dict[str, np.ndarray
                options: SolverOptions = SolverOptions()) -> tuple[float, int]:
     """(joint NEES, its dof) of ``result``'s node positions against ``truth_nodes`` (node ->
     position, gauge frame): chi-square with dof = d N when the covariance is honest."""
+    value, dof, _covariance, _order = joint_nees_and_covariance(survey, result, truth_nodes, options)
+    return value, dof
+
+
+def joint_nees_and_covariance(survey: Survey, result: Result, truth_nodes: dict[str, np.ndarray],
+                              options: SolverOptions = SolverOptions()
+                              ) -> tuple[float, int, np.ndarray, list[str]]:
+    """:func:`joint_nees` (value, dof) with the joint covariance it used and that covariance's
+    node order (:func:`joint_node_covariance`), for callers that also need ``C`` (e.g.
+    :func:`fgloc.evaluate.anees_bounds.node_nees_eigenvalues`) without building it twice."""
     covariance, order = joint_node_covariance(survey, result, options)
     d = 2 if survey.mode is NodeMode.PLANAR else 3
     error = np.concatenate([np.asarray(result.nodes[n].position, float)[:d] - np.asarray(truth_nodes[n], float)[:d]
                             for n in order])
-    return float(error @ np.linalg.solve(covariance, error)), len(error)
+    return float(error @ np.linalg.solve(covariance, error)), len(error), covariance, order
