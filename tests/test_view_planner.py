@@ -11,10 +11,12 @@ from fgloc.camera.intrinsics import CameraIntrinsics
 from fgloc.survey.view_planner import (
     box_targets,
     coverage,
+    fewest_views,
     needed_from,
     neighbour_px,
     plan_refinement,
     plan_views,
+    whole_groups,
 )
 
 
@@ -35,6 +37,75 @@ def test_views_ordered_nearest_first_and_near_nadir_wide() -> None:
     views = plan_views(intr, targets)
     assert coverage(intr, targets, np.array(views), 12.0).any(axis=0).all()
     assert len(views) == 1
+
+
+def test_fewest_views_beats_greedy_where_greedy_takes_the_biggest_view_first() -> None:
+    # the classic trap: row 0 covers the most, but rows 1 and 2 alone cover everything
+    cov = np.array([[1, 1, 1, 1, 0, 0],
+                    [1, 1, 0, 0, 1, 0],
+                    [0, 0, 1, 1, 0, 1]], dtype=bool)
+    assert sorted(fewest_views(cov) or []) == [1, 2]
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_fewest_views_is_a_minimum_cover_by_brute_force(seed: int) -> None:
+    import itertools
+
+    rng = np.random.default_rng(seed)
+    cov = rng.random((9, 24)) < 0.25
+    need = cov.any(axis=0)
+    chosen = fewest_views(cov)
+    assert chosen is not None
+    assert cov[chosen].any(axis=0)[need].all()
+    smallest = next(k for k in range(1, 10) for rows in itertools.combinations(range(9), k)
+                    if cov[list(rows)].any(axis=0)[need].all())
+    assert len(chosen) == smallest
+
+
+def test_minimal_tiling_covers_a_steep_box_in_fewer_views() -> None:
+    # a search box like a benchmark camera's (scripts/coded_survey.py, 100 motes, seed 3, cam0):
+    # 95 deg of pan, tilt from -60 deg to 2 deg, a 640 x 480 image at fx 502 px
+    intr = CameraIntrinsics(fx=502.0, fy=502.0, cx=320.0, cy=240.0, width=640, height=480)
+    lo, hi = math.radians(-60.0), math.radians(2.0)
+    targets = box_targets(math.radians(-225.0), math.radians(-130.0), lo, hi, 0.7 * 16.0 / 502.0)
+    greedy = plan_views(intr, targets, 16.0, tilt_limits=(lo, hi))
+    fewest = plan_views(intr, targets, 16.0, tilt_limits=(lo, hi), minimal=True)
+    for views in (greedy, fewest):
+        assert coverage(intr, targets, np.array(views), 16.0).any(axis=0).all()
+    assert len(fewest) < len(greedy), (len(fewest), len(greedy))
+    assert plan_views(intr, targets, 16.0, tilt_limits=(lo, hi), minimal=True) == fewest  # the same plan again
+
+
+def test_whole_groups_counts_a_view_only_for_groups_it_covers_whole() -> None:
+    cov = np.array([[1, 1, 0, 0, 1],
+                    [0, 1, 1, 0, 0]], dtype=bool)
+    groups = np.array([0, 0, 1, 1, 2])
+    # group 0: view 0 whole; group 1: no view whole (targets 2, 3 stay columns); group 2: view 0
+    expected = np.array([[1, 1, 0, 0],
+                         [0, 0, 1, 0]], dtype=bool)
+    np.testing.assert_array_equal(whole_groups(cov, groups), expected)
+
+
+def test_grouped_minimal_tiles_never_split_a_blob_between_two_tiles() -> None:
+    # blobs as the zoom ladder chases them: each blob's 3 x 3 directions a few pixels apart;
+    # the fewest tiles over the directions alone split some blob between two tiles' borders
+    intr = CameraIntrinsics.from_fov(640, 480, 20.0)
+    rng = np.random.default_rng(3)  # a draw whose fewest loose tiles split a blob (most do not)
+    centres = np.column_stack([rng.uniform(-0.6, 0.6, 20), rng.uniform(-0.35, 0.0, 20)])
+    offsets = np.array([(dp, dt) for dp in (-0.004, 0.0, 0.004) for dt in (-0.004, 0.0, 0.004)])
+    targets = (centres[:, None, :] + offsets[None, :, :]).reshape(-1, 2)
+    groups = np.repeat(np.arange(len(centres)), len(offsets))
+
+    def split(views: list[tuple[float, float]]) -> int:
+        cov = coverage(intr, targets, np.array(views), 16.0)
+        return sum(not cov[:, groups == g].all(axis=1).any() for g in range(len(centres)))
+
+    loose = plan_views(intr, targets, 16.0, minimal=True)
+    whole = plan_views(intr, targets, 16.0, minimal=True, groups=groups)
+    assert coverage(intr, targets, np.array(whole), 16.0).any(axis=0).all()
+    assert split(loose) > 0  # the trap the groups avoid
+    assert split(whole) == 0
+    assert len(whole) == len(loose)  # here at no extra tile
 
 
 def test_nothing_to_cover() -> None:
