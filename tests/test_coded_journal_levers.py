@@ -36,7 +36,8 @@ from tests.test_survey_coded import EXAMPLE, clean_cuts, coded_rig, levels_rig, 
 NEW_DEFAULTS = {"retry": "continue", "separate": "zoom", "fallback": "round", "video": "frames", "probe": "on",
                 "pairs": "groups", "rounds": "short", "round_order": "view", "ladder": "focus", "decode": "fit", "length": "adaptive",
                 "explain": "crowds", "looks": "epipolar", "searches": "paired", "covers": "searched",
-                "first_window": "kept", "zoom_moves": "together", "retries_at": "wide"}
+                "first_window": "kept", "zoom_moves": "together", "retries_at": "wide",
+                "tiling": "minimal"}
 
 
 def lines_of(path: Path) -> list[bytes]:
@@ -221,7 +222,8 @@ def every_lever_journal(tmp_path_factory) -> list[dict]:
     plus radio separation (16 motes: continuations, probes, pair readings, short rounds)."""
     out = tmp_path_factory.mktemp("levers")
     data = coded_rig(16, width=160, seed=2)  # a scene with a continued recording (seed 1 needs none since pair decoding reads neighbours)
-    data["coded"] = {"separate": "radio", "decode": "levels"}  # the level decoder's misses give it its retries
+    # the level decoder's misses give it its retries; the greedy wide views, a continued recording
+    data["coded"] = {"separate": "radio", "decode": "levels", "tiling": "greedy"}
     rig = parsed(data)
     run_survey(rig, out, opened=opened(rig)[0])
     return [json.loads(x) for x in lines_of(out / "journal.jsonl")]

@@ -217,7 +217,7 @@ class CodedSurvey:
         targets = box_targets(s.pan_min, s.pan_max, s.tilt_min, s.tilt_max, step)
         home = (0.0, 0.5 * (s.tilt_min + s.tilt_max))
         views = plan_views(cam.intrinsics, targets, self.settings.margin_px, start=home,
-                           tilt_limits=(s.tilt_min, s.tilt_max))
+                           tilt_limits=(s.tilt_min, s.tilt_max), minimal=self.settings.tiling == "minimal")
         return [into_search_box(p, t, s.pan_min, s.pan_max, s.tilt_min, s.tilt_max) for p, t in views]
 
     def _lane_start(self, camera: str) -> float:
@@ -450,9 +450,11 @@ class CodedSurvey:
             pts = self.blob_directions(camera, blobs, spread_px=CLUSTER_SPREAD_PX)
             if not len(pts):
                 break
+            minimal = self.settings.tiling == "minimal"  # a blob's directions stay in one tile
             tiles = [into_search_box(p, t, s.pan_min, s.pan_max, s.tilt_min, s.tilt_max) for p, t in plan_views(
                 self.intrinsics_at(camera, level), pts, self.settings.margin_px, start=here,
-                tilt_limits=(s.tilt_min, s.tilt_max))]
+                tilt_limits=(s.tilt_min, s.tilt_max), minimal=minimal,
+                groups=np.repeat(np.arange(len(blobs)), len(pts) // len(blobs)) if minimal else None)]
             together = bool(tiles) and self.zooms_while_moving(runner, camera)
             if not together:
                 self.lanes[camera].append(Zoom(level - zoom))

@@ -53,7 +53,7 @@ value or ``--coded`` flag that names a lever with another value is refused in on
 flag or file, the lever, both values), never mixed in. A journal without recorded levers
 (written before they were recorded, or started as a sequential survey) resumes with
 :data:`LEGACY` (the defaults before this rule) overridden by rig.json and the flags, exactly as
-it resumed before. A lever added after a journal was written (``rounds``, ``round_order``, ``ladder``, ``decode``, ``length``, ``explain``, ``looks``, ``searches``, ``covers``, ``first_window``, ``zoom_moves``, ``retries_at``) and
+it resumed before. A lever added after a journal was written (``rounds``, ``round_order``, ``ladder``, ``decode``, ``length``, ``explain``, ``looks``, ``searches``, ``covers``, ``first_window``, ``zoom_moves``, ``retries_at``, ``tiling``) and
 so missing from its recorded levers resumes with its :data:`LEGACY` value, the only one the
 survey that wrote it knew; a journal without a recorded ladder climbs :data:`LEGACY_LEVELS`.
 
@@ -101,18 +101,21 @@ SEARCHES_MODES = ("one", "paired")
 COVERS_MODES = ("placed", "searched")
 FIRST_WINDOW_MODES = ("dropped", "kept")
 ZOOM_MOVES_MODES = ("apart", "together")
+TILING_MODES = ("greedy", "minimal")
 CHOICES = {"retry": RETRY_MODES, "separate": SEPARATE_MODES, "fallback": FALLBACK_MODES, "video": VIDEO_MODES,
            "probe": PROBE_MODES, "pairs": PAIRS_MODES, "rounds": ROUNDS_MODES, "round_order": ROUND_ORDERS,
            "ladder": LADDER_MODES, "decode": DECODE_MODES, "length": LENGTH_MODES, "explain": EXPLAIN_MODES,
            "looks": LOOKS_MODES, "searches": SEARCHES_MODES, "covers": COVERS_MODES,
-           "first_window": FIRST_WINDOW_MODES, "zoom_moves": ZOOM_MOVES_MODES, "retries_at": RETRIES_AT_MODES}
+           "first_window": FIRST_WINDOW_MODES, "zoom_moves": ZOOM_MOVES_MODES, "retries_at": RETRIES_AT_MODES,
+           "tiling": TILING_MODES}
 #: the defaults before the journal recorded the levers: a journal without recorded levers resumes with these,
 #: and a lever a journal's header does not record (added after it was written) resumes with its value here
 LEGACY: dict[str, Any] = {"retry": "burst", "separate": "zoom", "fallback": "blobs", "video": "frames", "probe": "off",
                           "pairs": "off", "rounds": "full", "round_order": "class", "ladder": "climb",
                           "decode": "levels", "length": "fixed", "explain": "readings",
                           "looks": "disk", "searches": "one", "covers": "placed",
-                          "first_window": "dropped", "zoom_moves": "apart", "retries_at": "all"}
+                          "first_window": "dropped", "zoom_moves": "apart", "retries_at": "all",
+                          "tiling": "greedy"}
 #: the zoom ladder of journals that recorded none (the default before ``(2/9, 1)``)
 LEGACY_LEVELS: tuple[float, ...] = (1 / 9, 3 / 9, 1.0)
 PREDICTED_RADIUS = math.radians(3.0)  #: a blob this close to a mote's predicted direction may hide it

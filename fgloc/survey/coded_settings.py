@@ -120,6 +120,10 @@ class CodedSettings:
     #: first refinement rung's tiles; ``"all"``: every view (the default before stop 40, and of
     #: journals written before this lever)
     retries_at: str = "wide"
+    #: how the wide pass's views are chosen over the search box: ``"minimal"``: the fewest views
+    #: that cover it (:func:`~fgloc.survey.view_planner.fewest_views`); ``"greedy"``: each next view
+    #: the one covering the most still uncovered (the default of journals written before this lever)
+    tiling: str = "minimal"
 
     def view_decoder(self) -> DecoderConfig:
         """The decoder configuration of the views, as ``decode`` chooses."""
