@@ -120,10 +120,11 @@ class CodedSettings:
     #: first refinement rung's tiles; ``"all"``: every view (the default before stop 40, and of
     #: journals written before this lever)
     retries_at: str = "wide"
-    #: how the wide pass's views are chosen over the search box: ``"minimal"``: the fewest views
-    #: that cover it (:func:`~fgloc.survey.view_planner.fewest_views`); ``"greedy"``: each next view
-    #: the one covering the most still uncovered (the default of journals written before this lever)
-    tiling: str = "minimal"
+    #: how the wide pass's views and each rung's tiles are chosen: ``"minimal"``: the fewest that
+    #: cover what they must, a chased blob whole in one tile
+    #: (:func:`~fgloc.survey.view_planner.fewest_views`); ``"greedy"`` (the default, and of journals
+    #: written before this lever): each next view the one covering the most still uncovered
+    tiling: str = "greedy"
 
     def view_decoder(self) -> DecoderConfig:
         """The decoder configuration of the views, as ``decode`` chooses."""
