@@ -1,5 +1,5 @@
 """The ``tiling`` lever (fgloc/survey/view_planner.py ``fewest_views``; docs/blink-codes.md
-"The fewest wide views").
+"The fewest views").
 
 * On the 640 x 480 rig of scripts/coded_survey.py (100 motes, seed 3, fields) the greedy cover
   records six wide views per camera; ``"minimal"`` records four, covers each camera's search box
