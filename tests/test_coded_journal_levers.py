@@ -37,7 +37,7 @@ NEW_DEFAULTS = {"retry": "continue", "separate": "zoom", "fallback": "round", "v
                 "pairs": "groups", "rounds": "short", "round_order": "view", "ladder": "focus", "decode": "fit", "length": "adaptive",
                 "explain": "crowds", "looks": "epipolar", "searches": "paired", "covers": "searched",
                 "first_window": "kept", "zoom_moves": "together", "retries_at": "wide",
-                "tiling": "greedy"}
+                "tiling": "minimal"}
 
 
 def lines_of(path: Path) -> list[bytes]:

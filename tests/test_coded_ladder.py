@@ -215,8 +215,9 @@ def ladder_rig(n: int, width: int, ladder: str, seed: int = 1) -> dict:
     data = coded_rig(n, width, seed=seed)
     # the level decoder's misses make these scenes climb; explain "views": with "crowds" the 160 px
     # scene's one 3x tile of cam1 falls where it reads nothing (docs/blink-codes.md, "Crowds another
-    # wide view read apart"), and this compares the ladders, not the explain rules
-    data["coded"] = {"ladder": ladder, "decode": "levels", "explain": "views"}
+    # wide view read apart"), and this compares the ladders, not the explain rules; tiling
+    # "greedy": with the fewest tiles the 160 px scene's ladders record the same frames
+    data["coded"] = {"ladder": ladder, "decode": "levels", "explain": "views", "tiling": "greedy"}
     return data
 
 

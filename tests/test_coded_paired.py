@@ -132,10 +132,10 @@ def _scene(searches: str, tmp_path: Path):
     """100 motes, 30 % of the pairs occluded (seed 3): after the round, cam0 and cam1 each
     search one node the other read (zooms apart from moves: the recordings start at the clock
     times this scene was chosen at; explain "views": with "crowds" the ladder leaves this scene no
-    pair to search). Returns the readings ((camera, node) -> (pan, tilt)), the
+    pair to search; tiling "greedy": with the fewest views the fallback lights no pair). Returns the readings ((camera, node) -> (pan, tilt)), the
     pairs journaled not found, the fallback's field-time records, the rig and the journal."""
     data = coded_rig(100, 320, occlusion=0.3, seed=3)
-    data["coded"] = {"searches": searches, "zoom_moves": "apart", "explain": "views"}
+    data["coded"] = {"searches": searches, "zoom_moves": "apart", "explain": "views", "tiling": "greedy"}
     rig = parsed(data)
     rig_opened, sim = opened(rig)
     out = tmp_path / searches

@@ -43,7 +43,9 @@ def test_first_rung_records_no_higher_view_twice_and_reads_every_visible_pair(tm
     rig_for = load_script("coded_survey").rig_for
     again, frames = {}, {}
     for retries_at in ("all", "first_rung", "wide"):
-        rig = rig_for(2, 200, 640, "coded", 502, 0.0, {"video": "fields", "retries_at": retries_at}, True)
+        # tiling "greedy": with the fewest tiles no view above the first rung is recorded twice here
+        rig = rig_for(2, 200, 640, "coded", 502, 0.0, {"video": "fields", "retries_at": retries_at, "tiling": "greedy"},
+                      True)
         survey_reads_every_visible_pair(rig, tmp_path / retries_at)
         recs = view_records(tmp_path / retries_at / "journal.jsonl")
         again[retries_at] = [r["view"] for r in recs if r["attempt"] == 1 and _above_first_rung(r["view"])]

@@ -39,7 +39,7 @@ def test_minimal_tiling_records_fewer_wide_views_and_reads_every_visible_pair(tm
 
 
 def test_a_header_without_the_tiling_lever_resumes_with_greedy() -> None:
-    assert resumed_and_new("tiling") == ("greedy", "greedy")  # old, new (minimal is an option)
+    assert resumed_and_new("tiling") == ("greedy", "minimal")  # old, new
     assert resumed_and_new("tiling", tiling="minimal")[0] == "minimal"  # a journal that recorded it
 
 

@@ -54,6 +54,7 @@ def test_a_refined_camera_zooms_back_on_its_lane_only_in_the_longest_lane_s_slac
         tmp_path, monkeypatch, head_log):
     data = levels_rig(12, width=160)
     data["coded"]["zoom_moves"] = "apart"  # each zoom its own operation on the lane (together: the next test)
+    data["coded"]["tiling"] = "greedy"  # with the fewest tiles no zoom back fits in the slack
     rig = parsed(data)
     lanes = _lanes_at_the_end(monkeypatch)
     rig_opened, sim = opened(rig)
@@ -182,7 +183,8 @@ def test_a_survey_resumed_after_the_ladder_still_prices_the_owed_zoom_back(tmp_p
     searches price equals the uncut survey's. Scene: 60 motes, 40 % of the pairs occluded
     (tests/test_coded_fallback_order.py), whose fallback searches with a camera that ended zoomed in."""
     data = coded_rig(60, 320, occlusion=0.4, seed=2)
-    data["coded"] = {"fallback": "predicted", "decode": "levels", "length": "fixed", "ladder": "climb",
+    # tiling "greedy": with the fewest tiles no fallback search pays a zoom back the ladder left owed
+    data["coded"] = {"fallback": "predicted", "decode": "levels", "length": "fixed", "ladder": "climb", "tiling": "greedy",
                      "levels": [2 / 9, 1.0]}
     rig = parsed(data)
     full, cut = tmp_path / "full", tmp_path / "cut"

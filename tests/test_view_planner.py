@@ -76,6 +76,23 @@ def test_minimal_tiling_covers_a_steep_box_in_fewer_views() -> None:
     assert plan_views(intr, targets, 16.0, tilt_limits=(lo, hi), minimal=True) == fewest  # the same plan again
 
 
+def test_a_greedy_cover_larger_than_the_limit_is_kept(monkeypatch) -> None:
+    # the steep box's greedy cover (6 views) above a limit of 5: kept as it is, no integer program
+    import fgloc.survey.view_planner as vp
+
+    intr = CameraIntrinsics(fx=502.0, fy=502.0, cx=320.0, cy=240.0, width=640, height=480)
+    lo, hi = math.radians(-60.0), math.radians(2.0)
+    targets = box_targets(math.radians(-225.0), math.radians(-130.0), lo, hi, 0.7 * 16.0 / 502.0)
+    greedy = plan_views(intr, targets, 16.0, tilt_limits=(lo, hi))
+    solved: list[int] = []
+    monkeypatch.setattr(vp, "fewest_views", lambda cov: solved.append(len(cov)) or None)
+    monkeypatch.setattr(vp, "FEWEST_MAX_VIEWS", len(greedy) - 1)
+    assert plan_views(intr, targets, 16.0, tilt_limits=(lo, hi), minimal=True) == greedy and solved == []
+    monkeypatch.setattr(vp, "FEWEST_MAX_VIEWS", len(greedy))
+    plan_views(intr, targets, 16.0, tilt_limits=(lo, hi), minimal=True)
+    assert len(solved) == 1  # at the limit the program runs
+
+
 def test_whole_groups_counts_a_view_only_for_groups_it_covers_whole() -> None:
     cov = np.array([[1, 1, 0, 0, 1],
                     [0, 1, 1, 0, 0]], dtype=bool)

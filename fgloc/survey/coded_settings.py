@@ -124,7 +124,7 @@ class CodedSettings:
     #: cover what they must, a chased blob whole in one tile
     #: (:func:`~fgloc.survey.view_planner.fewest_views`); ``"greedy"`` (the default, and of journals
     #: written before this lever): each next view the one covering the most still uncovered
-    tiling: str = "greedy"
+    tiling: str = "minimal"
 
     def view_decoder(self) -> DecoderConfig:
         """The decoder configuration of the views, as ``decode`` chooses."""
