@@ -122,8 +122,9 @@ class CodedSettings:
     retries_at: str = "wide"
     #: how the wide pass's views and each rung's tiles are chosen: ``"minimal"``: the fewest that
     #: cover what they must, a chased blob whole in one tile
-    #: (:func:`~fgloc.survey.view_planner.fewest_views`); ``"greedy"`` (the default, and of journals
-    #: written before this lever): each next view the one covering the most still uncovered
+    #: (:func:`~fgloc.survey.view_planner.fewest_views`; the default, but a greedy cover of more than
+    #: :data:`~fgloc.survey.view_planner.FEWEST_MAX_VIEWS` views is kept); ``"greedy"`` (the default of
+    #: journals written before this lever): each next view the one covering the most still uncovered
     tiling: str = "minimal"
 
     def view_decoder(self) -> DecoderConfig:

@@ -106,7 +106,7 @@ def whole_groups(cov: np.ndarray, groups: np.ndarray) -> np.ndarray:
 #: one is kept. A count, so the plan does not depend on the machine. A large cover is where the
 #: integer program stalls: the example rig's 340 x 113 deg box at a 40 deg field of view (2170
 #: candidate views, greedy 59) had no proven optimum after 2 minutes, still at the root node.
-#: The benchmark cameras' covers (scripts/coded_survey.py) take 2-9 views.
+#: The benchmark's greedy covers (scripts/coded_survey.py, wide passes and rungs) take 1-14 views.
 FEWEST_MAX_VIEWS = 24
 
 #: branch-and-bound nodes :func:`fewest_views` may explore (a count, not a time: the plan must not
