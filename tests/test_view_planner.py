@@ -62,12 +62,17 @@ def test_fewest_views_is_a_minimum_cover_by_brute_force(seed: int) -> None:
     assert len(chosen) == smallest
 
 
-def test_minimal_tiling_covers_a_steep_box_in_fewer_views() -> None:
-    # a search box like a benchmark camera's (scripts/coded_survey.py, 100 motes, seed 3, cam0):
-    # 95 deg of pan, tilt from -60 deg to 2 deg, a 640 x 480 image at fx 502 px
+def _steep_box() -> tuple[CameraIntrinsics, np.ndarray, tuple[float, float]]:
+    """A search box like a benchmark camera's (scripts/coded_survey.py, 100 motes, seed 3, cam0):
+    95 deg of pan, tilt from -60 deg to 2 deg, a 640 x 480 image at fx 502 px; (intrinsics,
+    targets, tilt limits)."""
     intr = CameraIntrinsics(fx=502.0, fy=502.0, cx=320.0, cy=240.0, width=640, height=480)
     lo, hi = math.radians(-60.0), math.radians(2.0)
-    targets = box_targets(math.radians(-225.0), math.radians(-130.0), lo, hi, 0.7 * 16.0 / 502.0)
+    return intr, box_targets(math.radians(-225.0), math.radians(-130.0), lo, hi, 0.7 * 16.0 / 502.0), (lo, hi)
+
+
+def test_minimal_tiling_covers_a_steep_box_in_fewer_views() -> None:
+    intr, targets, (lo, hi) = _steep_box()
     greedy = plan_views(intr, targets, 16.0, tilt_limits=(lo, hi))
     fewest = plan_views(intr, targets, 16.0, tilt_limits=(lo, hi), minimal=True)
     for views in (greedy, fewest):
@@ -80,9 +85,7 @@ def test_a_greedy_cover_larger_than_the_limit_is_kept(monkeypatch) -> None:
     # the steep box's greedy cover (6 views) above a limit of 5: kept as it is, no integer program
     import fgloc.survey.view_planner as vp
 
-    intr = CameraIntrinsics(fx=502.0, fy=502.0, cx=320.0, cy=240.0, width=640, height=480)
-    lo, hi = math.radians(-60.0), math.radians(2.0)
-    targets = box_targets(math.radians(-225.0), math.radians(-130.0), lo, hi, 0.7 * 16.0 / 502.0)
+    intr, targets, (lo, hi) = _steep_box()
     greedy = plan_views(intr, targets, 16.0, tilt_limits=(lo, hi))
     solved: list[int] = []
     monkeypatch.setattr(vp, "fewest_views", lambda cov: solved.append(len(cov)) or None)
