@@ -82,7 +82,7 @@ def test_minimal_tiling_covers_a_steep_box_in_fewer_views() -> None:
 
 
 def test_a_greedy_cover_larger_than_the_limit_is_kept(monkeypatch) -> None:
-    # the steep box's greedy cover (6 views) above a limit of 5: kept as it is, no integer program
+    # the steep box's greedy cover (5 views) above a limit of 4: kept as it is, no integer program
     import fgloc.survey.view_planner as vp
 
     intr, targets, (lo, hi) = _steep_box()
