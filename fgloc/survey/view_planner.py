@@ -105,7 +105,7 @@ def whole_groups(cov: np.ndarray, groups: np.ndarray) -> np.ndarray:
 #: the largest greedy cover :func:`plan_views` tries to shrink with :func:`fewest_views`; a larger
 #: one is kept. A count, so the plan does not depend on the machine. A large cover is where the
 #: integer program stalls: the example rig's 340 x 113 deg box at a 40 deg field of view (2170
-#: candidate views, greedy 59) had no proven optimum after 2 minutes, still at the root node.
+#: candidate views, greedy 59) had not returned after several minutes in the test suite.
 #: The benchmark's greedy covers (scripts/coded_survey.py, wide passes and rungs) take 1-14 views.
 FEWEST_MAX_VIEWS = 24
 
